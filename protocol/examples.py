@@ -1,0 +1,117 @@
+"""One realistic message of each type, with the key it travels on: for docs, checks and tests."""
+
+from __future__ import annotations
+
+import time
+
+from protocol.keys import robot_key, teacher_key
+from protocol.messages import (
+    Action,
+    Alternative,
+    AudioChunk,
+    Credit,
+    CreditedFeedback,
+    EpisodeEvent,
+    LearningSummary,
+    Message,
+    Observation,
+    Utterance,
+)
+
+
+def example_messages(
+    session: str, robot: str = "r1", teacher: str = "ana"
+) -> list[tuple[str, Message]]:
+    now = time.time()
+    said = Utterance(
+        teacher=teacher,
+        robot=robot,
+        text="muy bien",
+        confidence=0.87,
+        onset=now - 1.2,
+        end=now - 0.7,
+        recognized_at=now - 0.4,
+        engine="mock",
+        language="es",
+        alternatives=(Alternative(text="muy mal", confidence=0.08),),
+    )
+    return [
+        (
+            robot_key(session, robot, "obs"),
+            Observation(
+                robot=robot,
+                episode=3,
+                step=412,
+                episode_step=57,
+                sim_time=41.2,
+                wall_time=now,
+                x=1.25,
+                y=-0.5,
+                theta=0.78,
+                v=0.4,
+                omega=-0.2,
+                laser=(4.0,) * 180,
+                sonar=(1.5,) * 8,
+                reward=-1.0,
+            ),
+        ),
+        (
+            robot_key(session, robot, "action"),
+            Action(
+                robot=robot, episode=3, step=412, discrete=1, v=0.45, omega=0.1, chooser="policy"
+            ),
+        ),
+        (
+            robot_key(session, robot, "episode"),
+            EpisodeEvent(
+                robot=robot,
+                episode=3,
+                step=460,
+                kind="goal",
+                episode_steps=105,
+                sim_time=46.0,
+                wall_time=now,
+                env_return=-4.0,
+            ),
+        ),
+        (
+            teacher_key(session, teacher, "audio"),
+            AudioChunk(
+                teacher=teacher,
+                robot=robot,
+                stream="mic-1",
+                seq=17,
+                sample_rate=16000,
+                pcm=bytes(1600),
+                capture_time=now - 0.05,
+                final=False,
+            ),
+        ),
+        (teacher_key(session, teacher, "utterance"), said),
+        (
+            robot_key(session, robot, "feedback"),
+            CreditedFeedback(
+                robot=robot,
+                kind="reward",
+                reward=50.0,
+                command=None,
+                credits=(Credit(step=405, weight=0.6), Credit(step=406, weight=0.4)),
+                sources=(said.id,),
+                teachers=(teacher,),
+            ),
+        ),
+        (
+            robot_key(session, robot, "learning"),
+            LearningSummary(
+                robot=robot,
+                episode=3,
+                step=412,
+                state=17,
+                states=64,
+                q_values=(0.0, 12.5, -3.0, 4.25, 1.0),
+                td_error=0.75,
+                epsilon=0.1,
+                reward=49.0,
+            ),
+        ),
+    ]

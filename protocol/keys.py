@@ -1,0 +1,126 @@
+"""Key expressions of the bus, and which message type travels on each.
+
+voxshape/<session>/robot/<robot>/obs           simulator -> *
+voxshape/<session>/robot/<robot>/action        learner/teacher -> simulator
+voxshape/<session>/robot/<robot>/episode       simulator -> *
+voxshape/<session>/robot/<robot>/feedback      arbiter -> learner
+voxshape/<session>/robot/<robot>/learning      learner -> logger
+voxshape/<session>/teacher/<teacher>/audio     teacher -> speech
+voxshape/<session>/teacher/<teacher>/utterance speech/teacher -> arbiter
+voxshape/<session>/presence/<role>/<node>      liveliness token of every running node
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from typing import Literal
+
+from protocol.messages import (
+    ID_HINT,
+    ID_PATTERN,
+    Action,
+    AudioChunk,
+    CreditedFeedback,
+    EpisodeEvent,
+    LearningSummary,
+    Message,
+    Observation,
+    Utterance,
+)
+from protocol.schema import ProtocolError
+
+ROOT = "voxshape"
+
+ROBOT_TOPICS: dict[str, type[Message]] = {
+    "obs": Observation,
+    "action": Action,
+    "episode": EpisodeEvent,
+    "feedback": CreditedFeedback,
+    "learning": LearningSummary,
+}
+TEACHER_TOPICS: dict[str, type[Message]] = {
+    "audio": AudioChunk,
+    "utterance": Utterance,
+}
+SCOPES: dict[str, dict[str, type[Message]]] = {"robot": ROBOT_TOPICS, "teacher": TEACHER_TOPICS}
+
+Scope = Literal["robot", "teacher", "presence"]
+_ID = re.compile(ID_PATTERN)
+
+
+def check_id(value: object, what: str) -> str:
+    """Returns `value` if it is safe as one key-expression chunk, else raises ProtocolError."""
+    if not isinstance(value, str):
+        raise ProtocolError(what, f"expected a str id, got {type(value).__name__}")
+    if not _ID.fullmatch(value):
+        bad = sorted({c for c in value if c in "/*$?#@ "})
+        why = f"contains {' '.join(repr(c) for c in bad)}" if bad else "is not a valid id"
+        raise ProtocolError(what, f"{value!r} {why}: {ID_HINT}")
+    return value
+
+
+def _topic(scope: str, topic: str) -> str:
+    if topic not in SCOPES[scope]:
+        known = ", ".join(SCOPES[scope])
+        raise ProtocolError("topic", f"unknown {scope} topic {topic!r}; known: {known}")
+    return topic
+
+
+def robot_key(session: str, robot: str, topic: str) -> str:
+    """`voxshape/<session>/robot/<robot>/<topic>`; `robot="*"` subscribes to every robot."""
+    robot = robot if robot == "*" else check_id(robot, "robot")
+    return f"{ROOT}/{check_id(session, 'session')}/robot/{robot}/{_topic('robot', topic)}"
+
+
+def teacher_key(session: str, teacher: str, topic: str) -> str:
+    """`voxshape/<session>/teacher/<teacher>/<topic>`; `teacher="*"` for every teacher."""
+    teacher = teacher if teacher == "*" else check_id(teacher, "teacher")
+    return f"{ROOT}/{check_id(session, 'session')}/teacher/{teacher}/{_topic('teacher', topic)}"
+
+
+def presence_key(session: str, role: str = "*", node: str = "*") -> str:
+    """Liveliness token key of a node; wildcards (the defaults) for watching."""
+    role = role if role == "*" else check_id(role, "role")
+    node = node if node == "*" else check_id(node, "node")
+    return f"{ROOT}/{check_id(session, 'session')}/presence/{role}/{node}"
+
+
+def session_keys(session: str) -> str:
+    """Everything published in a session."""
+    return f"{ROOT}/{check_id(session, 'session')}/**"
+
+
+@dataclass(frozen=True)
+class Key:
+    """A parsed key: `owner` is the robot, teacher or (for presence) role; `name` the topic
+    or (for presence) node id."""
+
+    session: str
+    scope: Scope
+    owner: str
+    name: str
+
+    @property
+    def message_type(self) -> type[Message] | None:
+        """The type carried on this key (None for presence tokens, which carry nothing)."""
+        return SCOPES[self.scope][self.name] if self.scope in SCOPES else None
+
+
+def parse_key(key: str) -> Key:
+    """Parses a concrete key of the bus; raises ProtocolError saying what does not fit."""
+    parts = str(key).split("/")
+    if len(parts) != 5 or parts[0] != ROOT:
+        raise ProtocolError("key", f"{key!r} is not {ROOT}/<session>/<scope>/<id>/<name>")
+    _, session, scope, owner, name = parts
+    check_id(session, "session")
+    check_id(owner, "role" if scope == "presence" else scope)
+    if scope == "presence":
+        check_id(name, "node")
+    elif scope in SCOPES:
+        _topic(scope, name)
+    else:
+        raise ProtocolError(
+            "key", f"unknown scope {scope!r} in {key!r}; known: robot, teacher, presence"
+        )
+    return Key(session, scope, owner, name)  # type: ignore[arg-type]

@@ -1,0 +1,235 @@
+"""Every message that travels on the voxshape bus, with the bounds of each field.
+
+Each message carries the envelope fields of `Message` (a unique `id` for dedupe, the `sender`
+node and the sender's clock `sent_at`); the codec adds the schema version and type tag.
+Times are seconds: `*_time`/`sent_at`/`onset`/`end` are Unix wall-clock seconds on the clock
+of whoever produced them, `sim_time` is simulated seconds since the simulator started.
+Angles are radians, distances metres, velocities m/s and rad/s.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import uuid
+from dataclasses import dataclass, field
+from typing import Annotated, ClassVar, Literal
+
+from protocol.schema import Match, ProtocolError, Range, Size
+
+# Ids of sessions, robots, teachers and nodes become key-expression chunks: no '/', '*', '$',
+# '?', '#', spaces or leading '@' (zenoh reserves them).
+ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
+ID_HINT = "use 1-64 of A-Z a-z 0-9 _ - . starting with a letter or digit"
+
+Id = Annotated[str, Match(ID_PATTERN, ID_HINT)]
+MessageId = Annotated[str, Match(r"[0-9a-f]{32}", "32 lowercase hex digits (uuid4().hex)")]
+Count = Annotated[int, Range(0, 2**31 - 1)]
+WallTime = Annotated[float, Range(0.0, 1e11)]
+SimTime = Annotated[float, Range(0.0, 1e9)]
+Metres = Annotated[float, Range(-1e4, 1e4)]
+Heading = Annotated[float, Range(-math.pi, math.pi)]
+Speed = Annotated[float, Range(-10.0, 10.0)]
+TurnRate = Annotated[float, Range(-20.0, 20.0)]
+Reward = Annotated[float, Range(-1e6, 1e6)]
+Range01 = Annotated[float, Range(0.0, 1.0)]
+Text = Annotated[str, Size(max=500)]
+Name = Annotated[str, Size(min=1, max=32)]
+
+# The discrete actions of the robot; an action's id on the wire is its index here.
+ACTION_NAMES: tuple[str, ...] = ("stop", "forward", "back", "left", "right")
+ActionName = Literal["stop", "forward", "back", "left", "right"]
+ActionId = Annotated[int, Range(0, len(ACTION_NAMES) - 1)]
+
+SAMPLE_RATE = 16_000
+MAX_CHUNK_BYTES = 2 * SAMPLE_RATE  # one second of 16-bit mono audio
+
+
+def new_message_id() -> str:
+    return uuid.uuid4().hex
+
+
+@dataclass(frozen=True, kw_only=True)
+class Message:
+    """Envelope fields every message has. The bus node fills `sender` and `sent_at`."""
+
+    TYPE: ClassVar[str]
+
+    id: MessageId = field(default_factory=new_message_id)
+    sender: Id = "unset"
+    sent_at: WallTime = field(default_factory=time.time)
+
+    def check(self) -> None:
+        """Cross-field rules; raises ProtocolError. Single-field bounds live in the types."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class Observation(Message):
+    """What a robot senses after control step `step` (simulator -> *), 10 Hz of sim time."""
+
+    TYPE: ClassVar[str] = "observation"
+
+    robot: Id
+    episode: Count
+    step: Count  # global step index of this robot, monotonic across episodes
+    episode_step: Count
+    sim_time: SimTime
+    wall_time: WallTime
+    x: Metres
+    y: Metres
+    theta: Heading
+    v: Speed
+    omega: TurnRate
+    laser: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=1081)]
+    sonar: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=32)]
+    reward: Reward  # R_RL of the transition that led here
+
+
+@dataclass(frozen=True, kw_only=True)
+class Action(Message):
+    """The action for observation `step` (learner or teacher -> simulator).
+
+    A discrete action id, a continuous (v, omega), or both (the blend the learner sent and
+    the discrete action it is credited to).
+    """
+
+    TYPE: ClassVar[str] = "action"
+
+    robot: Id
+    episode: Count
+    step: Count
+    discrete: ActionId | None
+    v: Speed | None
+    omega: TurnRate | None
+    chooser: Literal["policy", "teacher"]
+
+    def check(self) -> None:
+        if (self.v is None) != (self.omega is None):
+            raise ProtocolError("Action.v", "v and omega go together: give both or neither")
+        if self.discrete is None and self.v is None:
+            raise ProtocolError("Action.discrete", "give a discrete id, (v, omega), or both")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EpisodeEvent(Message):
+    """An episode starting or ending (simulator -> *)."""
+
+    TYPE: ClassVar[str] = "episode"
+
+    robot: Id
+    episode: Count
+    step: Count
+    kind: Literal["start", "goal", "collision", "timeout"]
+    episode_steps: Count
+    sim_time: SimTime
+    wall_time: WallTime
+    env_return: Reward  # sum of R_RL over the episode so far
+
+
+@dataclass(frozen=True, kw_only=True)
+class AudioChunk(Message):
+    """20-100 ms of a teacher's microphone or file (teacher client -> speech)."""
+
+    TYPE: ClassVar[str] = "audio"
+
+    teacher: Id
+    robot: Id  # the robot this teacher is speaking to
+    stream: Id  # one per microphone/file stream; `seq` counts chunks within it
+    seq: Count
+    sample_rate: Literal[16000]
+    pcm: Annotated[bytes, Size(max=MAX_CHUNK_BYTES)]  # int16 little-endian mono
+    capture_time: WallTime  # teacher clock at the first sample
+    final: bool  # the stream ends with this chunk
+
+    def check(self) -> None:
+        if len(self.pcm) % 2:
+            raise ProtocolError("AudioChunk.pcm", "odd byte count: int16 samples are 2 bytes")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Alternative:
+    text: Text
+    confidence: Range01
+
+
+@dataclass(frozen=True, kw_only=True)
+class Utterance(Message):
+    """What a teacher said (speech service or typing teacher -> arbiter)."""
+
+    TYPE: ClassVar[str] = "utterance"
+
+    teacher: Id
+    robot: Id
+    text: Text
+    confidence: Range01
+    onset: WallTime  # teacher clock: the teacher started speaking (or typing)
+    end: WallTime  # teacher clock
+    recognized_at: WallTime  # recognizer's clock
+    engine: Name  # "vosk", "pocketsphinx", "mock", "typed", ...
+    language: Literal["en", "es"]
+    alternatives: Annotated[tuple[Alternative, ...], Size(max=10)]
+
+    def check(self) -> None:
+        if self.end < self.onset:
+            raise ProtocolError("Utterance.end", f"end {self.end} is before onset {self.onset}")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Credit:
+    step: Count
+    weight: Range01
+
+
+@dataclass(frozen=True, kw_only=True)
+class CreditedFeedback(Message):
+    """A teacher reward or command, credited to the steps it was about (arbiter -> learner)."""
+
+    TYPE: ClassVar[str] = "feedback"
+
+    robot: Id
+    kind: Literal["reward", "command"]
+    reward: Reward | None  # after the bound g of Algorithm 1
+    command: ActionName | None
+    credits: Annotated[tuple[Credit, ...], Size(min=1, max=256)]
+    sources: Annotated[tuple[MessageId, ...], Size(min=1, max=64)]  # utterance ids
+    teachers: Annotated[tuple[Id, ...], Size(min=1, max=64)]
+
+    def check(self) -> None:
+        if self.kind == "reward" and (self.reward is None or self.command is not None):
+            raise ProtocolError("CreditedFeedback.reward", "a reward needs reward and no command")
+        if self.kind == "command" and (self.command is None or self.reward is not None):
+            raise ProtocolError("CreditedFeedback.command", "a command needs command, no reward")
+        total = sum(c.weight for c in self.credits)
+        if total > 1.0 + 1e-6:
+            raise ProtocolError("CreditedFeedback.credits", f"weights sum to {total:g} > 1")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LearningSummary(Message):
+    """The learner's view after a step (learner -> logger)."""
+
+    TYPE: ClassVar[str] = "learning"
+
+    robot: Id
+    episode: Count
+    step: Count
+    state: Count  # index of the current state
+    states: Count  # number of states created so far
+    q_values: Annotated[tuple[Reward, ...], Size(max=len(ACTION_NAMES))]
+    td_error: Reward
+    epsilon: Range01
+    reward: Reward  # r used in the update: R_RL plus credited teacher rewards
+
+
+MESSAGE_TYPES: dict[str, type[Message]] = {
+    cls.TYPE: cls
+    for cls in (
+        Observation,
+        Action,
+        EpisodeEvent,
+        AudioChunk,
+        Utterance,
+        CreditedFeedback,
+        LearningSummary,
+    )
+}

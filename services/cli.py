@@ -1,0 +1,73 @@
+"""`voxshape`: one command, one subcommand per service or tool."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from types import ModuleType
+
+from protocol import ProtocolError, VocabularyError
+from services import demo, launcher, router, tools
+from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
+from services.topology import TopologyError
+
+Runner = Callable[[argparse.Namespace], int]
+Adder = Callable[[argparse.ArgumentParser], None]
+
+
+def _module(module: ModuleType) -> tuple[Adder, Runner]:
+    return module.add_arguments, module.run
+
+
+# name -> (help, add its arguments, run it). Services whose issues have not landed are absent.
+COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
+    "demo": ("run the main job in a local session (no docker, no manual router)", *_module(demo)),
+    "up": (
+        "start the local session: every service of compose.yaml as its own process",
+        *_module(launcher),
+    ),
+    "router": ("run the zenoh router of a session", add_bus_arguments, router.run),
+    "status": ("list the nodes present in a session", tools.add_status_arguments, tools.status),
+    "listen": (
+        "print every message of a session, decoded",
+        tools.add_listen_arguments,
+        tools.listen,
+    ),
+    "vocabulary": (
+        "check a vocabulary file and list its phrases",
+        tools.add_vocabulary_arguments,
+        tools.vocabulary,
+    ),
+}
+
+
+def parser() -> argparse.ArgumentParser:
+    top = argparse.ArgumentParser(
+        prog="voxshape",
+        description="Teach a robot by voice: SARSA(lambda) with dynamic reward shaping.",
+    )
+    top.add_argument("--log-level", help="DEBUG, INFO, WARNING... (VOXSHAPE_LOG_LEVEL)")
+    sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (text, add, _) in COMMANDS.items():
+        add(sub.add_parser(name, help=text, description=text))
+    return top
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    configure_logging(args.log_level)
+    try:
+        return COMMANDS[args.command][2](args)
+    except (BusError, ConfigError, TopologyError, VocabularyError, ProtocolError) as e:
+        print(f"voxshape {args.command}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    except BrokenPipeError:  # `voxshape listen | head`
+        sys.stderr.close()
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,24 @@
+"""The small runtime every service stands on: bus configuration, the Node event loop, logs.
+
+No service logic lives here.
+"""
+
+from services.runtime.config import BusConfig, ConfigError, add_bus_arguments, bus_config
+from services.runtime.logs import configure_logging, fields
+from services.runtime.node import BusError, Event, Input, Node, Output, Presence, Tick
+
+__all__ = [
+    "BusConfig",
+    "BusError",
+    "ConfigError",
+    "Event",
+    "Input",
+    "Node",
+    "Output",
+    "Presence",
+    "Tick",
+    "add_bus_arguments",
+    "bus_config",
+    "configure_logging",
+    "fields",
+]

@@ -1,0 +1,195 @@
+"""How a service joins the bus: one BusConfig, read from VOXSHAPE_* variables and flags.
+
+The embedded default is the local session of this machine: a peer on loopback that connects
+to the session router at tcp/127.0.0.1:7447, with multicast scouting off so nothing leaves
+the host. Remote teachers and robots use `--mode client --connect tcp/HOST:7447` (or tls/...).
+
+| variable                    | flag              | default                                 |
+|-----------------------------|-------------------|-----------------------------------------|
+| VOXSHAPE_SESSION            | --session         | default                                 |
+| VOXSHAPE_NODE               | --node            | <role>-<hostname>-<pid>                 |
+| VOXSHAPE_MODE               | --mode            | peer (router for `voxshape router`)     |
+| VOXSHAPE_CONNECT            | --connect         | tcp/127.0.0.1:7447 (none for a router)  |
+| VOXSHAPE_LISTEN             | --listen          | tcp/127.0.0.1:0 (router: ...:7447)      |
+| VOXSHAPE_CONNECT_TIMEOUT    | --connect-timeout | 10 (seconds to reach a router at start) |
+| VOXSHAPE_USER               | --user            | (none)                                  |
+| VOXSHAPE_PASSWORD(_FILE)    |                   | (none)                                  |
+| VOXSHAPE_TLS_ROOT_CA        | --tls-root-ca     | (none)                                  |
+| VOXSHAPE_TLS_CERT / _KEY    | --tls-cert/-key   | (none; needed for TLS listen and mTLS)  |
+| VOXSHAPE_TLS_MTLS           | --mtls            | false                                   |
+Lists are comma-separated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import zenoh
+
+from protocol import ProtocolError, check_id
+
+Mode = Literal["peer", "client", "router"]
+MODES: tuple[Mode, ...] = ("peer", "client", "router")
+LOCAL_ROUTER = "tcp/127.0.0.1:7447"
+_ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
+
+
+class ConfigError(ValueError):
+    """A setting that cannot work; the message names the setting and how to fix it."""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    session: str = "default"
+    node: str | None = None
+    mode: Mode = "peer"
+    connect: tuple[str, ...] = (LOCAL_ROUTER,)
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    connect_timeout: float = 10.0
+    user: str | None = None
+    password: str | None = None
+    tls_root_ca: Path | None = None
+    tls_cert: Path | None = None
+    tls_key: Path | None = None
+    mtls: bool = False
+
+    @classmethod
+    def for_role(cls, role: str) -> BusConfig:
+        """Defaults of a role before variables and flags apply (a router listens on 7447)."""
+        if role == "router":
+            return cls(mode="router", connect=(), listen=(LOCAL_ROUTER,))
+        return cls()
+
+    def validated(self) -> BusConfig:
+        try:
+            check_id(self.session, "session")
+            if self.node is not None:
+                check_id(self.node, "node")
+        except ProtocolError as e:
+            raise ConfigError(f"{e} (set with --{e.field} or VOXSHAPE_{e.field.upper()})") from None
+        if self.mode not in MODES:
+            raise ConfigError(f"mode {self.mode!r} is not one of {', '.join(MODES)}")
+        for endpoint in (*self.connect, *self.listen):
+            if not _ENDPOINT.fullmatch(endpoint):
+                raise ConfigError(
+                    f"endpoint {endpoint!r} is not PROTOCOL/HOST:PORT, e.g. tcp/127.0.0.1:7447"
+                )
+        if self.mode == "client" and not self.connect:
+            raise ConfigError("client mode needs a router to connect to: set --connect")
+        if self.connect_timeout <= 0:
+            raise ConfigError(f"connect timeout {self.connect_timeout} must be > 0 seconds")
+        if (self.user is None) != (self.password is None):
+            raise ConfigError("give both VOXSHAPE_USER and VOXSHAPE_PASSWORD, or neither")
+        for name in ("tls_root_ca", "tls_cert", "tls_key"):
+            path = getattr(self, name)
+            if path is not None and not Path(path).is_file():
+                raise ConfigError(f"{name.replace('_', '-')} file {str(path)!r} does not exist")
+        if (self.tls_cert is None) != (self.tls_key is None):
+            raise ConfigError("--tls-cert and --tls-key go together")
+        if self.mtls and self.tls_cert is None:
+            raise ConfigError("mutual TLS needs this node's certificate: --tls-cert/--tls-key")
+        uses_tls = any(e.startswith(("tls/", "quic/")) for e in (*self.connect, *self.listen))
+        if uses_tls and self.tls_root_ca is None and self.mode != "router":
+            raise ConfigError("a tls/ endpoint needs the CA certificate: --tls-root-ca")
+        return self
+
+    def zenoh_config(self) -> zenoh.Config:
+        """The zenoh configuration, explicit in every setting this project relies on."""
+        retry = {"period_init_ms": 100, "period_max_ms": 500, "period_increase_factor": 2}
+        conf: dict = {
+            "mode": self.mode,
+            "scouting": {"multicast": {"enabled": False}},
+            "connect": {
+                "endpoints": list(self.connect),
+                "timeout_ms": int(self.connect_timeout * 1000),
+                "exit_on_failure": True,
+                "retry": retry,
+            },
+            "listen": {"endpoints": list(self.listen) if self.mode != "client" else []},
+            # One host, heavy CPU contention: shared memory lost samples (zenoh issue 2628).
+            "transport": {"shared_memory": {"enabled": False}},
+        }
+        if self.mode == "router":
+            conf["listen"]["exit_on_failure"] = True
+            conf["timestamping"] = {"enabled": True}
+        if self.user is not None:
+            conf["transport"]["auth"] = {"usrpwd": {"user": self.user, "password": self.password}}
+        tls: dict = {}
+        if self.tls_root_ca is not None:
+            tls["root_ca_certificate"] = str(self.tls_root_ca)
+        if self.tls_cert is not None:
+            side = "listen" if self.mode == "router" else "connect"
+            tls[f"{side}_certificate"] = str(self.tls_cert)
+            tls[f"{side}_private_key"] = str(self.tls_key)
+        if self.mtls:
+            tls["enable_mtls"] = True
+        if tls:
+            conf["transport"]["link"] = {"tls": tls}
+        return zenoh.Config.from_json5(json.dumps(conf))
+
+
+def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
+    """The flags every service shares; unset flags fall back to VOXSHAPE_* variables."""
+    g = parser.add_argument_group("bus (flags override VOXSHAPE_* variables)")
+    g.add_argument("--session", help="session id (VOXSHAPE_SESSION; default: default)")
+    g.add_argument("--node", help="this node's id (VOXSHAPE_NODE; default: role-host-pid)")
+    g.add_argument("--mode", choices=MODES, help="zenoh mode (VOXSHAPE_MODE)")
+    g.add_argument("--connect", help="comma-separated endpoints, e.g. tcp/10.0.0.2:7447")
+    g.add_argument("--listen", help="comma-separated endpoints to listen on")
+    g.add_argument("--connect-timeout", type=float, help="seconds to wait for the router")
+    g.add_argument("--user", help="user name for the router (password: VOXSHAPE_PASSWORD)")
+    g.add_argument("--tls-root-ca", type=Path, help="CA certificate for tls/ endpoints")
+    g.add_argument("--tls-cert", type=Path, help="this node's certificate (TLS listen, mTLS)")
+    g.add_argument("--tls-key", type=Path, help="this node's private key")
+    g.add_argument("--mtls", action="store_true", default=None, help="mutual TLS")
+
+
+def _endpoints(value: str) -> tuple[str, ...]:
+    return tuple(e.strip() for e in value.split(",") if e.strip())
+
+
+def bus_config(
+    role: str, args: argparse.Namespace | None = None, env: Mapping[str, str] = os.environ
+) -> BusConfig:
+    """Role defaults, then VOXSHAPE_* variables, then flags; validated."""
+    config = BusConfig.for_role(role)
+    settings: dict = {}
+    for name, parse in (
+        ("session", str),
+        ("node", str),
+        ("mode", str),
+        ("connect", _endpoints),
+        ("listen", _endpoints),
+        ("connect_timeout", float),
+        ("user", str),
+        ("password", str),
+        ("tls_root_ca", Path),
+        ("tls_cert", Path),
+        ("tls_key", Path),
+        ("mtls", lambda v: v.strip().lower() in ("1", "true", "yes", "on")),
+    ):
+        variable = f"VOXSHAPE_{name.upper()}"
+        flag = getattr(args, name, None) if args is not None else None
+        raw = flag if flag is not None else env.get(variable)
+        if raw is None or raw == "":
+            continue
+        try:
+            settings[name] = parse(raw) if isinstance(raw, str) else raw
+        except ValueError:
+            raise ConfigError(
+                f"{variable}={raw!r} is not a valid {name.replace('_', ' ')}"
+            ) from None
+    if "password" not in settings and env.get("VOXSHAPE_PASSWORD_FILE"):
+        path = Path(env["VOXSHAPE_PASSWORD_FILE"])
+        try:
+            settings["password"] = path.read_text().strip()
+        except OSError as e:
+            raise ConfigError(f"VOXSHAPE_PASSWORD_FILE {str(path)!r}: {e.strerror}") from None
+    return replace(config, **settings).validated()

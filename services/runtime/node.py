@@ -1,0 +1,262 @@
+"""A service's handle on the bus: a small loop over typed events.
+
+    with Node("sim", bus_config("sim", args)) as node:
+        obs = node.output("obs", robot_key(node.session_id, "r1", "obs"))
+        node.input("action", robot_key(node.session_id, "r1", "action"))
+        for event in node.events(tick=0.1):
+            match event:
+                case Input(name="action", message=action): ...
+                case Tick(): obs.put(...)
+
+Inputs are decoded strictly with the type their key carries; a malformed message is counted
+and logged, never delivered and never fatal. The node holds a liveliness token at
+`voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
+SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import signal
+import socket
+import threading
+import time
+from collections import Counter
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, replace
+
+import zenoh
+
+from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
+from services.runtime.config import BusConfig
+from services.runtime.logs import fields
+
+
+class BusError(RuntimeError):
+    """The bus cannot be joined; the message says why and what to do."""
+
+
+@dataclass(frozen=True)
+class Input:
+    """A decoded message that arrived on the input called `name`."""
+
+    name: str
+    key: str
+    message: Message
+
+
+@dataclass(frozen=True)
+class Presence:
+    """A node appeared (`alive`) or left the session."""
+
+    role: str
+    node: str
+    alive: bool
+
+
+@dataclass(frozen=True)
+class Tick:
+    """The periodic timer of `events(tick=...)`."""
+
+    time: float
+
+
+Event = Input | Presence | Tick
+_STOP = object()
+
+
+def default_node_id(role: str) -> str:
+    host = "".join(c if c.isalnum() or c in "_-" else "-" for c in socket.gethostname())
+    return f"{role}-{host[:40]}-{os.getpid()}"
+
+
+def open_session(config: BusConfig) -> zenoh.Session:
+    """Opens a zenoh session, translating zenoh's errors into what a user should do."""
+    try:
+        return zenoh.open(config.zenoh_config())
+    except zenoh.ZError as e:
+        text = str(e)
+        if "Unable to connect" in text:
+            raise BusError(
+                f"cannot reach {', '.join(config.connect)} within {config.connect_timeout:g} s. "
+                "Is the session's router running? Locally, `voxshape up` starts one; remotely, "
+                "check --connect/VOXSHAPE_CONNECT and the credentials."
+            ) from None
+        if "listen" in text.lower() or "address" in text.lower():
+            raise BusError(
+                f"cannot listen on {', '.join(config.listen)}: {text.split(' at ')[0]}. "
+                "Is another router already using it? Choose another with --listen."
+            ) from None
+        raise BusError(f"zenoh refused to open the session: {text.split(' at ')[0]}") from None
+
+
+class Output:
+    """A declared publisher of one key; `put` stamps, validates, encodes and sends."""
+
+    def __init__(self, node: Node, name: str, key: str, publisher: zenoh.Publisher) -> None:
+        self.name, self.key = name, key
+        self._node, self._publisher = node, publisher
+
+    def put(self, message: Message) -> None:
+        stamped = replace(message, sender=self._node.id, sent_at=time.time())
+        self._publisher.put(encode(stamped))
+        self._node.counters[f"sent.{self.name}"] += 1
+
+
+class Node:
+    def __init__(self, role: str, config: BusConfig) -> None:
+        self.role = role
+        self.config = config
+        self.session_id = config.session
+        self.id = config.node or default_node_id(role)
+        self.log = logging.getLogger(f"voxshape.{role}")
+        self.counters: Counter[str] = Counter()
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._stopping = threading.Event()
+        self._declared: list = []
+        self.session = open_session(config)
+        self._token = self.session.liveliness().declare_token(
+            presence_key(self.session_id, role, self.id)
+        )
+        self.log.info(
+            "joined the bus",
+            extra=fields(
+                session=self.session_id,
+                node=self.id,
+                mode=config.mode,
+                connect=",".join(config.connect) or "-",
+                listen=",".join(config.listen) if config.mode != "client" else "-",
+            ),
+        )
+
+    # -- declarations -------------------------------------------------------------------
+    def output(self, name: str, key: str, *, must_arrive: bool = True) -> Output:
+        """A publisher. `must_arrive` (default) blocks instead of dropping under congestion."""
+        congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
+        publisher = self.session.declare_publisher(key, congestion_control=congestion)
+        self._declared.append(publisher)
+        return Output(self, name, key, publisher)
+
+    def input(self, name: str, key: str) -> None:
+        """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...)."""
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            key_text = str(sample.key_expr)
+            try:
+                expected = parse_key(key_text).message_type
+                message = decode(sample.payload.to_bytes(), expected)
+            except ProtocolError as e:
+                self._reject(name, key_text, e)
+                return
+            except Exception as e:  # never let a bad sample kill zenoh's callback thread
+                self._reject(name, key_text, ProtocolError("payload", repr(e)))
+                return
+            self.counters[f"received.{name}"] += 1
+            self._queue.put(Input(name, key_text, message))
+
+        self._declared.append(self.session.declare_subscriber(key, on_sample))
+
+    def watch_presence(self, role: str = "*", node: str = "*") -> None:
+        """Presence events for nodes of the session, including those already present."""
+
+        def on_token(sample: zenoh.Sample) -> None:
+            parts = str(sample.key_expr).split("/")
+            alive = sample.kind == zenoh.SampleKind.PUT
+            self._queue.put(Presence(parts[-2], parts[-1], alive))
+
+        key = presence_key(self.session_id, role, node)
+        self._declared.append(
+            self.session.liveliness().declare_subscriber(key, on_token, history=True)
+        )
+
+    def _reject(self, name: str, key: str, error: ProtocolError) -> None:
+        self.counters[f"rejected.{name}"] += 1
+        n = self.counters[f"rejected.{name}"]
+        if n <= 10 or n in (100, 1000, 10_000) or n % 100_000 == 0:
+            self.log.warning(
+                "rejected a message",
+                extra=fields(
+                    input=name, key=key, field=error.field, problem=error.problem, count=n
+                ),
+            )
+
+    # -- the loop -----------------------------------------------------------------------
+    def events(self, tick: float | None = None, stats_every: float = 30.0) -> Iterator[Event]:
+        """Inputs and presence changes as they arrive, a Tick every `tick` seconds, until stop()
+        or SIGINT/SIGTERM."""
+        restore = self._handle_signals()
+        now = time.monotonic()
+        next_tick = now + tick if tick else float("inf")
+        next_stats, logged = now + stats_every, Counter()
+        try:
+            while not self._stopping.is_set():
+                now = time.monotonic()
+                if now >= next_stats:
+                    if self.counters != logged:
+                        self.log_stats()
+                        logged = Counter(self.counters)
+                    next_stats = now + stats_every
+                if now >= next_tick:
+                    next_tick = max(next_tick + tick, now)
+                    yield Tick(time.time())
+                    continue
+                try:
+                    item = self._queue.get(timeout=min(next_tick, next_stats) - now)
+                except queue.Empty:
+                    continue
+                if item is _STOP:
+                    break
+                yield item
+        finally:
+            restore()
+
+    def poll(self, timeout: float) -> Input | Presence | None:
+        """The next input or presence change within `timeout` seconds, else None (no Ticks,
+        no signal handling: for request/response code and tests)."""
+        try:
+            item = self._queue.get(timeout=timeout)
+        except queue.Empty:
+            return None
+        if item is _STOP:
+            self._queue.put(_STOP)  # keep events() stopping too
+            return None
+        return item
+
+    def stop(self) -> None:
+        self._stopping.set()
+        self._queue.put(_STOP)
+
+    def _handle_signals(self) -> Callable[[], object]:
+        if threading.current_thread() is not threading.main_thread():
+            return lambda: None
+        previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+
+        def on_signal(signum: int, _frame: object) -> None:
+            self.log.info("stopping", extra=fields(signal=signal.Signals(signum).name))
+            self.stop()
+
+        for s in previous:
+            signal.signal(s, on_signal)
+        return lambda: [signal.signal(s, h) for s, h in previous.items()]
+
+    def log_stats(self) -> None:
+        self.log.info("counters", extra=fields(**dict(sorted(self.counters.items()))))
+
+    # -- shutdown -----------------------------------------------------------------------
+    def close(self) -> None:
+        for declared in reversed(self._declared):
+            declared.undeclare()
+        self._declared.clear()
+        self._token.undeclare()
+        self.session.close()
+        if self.counters:
+            self.log_stats()
+        self.log.info("left the bus", extra=fields(node=self.id))
+
+    def __enter__(self) -> Node:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

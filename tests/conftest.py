@@ -1,0 +1,98 @@
+"""Fixtures for tests on a real bus: free loopback ports, a real router process, and child
+processes that are always ended (by pid) when the test is over."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from services.runtime import BusConfig, bus_config
+
+ROOT = Path(__file__).resolve().parents[1]
+VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for_port(port: int, timeout: float = 15.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"nothing listening on 127.0.0.1:{port} after {timeout} s")
+
+
+@pytest.fixture
+def session_id() -> str:
+    return f"t{uuid.uuid4().hex[:10]}"
+
+
+@pytest.fixture
+def spawn() -> Iterator[Callable[..., subprocess.Popen]]:
+    """Starts a child process; every child still running at the end is stopped by its pid."""
+    children: list[subprocess.Popen] = []
+
+    def start(argv: list[str], **kwargs: object) -> subprocess.Popen:
+        kwargs.setdefault("stdout", subprocess.PIPE)
+        kwargs.setdefault("stderr", subprocess.PIPE)
+        kwargs.setdefault("cwd", ROOT)
+        proc = subprocess.Popen(argv, **kwargs)
+        children.append(proc)
+        return proc
+
+    yield start
+    for proc in children:
+        if proc.poll() is None:
+            os.kill(proc.pid, signal.SIGTERM)
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.kill(proc.pid, signal.SIGKILL)
+                proc.wait(5)
+
+
+@pytest.fixture
+def router(spawn, session_id) -> str:
+    """A real `voxshape router` on a free loopback port; returns its endpoint."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    spawn([VOXSHAPE, "router", "--session", session_id, "--node", "router", "--listen", endpoint])
+    wait_for_port(port)
+    return endpoint
+
+
+@pytest.fixture
+def client_config(router, session_id) -> Callable[[str], BusConfig]:
+    """Bus configuration of an in-test node that is a client of the test's router."""
+
+    def make(node: str) -> BusConfig:
+        return replace(
+            bus_config("test", env={}),
+            session=session_id,
+            node=node,
+            mode="client",
+            connect=(router,),
+            connect_timeout=5.0,
+        )
+
+    return make
+
+
+def bus_args(router: str, session_id: str, node: str) -> list[str]:
+    return ["--session", session_id, "--node", node, "--mode", "client", "--connect", router]

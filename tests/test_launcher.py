@@ -1,0 +1,221 @@
+"""`voxshape up`, `voxshape demo`, the CLI, and compose.yaml as the one truth of the topology."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from services.topology import TopologyError, interpolate, load_topology
+from tests.conftest import ROOT, VOXSHAPE, free_port
+
+COMPOSE = ROOT / "compose.yaml"
+
+
+def read_until(proc: subprocess.Popen, pattern: str, timeout: float = 30.0) -> list[str]:
+    """Lines of `proc`'s output up to the first matching `pattern` (fails after `timeout`)."""
+    lines: list[str] = []
+    deadline = time.monotonic() + timeout
+    os.set_blocking(proc.stdout.fileno(), False)
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        if line:
+            lines.append(line.rstrip())
+            if re.search(pattern, line):
+                return lines
+        elif proc.poll() is not None:
+            break
+        else:
+            time.sleep(0.05)
+    pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
+
+
+def start_up(spawn, session_id: str, *extra: str) -> tuple[subprocess.Popen, int]:
+    port = free_port()
+    env = {**os.environ, "VOXSHAPE_SESSION": session_id}
+    proc = spawn(
+        [VOXSHAPE, "up", "--port", str(port), *extra], env=env, text=True, stderr=subprocess.STDOUT
+    )
+    return proc, port
+
+
+def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id):
+    up, port = start_up(spawn, session_id)
+    lines = read_until(up, r"ready in")
+    children = [int(m.group(1)) for line in lines if (m := re.search(r"\(pid (\d+)\)", line))]
+    assert children, lines
+    status = subprocess.run(
+        [
+            VOXSHAPE,
+            "status",
+            "--session",
+            session_id,
+            "--connect",
+            f"tcp/127.0.0.1:{port}",
+            "--require",
+            "router",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert status.returncode == 0, status.stdout + status.stderr
+    assert re.search(r"router\s+router", status.stdout)
+    t0 = time.monotonic()
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=30)
+    assert up.returncode == 0, rest
+    assert rest.rstrip().endswith("up     | stopped") or rest.rstrip().endswith("stopped"), rest
+    print(f"voxshape up stopped {len(children)} service(s) in {time.monotonic() - t0:.2f} s")
+    for pid in children:
+        assert (
+            not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
+        )
+
+
+def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_path):
+    compose = tmp_path / "compose.yaml"
+    compose.write_text(
+        COMPOSE.read_text()
+        + """
+  broken:
+    command: ["voxshape", "listen", "--duration", "1"]
+    environment:
+      VOXSHAPE_SESSION: ${VOXSHAPE_SESSION:-default}
+      VOXSHAPE_NODE: broken
+      VOXSHAPE_CONNECT: ${VOXSHAPE_ROUTER:-tcp/router:7447}
+    depends_on:
+      router:
+        condition: service_healthy
+"""
+    )
+    up, _ = start_up(spawn, session_id, "--compose", str(compose))
+    out, _ = up.communicate(timeout=60)
+    assert up.returncode == 1, out
+    assert "error: service 'broken' exited with 0; stopping the session" in out
+
+
+def test_up_gives_up_on_a_service_that_never_announces_itself(spawn, session_id, tmp_path):
+    compose = tmp_path / "compose.yaml"
+    compose.write_text(
+        COMPOSE.read_text()
+        + """
+  mute:
+    command: ["sleep", "60"]
+    depends_on: [router]
+"""
+    )
+    up, _ = start_up(spawn, session_id, "--compose", str(compose), "--ready-timeout", "2")
+    out, _ = up.communicate(timeout=60)
+    assert up.returncode == 1, out
+    assert "waited 2 s for all services; not present: mute" in out
+
+
+def test_up_rejects_a_broken_compose_file(tmp_path):
+    compose = tmp_path / "compose.yaml"
+    compose.write_text("services:\n  a:\n    command: voxshape router\n")
+    result = subprocess.run(
+        [VOXSHAPE, "up", "--compose", str(compose)], capture_output=True, text=True, timeout=30
+    )
+    assert result.returncode == 2
+    assert "service 'a': `command` must be a list of strings" in result.stderr
+
+
+def test_demo_starts_what_exists_and_says_what_is_missing(session_id):
+    env = {**os.environ, "VOXSHAPE_SESSION": session_id}
+    result = subprocess.run(
+        [VOXSHAPE, "demo", "--port", str(free_port()), "--rounds", "5"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=env,
+    )
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "bus check: 7/7 message types crossed the router (35 messages)" in result.stdout
+    assert "not built yet, so no robot learns in this demo" in result.stdout
+    assert "simulator: PyBullet world and robot (issue 3)" in result.stdout
+    print(next(line for line in result.stdout.splitlines() if "bus check" in line))
+
+
+def test_cli_lists_its_subcommands():
+    out = subprocess.run([VOXSHAPE, "--help"], capture_output=True, text=True, timeout=30).stdout
+    for command in ("demo", "up", "router", "status", "listen", "vocabulary"):
+        assert re.search(rf"^\s+{command}\s", out, re.MULTILINE), command
+
+
+# -- compose.yaml -----------------------------------------------------------------------------
+
+
+@pytest.mark.skipif(
+    shutil.which("docker-compose") is None,
+    reason="Debian's docker-compose is missing: `make test` installs it",
+)
+def test_docker_compose_accepts_the_file():
+    result = subprocess.run(
+        ["docker-compose", "-f", str(COMPOSE), "config", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert result.returncode == 0, result.stderr
+
+
+def test_local_session_runs_the_compose_commands_on_loopback():
+    local = load_topology(
+        COMPOSE, {"VOXSHAPE_ROUTER": "tcp/127.0.0.1:9", "VOXSHAPE_ROUTER_LISTEN": "tcp/127.0.0.1:9"}
+    )
+    docker = load_topology(COMPOSE, {})
+    assert [s.command for s in local] == [s.command for s in docker]
+    assert all(c[0] == "voxshape" for s in local for c in [s.command])
+    router = next(s for s in local if s.name == "router")
+    assert router.environment["VOXSHAPE_LISTEN"] == "tcp/127.0.0.1:9"
+    assert next(s for s in docker if s.name == "router").environment["VOXSHAPE_LISTEN"] == (
+        "tcp/0.0.0.0:7447"
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "variables", "expected"),
+    [
+        ("${A:-x}", {}, "x"),
+        ("${A:-x}", {"A": ""}, "x"),
+        ("${A-x}", {"A": ""}, ""),
+        ("${A}", {"A": "1"}, "1"),
+        ("$A/$$B", {"A": "1"}, "1/$B"),
+    ],
+)
+def test_compose_variable_interpolation(text, variables, expected):
+    assert interpolate(text, variables, "t") == expected
+
+
+def test_required_variable_and_dependency_errors(tmp_path):
+    with pytest.raises(TopologyError, match="variable A is required: set A"):
+        interpolate("${A:?set A}", {}, "t")
+    with pytest.raises(TopologyError, match="nested variables are not supported"):
+        interpolate("${A:-${B:-z}}", {}, "t")
+    compose = tmp_path / "compose.yaml"
+    compose.write_text(
+        "services:\n  a: {command: [x], depends_on: [b]}\n  b: {command: [x], depends_on: [a]}\n"
+    )
+    with pytest.raises(TopologyError, match="dependency cycle a -> b -> a"):
+        load_topology(compose, {})
+    compose.write_text("services:\n  a: {command: [x], depends_on: [ghost]}\n")
+    with pytest.raises(TopologyError, match="'a' depends on unknown 'ghost'"):
+        load_topology(compose, {})
+
+
+def test_profiles_select_optional_services(tmp_path):
+    compose = tmp_path / "compose.yaml"
+    compose.write_text(
+        "services:\n  a: {command: [x]}\n  b: {command: [y], profiles: [extra]}\n"
+        "  c: {command: [z], depends_on: [a]}\n"
+    )
+    assert [s.name for s in load_topology(compose, {})] == ["a", "c"]
+    assert [s.name for s in load_topology(compose, {}, ("extra",))] == ["a", "b", "c"]
