@@ -45,7 +45,7 @@ def bus_check(session: launcher.Session, rounds: int) -> tuple[int, list[float]]
     probe_config = replace(bus_config("demo"), mode="client", connect=(session.router,))
     arrived: set[str] = set()
     trips: list[float] = []
-    with Node("demo-probe", probe_config) as probe:
+    with Node("demo-probe", probe_config, quiet=True) as probe:
         outputs = [
             (probe.output(key.rsplit("/", 1)[-1], key), message) for key, message in examples
         ]

@@ -106,7 +106,7 @@ class Session:
         while True:
             self._check_children()
             try:
-                node = Node("launcher", config)
+                node = Node("launcher", config, quiet=True)
             except BusError:
                 if time.monotonic() > deadline or self._stop_requested:
                     raise

@@ -37,7 +37,7 @@ def status(args: argparse.Namespace) -> int:
     config = bus_config("status", args)
     if args.mode is None and config.mode == "peer":
         config = replace(config, mode="client")  # a one-shot look needs no listener
-    with Node("status", config) as node:
+    with Node("status", config, quiet=True) as node:
         replies = node.session.liveliness().get(presence_key(node.session_id), timeout=2.0)
         present = []
         for reply in replies:

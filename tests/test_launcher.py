@@ -79,11 +79,17 @@ def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id):
         )
 
 
-def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_path):
+def compose_with(tmp_path: Path, services: str) -> Path:
+    """The project's compose.yaml with more services appended."""
     compose = tmp_path / "compose.yaml"
-    compose.write_text(
-        COMPOSE.read_text()
-        + """
+    compose.write_text(COMPOSE.read_text() + services)
+    return compose
+
+
+def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_path):
+    compose = compose_with(
+        tmp_path,
+        """
   broken:
     command: ["voxshape", "listen", "--duration", "1"]
     environment:
@@ -93,7 +99,7 @@ def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_p
     depends_on:
       router:
         condition: service_healthy
-"""
+""",
     )
     up, _ = start_up(spawn, session_id, "--compose", str(compose))
     out, _ = up.communicate(timeout=60)
@@ -102,14 +108,13 @@ def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_p
 
 
 def test_up_gives_up_on_a_service_that_never_announces_itself(spawn, session_id, tmp_path):
-    compose = tmp_path / "compose.yaml"
-    compose.write_text(
-        COMPOSE.read_text()
-        + """
+    compose = compose_with(
+        tmp_path,
+        """
   mute:
     command: ["sleep", "60"]
     depends_on: [router]
-"""
+""",
     )
     up, _ = start_up(spawn, session_id, "--compose", str(compose), "--ready-timeout", "2")
     out, _ = up.communicate(timeout=60)

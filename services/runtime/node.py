@@ -106,12 +106,15 @@ class Output:
 
 
 class Node:
-    def __init__(self, role: str, config: BusConfig) -> None:
+    def __init__(self, role: str, config: BusConfig, *, quiet: bool = False) -> None:
+        """`quiet` (for tools) keeps this node's routine logs out unless debugging."""
         self.role = role
         self.config = config
         self.session_id = config.session
         self.id = config.node or default_node_id(role)
         self.log = logging.getLogger(f"voxshape.{role}")
+        if quiet and not self.log.isEnabledFor(logging.DEBUG):
+            self.log.setLevel(logging.WARNING)
         self.counters: Counter[str] = Counter()
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._stopping = threading.Event()
