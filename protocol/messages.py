@@ -83,6 +83,10 @@ class Observation(Message):
     laser: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=1081)]
     sonar: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=32)]
     reward: Reward  # R_RL of the transition that led here
+    # How the episode stands after this step. Not "running": the episode ended here, no
+    # action is expected for this step, and the next observation starts a new episode.
+    outcome: Literal["running", "goal", "collision", "timeout"]
+    collided: bool  # touched something during the step (also when collisions do not end it)
 
 
 @dataclass(frozen=True, kw_only=True)

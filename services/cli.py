@@ -10,6 +10,9 @@ from types import ModuleType
 from protocol import ProtocolError, VocabularyError
 from services import demo, launcher, router, tools
 from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
+from services.sim import commands as sim_commands
+from services.sim import node as sim_node
+from services.sim.maps import MapError
 from services.topology import TopologyError
 
 Runner = Callable[[argparse.Namespace], int]
@@ -28,6 +31,17 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
         *_module(launcher),
     ),
     "router": ("run the zenoh router of a session", add_bus_arguments, router.run),
+    "sim": ("run the simulator: PyBullet world, robots, episodes", *_module(sim_node)),
+    "map": (
+        "draw a task's map (start, goal, optional path and scan) as PNG",
+        sim_commands.add_map_arguments,
+        sim_commands.map_command,
+    ),
+    "bench": (
+        "measure and print performance figures",
+        sim_commands.add_bench_arguments,
+        sim_commands.bench_command,
+    ),
     "status": ("list the nodes present in a session", tools.add_status_arguments, tools.status),
     "listen": (
         "print every message of a session, decoded",
@@ -59,7 +73,7 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.log_level)
     try:
         return COMMANDS[args.command][2](args)
-    except (BusError, ConfigError, TopologyError, VocabularyError, ProtocolError) as e:
+    except (BusError, ConfigError, TopologyError, VocabularyError, ProtocolError, MapError) as e:
         print(f"voxshape {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -17,15 +17,10 @@ from pathlib import Path
 import pytest
 
 from services.runtime import BusConfig, bus_config
+from services.runtime import free_loopback_port as free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def wait_for_port(port: int, timeout: float = 15.0) -> None:

@@ -3,7 +3,13 @@
 No service logic lives here.
 """
 
-from services.runtime.config import BusConfig, ConfigError, add_bus_arguments, bus_config
+from services.runtime.config import (
+    BusConfig,
+    ConfigError,
+    add_bus_arguments,
+    bus_config,
+    free_loopback_port,
+)
 from services.runtime.logs import configure_logging, fields
 from services.runtime.node import BusError, Event, Input, Node, Output, Presence, Tick
 
@@ -21,4 +27,5 @@ __all__ = [
     "bus_config",
     "configure_logging",
     "fields",
+    "free_loopback_port",
 ]

@@ -26,6 +26,7 @@ import argparse
 import json
 import os
 import re
+import socket
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -133,6 +134,13 @@ class BusConfig:
         if tls:
             conf["transport"]["link"] = {"tls": tls}
         return zenoh.Config.from_json5(json.dumps(conf))
+
+
+def free_loopback_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on right now."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
 
 def add_bus_arguments(parser: argparse.ArgumentParser) -> None:

@@ -136,9 +136,12 @@ class Node:
 
     # -- declarations -------------------------------------------------------------------
     def output(self, name: str, key: str, *, must_arrive: bool = True) -> Output:
-        """A publisher. `must_arrive` (default) blocks instead of dropping under congestion."""
+        """A publisher. `must_arrive` (default) blocks instead of dropping under congestion.
+
+        Express: each message leaves at once instead of waiting to be batched with others;
+        batching made a lockstep round trip ~1.8 ms instead of ~0.X ms (bench sim)."""
         congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
-        publisher = self.session.declare_publisher(key, congestion_control=congestion)
+        publisher = self.session.declare_publisher(key, congestion_control=congestion, express=True)
         self._declared.append(publisher)
         return Output(self, name, key, publisher)
 

@@ -1,0 +1,320 @@
+"""Task maps: a small TOML format, its validating loader, and the map's free-space grid.
+
+A map file (see `services/sim/maps/*.toml`):
+
+    name = "Task 1: open room"
+    size = [6.0, 6.0]            # width, height in metres; origin at the bottom-left corner;
+                                 # the border is walled automatically
+    timeout = 60.0               # seconds of simulated time per episode
+    wall_thickness = 0.1         # of the border and of `walls` (default 0.1)
+    walls = [[3.0, 0.0, 3.0, 2.5]]   # extra wall segments [x1, y1, x2, y2]
+
+    [[boxes]]                    # obstacles, as many as needed
+    center = [2.0, 3.0]
+    size = [0.6, 0.4]            # width (along x before rotation), depth
+    angle = 30.0                 # degrees, counter-clockwise (default 0)
+
+    [[cylinders]]
+    center = [4.0, 1.5]
+    radius = 0.3
+
+    [start]
+    pose = [1.0, 1.0, 45.0]      # x, y in metres, heading in degrees (0 = +x, 90 = +y)
+    jitter = [0.2, 0.2, 15.0]    # optional: uniform +- noise on x, y, heading at each reset
+
+    [goal]
+    center = [5.0, 5.0]
+    radius = 0.5                 # the episode ends when the robot's centre is inside
+
+The loader checks every key and value, that the start (with its jitter) leaves the robot
+clear of walls and obstacles, and that the goal can be reached by a robot of the given size.
+This module is pure (numpy only): the simulator, the renderer and the simulated teacher all
+build on the same `Map`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import tomllib
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+MAPS_DIR = Path(__file__).with_name("maps")
+TASKS = {str(i): MAPS_DIR / f"task{i}.toml" for i in range(1, 5)}
+GRID_RESOLUTION = 0.05  # metres per cell of the free-space grid
+DEFAULT_WALL_HEIGHT = 0.5
+
+
+class MapError(ValueError):
+    """A map that cannot be used; the message names the file, the entry and the fix."""
+
+
+@dataclass(frozen=True)
+class Box:
+    """An oriented box obstacle (walls are boxes too)."""
+
+    x: float
+    y: float
+    width: float
+    depth: float
+    angle: float = 0.0  # radians
+
+    def distance(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Signed distance from points to the box surface (negative inside)."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        dx, dy = px - self.x, py - self.y
+        lx, ly = np.abs(c * dx + s * dy) - self.width / 2, np.abs(-s * dx + c * dy) - self.depth / 2
+        outside = np.hypot(np.maximum(lx, 0), np.maximum(ly, 0))
+        return outside + np.minimum(np.maximum(lx, ly), 0)
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    x: float
+    y: float
+    radius: float
+
+    def distance(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        return np.hypot(px - self.x, py - self.y) - self.radius
+
+
+Shape = Box | Cylinder
+
+
+@dataclass(frozen=True)
+class Pose:
+    x: float
+    y: float
+    theta: float  # radians
+
+
+@dataclass(frozen=True)
+class Map:
+    name: str
+    source: str
+    width: float
+    height: float
+    timeout: float
+    shapes: tuple[Shape, ...]  # border, walls and obstacles
+    start: Pose
+    start_jitter: Pose  # half-widths of the uniform noise
+    goal_x: float
+    goal_y: float
+    goal_radius: float
+    wall_height: float = DEFAULT_WALL_HEIGHT
+
+    def clearance(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Distance from points to the nearest wall or obstacle surface (negative inside)."""
+        px, py = np.asarray(px, float), np.asarray(py, float)
+        return np.min([shape.distance(px, py) for shape in self.shapes], axis=0)
+
+    def in_goal(self, x: float, y: float) -> bool:
+        return math.hypot(x - self.goal_x, y - self.goal_y) <= self.goal_radius
+
+    @cached_property
+    def grid(self) -> FreeSpace:
+        return FreeSpace(self)
+
+
+class FreeSpace:
+    """The map on a grid: clearance per cell and geodesic distances around obstacles."""
+
+    def __init__(self, m: Map, resolution: float = GRID_RESOLUTION) -> None:
+        self.map = m
+        self.resolution = resolution
+        self.cols = max(1, round(m.width / resolution))
+        self.rows = max(1, round(m.height / resolution))
+        xs = (np.arange(self.cols) + 0.5) * resolution
+        ys = (np.arange(self.rows) + 0.5) * resolution
+        px, py = np.meshgrid(xs, ys)  # [row, col]
+        self.clearance = m.clearance(px, py)
+
+    def cell(self, x: float, y: float) -> tuple[int, int]:
+        col = min(self.cols - 1, max(0, int(x / self.resolution)))
+        row = min(self.rows - 1, max(0, int(y / self.resolution)))
+        return row, col
+
+    def distances_to_goal(self, robot_radius: float) -> np.ndarray:
+        """Geodesic distance (metres) from every cell to the goal region for a robot whose
+        centre must keep `robot_radius` from obstacles; inf where the goal cannot be reached."""
+        m = self.map
+        free = self.clearance >= robot_radius
+        dist = np.full(free.shape, np.inf)
+        heap: list[tuple[float, int, int]] = []
+        ys = (np.arange(self.rows) + 0.5) * self.resolution
+        xs = (np.arange(self.cols) + 0.5) * self.resolution
+        in_goal = np.hypot(xs[None, :] - m.goal_x, ys[:, None] - m.goal_y) <= m.goal_radius
+        for row, col in zip(*np.nonzero(in_goal & free), strict=True):
+            dist[row, col] = 0.0
+            heap.append((0.0, int(row), int(col)))
+        heapq.heapify(heap)
+        steps = [
+            (dr, dc, math.hypot(dr, dc) * self.resolution)
+            for dr in (-1, 0, 1)
+            for dc in (-1, 0, 1)
+            if dr or dc
+        ]
+        while heap:
+            d, row, col = heapq.heappop(heap)
+            if d > dist[row, col]:
+                continue
+            for dr, dc, cost in steps:
+                r, c = row + dr, col + dc
+                if (
+                    0 <= r < self.rows
+                    and 0 <= c < self.cols
+                    and free[r, c]
+                    and d + cost < dist[r, c]
+                ):
+                    dist[r, c] = d + cost
+                    heapq.heappush(heap, (d + cost, r, c))
+        return dist
+
+
+# -- loading --------------------------------------------------------------------------------
+
+ROBOT_CLEARANCE = 0.30  # circumradius of the Pioneer-2-like footprint (0.45 x 0.38 m)
+PASSAGE_RADIUS = 0.22  # half the narrowest width the robot fits through, with a margin
+
+
+def load_map(name_or_path: str | Path) -> Map:
+    """A task number ("1".."4") or a map file path; raises MapError naming what is wrong."""
+    path = TASKS.get(str(name_or_path), Path(name_or_path))
+    if not path.is_file():
+        raise MapError(
+            f"unknown map {str(name_or_path)!r}: give a task number ({', '.join(TASKS)}) "
+            "or the path of a map file (format: services/sim/maps.py)"
+        )
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise MapError(f"{path}: not valid TOML: {e}") from None
+    return parse_map(data, str(path))
+
+
+def _number(value: object, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise MapError(f"{where}: expected a number, got {value!r}")
+    if not lo <= value <= hi:
+        raise MapError(f"{where}: {value} is outside [{lo:g}, {hi:g}]")
+    return float(value)
+
+
+def _numbers(value: object, n: int, where: str, lo: float = -math.inf) -> list[float]:
+    if not isinstance(value, list) or len(value) != n:
+        raise MapError(f"{where}: expected a list of {n} numbers, got {value!r}")
+    return [_number(v, f"{where}[{i}]", lo) for i, v in enumerate(value)]
+
+
+def _table(data: dict, key: str, allowed: set[str], source: str) -> dict:
+    value = data.get(key)
+    if not isinstance(value, dict):
+        raise MapError(f"{source}: needs a [{key}] table")
+    unknown = sorted(set(value) - allowed)
+    if unknown:
+        raise MapError(f"{source} [{key}]: unknown key {unknown[0]!r}; allowed: {sorted(allowed)}")
+    return value
+
+
+def parse_map(data: dict, source: str = "<map>") -> Map:
+    allowed = {
+        "name",
+        "size",
+        "timeout",
+        "wall_thickness",
+        "walls",
+        "boxes",
+        "cylinders",
+        "start",
+        "goal",
+        "description",
+    }
+    unknown = sorted(set(data) - allowed)
+    if unknown:
+        raise MapError(f"{source}: unknown key {unknown[0]!r}; allowed: {sorted(allowed)}")
+    name = data.get("name")
+    if not isinstance(name, str) or not name:
+        raise MapError(f'{source}: needs `name = "..."`')
+    width, height = _numbers(data.get("size"), 2, f"{source} size", lo=1.0)
+    timeout = _number(data.get("timeout"), f"{source} timeout", 1.0, 1e5)
+    thickness = _number(data.get("wall_thickness", 0.1), f"{source} wall_thickness", 0.01, 2.0)
+
+    shapes: list[Shape] = [  # the border, outside the [0, width] x [0, height] floor
+        Box(width / 2, -thickness / 2, width + 2 * thickness, thickness),
+        Box(width / 2, height + thickness / 2, width + 2 * thickness, thickness),
+        Box(-thickness / 2, height / 2, thickness, height),
+        Box(width + thickness / 2, height / 2, thickness, height),
+    ]
+    for i, wall in enumerate(data.get("walls", [])):
+        x1, y1, x2, y2 = _numbers(wall, 4, f"{source} walls[{i}]")
+        length = math.hypot(x2 - x1, y2 - y1)
+        if length == 0:
+            raise MapError(f"{source} walls[{i}]: the two ends are the same point")
+        angle = math.atan2(y2 - y1, x2 - x1)
+        shapes.append(Box((x1 + x2) / 2, (y1 + y2) / 2, length + thickness, thickness, angle))
+    for i, box in enumerate(data.get("boxes", [])):
+        where = f"{source} boxes[{i}]"
+        if not isinstance(box, dict) or set(box) - {"center", "size", "angle"}:
+            raise MapError(f"{where}: expected center = [x, y], size = [w, d], angle = degrees")
+        x, y = _numbers(box.get("center"), 2, f"{where} center")
+        w, d = _numbers(box.get("size"), 2, f"{where} size", lo=0.01)
+        angle = math.radians(_number(box.get("angle", 0.0), f"{where} angle"))
+        shapes.append(Box(x, y, w, d, angle))
+    for i, cyl in enumerate(data.get("cylinders", [])):
+        where = f"{source} cylinders[{i}]"
+        if not isinstance(cyl, dict) or set(cyl) - {"center", "radius"}:
+            raise MapError(f"{where}: expected center = [x, y], radius = r")
+        x, y = _numbers(cyl.get("center"), 2, f"{where} center")
+        shapes.append(Cylinder(x, y, _number(cyl.get("radius"), f"{where} radius", 0.01)))
+
+    start = _table(data, "start", {"pose", "jitter"}, source)
+    sx, sy, sdeg = _numbers(start.get("pose"), 3, f"{source} [start] pose")
+    jx, jy, jdeg = _numbers(start.get("jitter", [0, 0, 0]), 3, f"{source} [start] jitter", lo=0)
+    goal = _table(data, "goal", {"center", "radius"}, source)
+    gx, gy = _numbers(goal.get("center"), 2, f"{source} [goal] center")
+    radius = _number(goal.get("radius"), f"{source} [goal] radius", 0.05)
+
+    m = Map(
+        name=name,
+        source=source,
+        width=width,
+        height=height,
+        timeout=timeout,
+        shapes=tuple(shapes),
+        start=Pose(sx, sy, math.radians(sdeg)),
+        start_jitter=Pose(jx, jy, math.radians(jdeg)),
+        goal_x=gx,
+        goal_y=gy,
+        goal_radius=radius,
+    )
+    _check_layout(m)
+    return m
+
+
+def _check_layout(m: Map) -> None:
+    s, j = m.start, m.start_jitter
+    for x, y in ((s.x + dx, s.y + dy) for dx in (-j.x, 0, j.x) for dy in (-j.y, 0, j.y)):
+        if not (0 < x < m.width and 0 < y < m.height):
+            raise MapError(
+                f"{m.source} [start]: ({x:g}, {y:g}) is outside the {m.width:g} x "
+                f"{m.height:g} m floor"
+            )
+        room = float(m.clearance(x, y))
+        if room < ROBOT_CLEARANCE:
+            raise MapError(
+                f"{m.source} [start]: the robot at ({x:g}, {y:g}) would overlap a wall or "
+                f"obstacle: it needs {ROBOT_CLEARANCE:.2f} m of clearance, has {room:.2f} m. "
+                "Move the start pose or reduce its jitter."
+            )
+    if not (0 < m.goal_x < m.width and 0 < m.goal_y < m.height):
+        raise MapError(f"{m.source} [goal]: ({m.goal_x:g}, {m.goal_y:g}) is outside the floor")
+    distances = m.grid.distances_to_goal(PASSAGE_RADIUS)
+    if not np.isfinite(distances[m.grid.cell(s.x, s.y)]):
+        raise MapError(
+            f"{m.source} [goal]: unreachable from the start for a robot that needs passages "
+            f"{2 * PASSAGE_RADIUS:.2f} m wide (is it walled in, or inside an obstacle?)"
+        )

@@ -1,0 +1,125 @@
+"""`voxshape sim`: the simulator on the bus.
+
+Inputs:  voxshape/<session>/robot/<robot>/action   for each robot it simulates
+Outputs: voxshape/<session>/robot/<robot>/obs      one per control step (10 Hz of sim time)
+         voxshape/<session>/robot/<robot>/episode  start, goal, collision, timeout
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+from protocol import Action, EpisodeEvent, check_id, robot_key
+from services.runtime import (
+    ConfigError,
+    Input,
+    Node,
+    Tick,
+    add_bus_arguments,
+    bus_config,
+    fields,
+)
+from services.sim.maps import TASKS, load_map
+from services.sim.stepper import Stepper
+from services.sim.task import SimConfig, Simulation
+
+LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    env = os.environ.get
+    parser.add_argument(
+        "--task",
+        default=env("VOXSHAPE_TASK", "1"),
+        help=f"task number ({', '.join(TASKS)}) or map file (VOXSHAPE_TASK)",
+    )
+    parser.add_argument(
+        "--robot",
+        action="append",
+        dest="robots",
+        help="robot id, once per robot (default: VOXSHAPE_ROBOTS or r1)",
+    )
+    parser.add_argument(
+        "--clock",
+        choices=("paced", "lockstep"),
+        default=env("VOXSHAPE_CLOCK", "paced"),
+        help="paced: wall-clock time for people; lockstep: as fast as the "
+        "learner answers (VOXSHAPE_CLOCK)",
+    )
+    parser.add_argument(
+        "--rtf",
+        type=float,
+        default=float(env("VOXSHAPE_RTF", "1.0")),
+        help="paced: simulated seconds per wall second (VOXSHAPE_RTF)",
+    )
+    parser.add_argument(
+        "--action-timeout",
+        type=float,
+        default=None,
+        help="lockstep: seconds to wait for an action (default 2); paced: "
+        "seconds an action stays valid (default 0.5)",
+    )
+    parser.add_argument(
+        "--collision",
+        choices=("end", "continue"),
+        default="end",
+        help="a collision ends the episode, or costs a penalty and goes on",
+    )
+    parser.add_argument("--laser-noise", type=float, default=0.0, help="std dev, metres")
+    parser.add_argument("--sonar-noise", type=float, default=0.0, help="std dev, metres")
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--max-steps", type=int, default=None, help="stop after this many steps")
+
+
+def run(args: argparse.Namespace) -> int:
+    robots = tuple(args.robots or os.environ.get("VOXSHAPE_ROBOTS", "r1").split(","))
+    config = SimConfig(
+        collision=args.collision, laser_noise=args.laser_noise, sonar_noise=args.sonar_noise
+    )
+    timeout = args.action_timeout or (2.0 if args.clock == "lockstep" else 0.5)
+    if args.rtf <= 0 or timeout <= 0:
+        raise ConfigError("--rtf and --action-timeout must be > 0")
+    for robot in robots:
+        check_id(robot, "robot")
+    m = load_map(args.task)
+    bus = bus_config("sim", args)
+    sim = Simulation(m, robots, config, args.seed)
+    period = config.control_period / args.rtf if args.clock == "paced" else LOCKSTEP_POLL_S
+    try:
+        with Node("sim", bus) as node:
+            stepper = Stepper(sim, args.clock, timeout, node.counters)
+            for r in robots:
+                node.input("action", robot_key(node.session_id, r, "action"))
+            obs = {r: node.output("obs", robot_key(node.session_id, r, "obs")) for r in robots}
+            episode = {
+                r: node.output("episode", robot_key(node.session_id, r, "episode")) for r in robots
+            }
+
+            def publish(messages: list) -> None:
+                for message in messages:
+                    (episode if isinstance(message, EpisodeEvent) else obs)[message.robot].put(
+                        message
+                    )
+
+            node.log.info(
+                "simulating",
+                extra=fields(
+                    task=sim.map.name, robots=",".join(robots), clock=args.clock, rtf=args.rtf
+                ),
+            )
+            publish(stepper.start())
+            for event in node.events(tick=period):
+                now = time.monotonic()
+                if isinstance(event, Input) and isinstance(event.message, Action):
+                    stepper.on_action(event.key.split("/")[-2], event.message)
+                due = isinstance(event, Tick) if args.clock == "paced" else stepper.ready(now)
+                if due:
+                    publish(stepper.step(now))
+                    if args.max_steps and stepper.counters["steps"] >= args.max_steps:
+                        break
+    finally:
+        sim.close()
+    return 0

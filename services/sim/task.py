@@ -1,0 +1,201 @@
+"""Episodes of a navigation task: the simulator's pure core (no bus).
+
+`Simulation` steps every robot of one world at once, one control step of `control_period`
+simulated seconds, and tells each robot's outcome. The service publishes what it returns; the
+Gymnasium environment wraps it for single-robot RL; the experiments run it in-process.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from services.sim.maps import Map, Pose
+from services.sim.robot import RobotModel
+from services.sim.sensors import Sensors
+from services.sim.world import World
+
+Outcome = Literal["running", "goal", "collision", "timeout"]
+
+
+@dataclass(frozen=True)
+class Rewards:
+    """R_RL, the environment's own reward, in one place. The paper's learner uses
+    R = R_RL + R_U, where R_U comes from the teachers (see the arbiter)."""
+
+    step: float = -1.0  # every control step, so shorter paths are better
+    goal: float = 100.0  # reaching the goal region; ends the episode
+    collision: float = -100.0  # touching a wall, obstacle or another robot
+    # A timeout adds nothing: the episode is cut short (truncated), not failed.
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    control_period: float = 0.1  # simulated seconds per control step (10 Hz)
+    substeps: int = 4  # collision checks per control step
+    collision: Literal["end", "continue"] = "end"  # "continue": penalty, robot stays put
+    timeout: float | None = None  # seconds of simulated time; None: the map's
+    laser_noise: float = 0.0  # standard deviation of Gaussian range noise, metres
+    sonar_noise: float = 0.0
+    rewards: Rewards = field(default_factory=Rewards)
+    model: RobotModel = field(default_factory=RobotModel)
+
+
+@dataclass(frozen=True)
+class Reading:
+    """What one robot senses after a step or a reset."""
+
+    robot: str
+    episode: int
+    step: int  # global step index of this robot, monotonic across episodes
+    episode_step: int
+    sim_time: float
+    pose: Pose
+    v: float
+    omega: float
+    laser: np.ndarray
+    sonar: np.ndarray
+    reward: float  # R_RL of the transition that led here (0 after a reset)
+    episode_return: float
+    outcome: Outcome
+    collided: bool  # touched something during the last step
+
+
+@dataclass
+class _Robot:
+    name: str
+    index: int
+    episode: int = -1
+    step: int = -1
+    episode_step: int = 0
+    episode_return: float = 0.0
+    v: float = 0.0
+    omega: float = 0.0
+    outcome: Outcome = "running"
+
+
+class Simulation:
+    def __init__(
+        self,
+        m: Map,
+        robots: tuple[str, ...] = ("r1",),
+        config: SimConfig | None = None,
+        seed: int | None = None,
+    ) -> None:
+        if len(set(robots)) != len(robots) or not robots:
+            raise ValueError(f"robot names must be distinct and at least one: {robots}")
+        self.map = m
+        self.config = config or SimConfig()
+        self.world = World(m, len(robots), self.config.model, self.config.substeps)
+        self.sensors = Sensors(m, self.config.model)
+        self.robots = {name: _Robot(name, i) for i, name in enumerate(robots)}
+        self.rng = np.random.default_rng(seed)
+        self.sim_time = 0.0
+        timeout = self.config.timeout or m.timeout
+        self.max_episode_steps = max(1, round(timeout / self.config.control_period))
+
+    def seed(self, seed: int | None) -> None:
+        self.rng = np.random.default_rng(seed)
+
+    def reset(self, robot: str) -> Reading:
+        """Starts a new episode for one robot at the map's start pose (jittered)."""
+        r = self.robots[robot]
+        s, j = self.map.start, self.map.start_jitter
+        jitter = self.rng.uniform(-1.0, 1.0, 3) * (j.x, j.y, j.theta)
+        pose = Pose(
+            float(s.x + jitter[0]),
+            float(s.y + jitter[1]),
+            math.remainder(float(s.theta + jitter[2]), math.tau),
+        )
+        self.world.place(r.index, pose)
+        r.episode += 1
+        r.step += 1
+        r.episode_step = 0
+        r.episode_return = 0.0
+        r.v = r.omega = 0.0
+        r.outcome = "running"
+        laser, sonar = self._sense()
+        return self._reading(r, laser[r.index], sonar[r.index], 0.0, False)
+
+    def reset_all(self) -> dict[str, Reading]:
+        readings = {name: self.reset(name) for name in self.robots}
+        laser, sonar = self._sense()  # other robots may now stand in each other's view
+        return {
+            n: replace(rd, laser=laser[self.robots[n].index], sonar=sonar[self.robots[n].index])
+            for n, rd in readings.items()
+        }
+
+    def step(self, commands: dict[str, tuple[float, float]]) -> dict[str, Reading]:
+        """One control step of every robot. A robot without a command stops. Commands beyond
+        the robot's limits are clipped (see `clip`). Robots whose episode ended must be reset
+        first."""
+        rewards = self.config.rewards
+        dt = self.config.control_period
+        collided = {}
+        for name, r in self.robots.items():
+            if r.outcome != "running":
+                raise ValueError(f"robot {name}'s episode ended ({r.outcome}): reset it first")
+            v, omega, _ = self.config.model.clip(*commands.get(name, (0.0, 0.0)))
+            collided[name] = self.world.move(r.index, v, omega, dt)
+            r.v, r.omega = (0.0, 0.0) if collided[name] else (v, omega)
+        self.sim_time += dt
+        laser, sonar = self._sense()
+        readings = {}
+        for name, r in self.robots.items():
+            r.step += 1
+            r.episode_step += 1
+            reward = rewards.step
+            pose = self.world.poses[r.index]
+            if collided[name]:
+                reward += rewards.collision
+                if self.config.collision == "end":
+                    r.outcome = "collision"
+            if r.outcome == "running" and self.map.in_goal(pose.x, pose.y):
+                reward += rewards.goal
+                r.outcome = "goal"
+            if r.outcome == "running" and r.episode_step >= self.max_episode_steps:
+                r.outcome = "timeout"
+            r.episode_return += reward
+            readings[name] = self._reading(
+                r, laser[r.index], sonar[r.index], reward, collided[name]
+            )
+        return readings
+
+    def _sense(self) -> tuple[np.ndarray, np.ndarray]:
+        laser, sonar = self.sensors.scan(self.world.poses)
+        m, c = self.config.model, self.config
+        if c.laser_noise > 0:
+            laser = np.clip(
+                laser + self.rng.normal(0, c.laser_noise, laser.shape), m.laser_min, m.laser_max
+            )
+        if c.sonar_noise > 0:
+            sonar = np.clip(
+                sonar + self.rng.normal(0, c.sonar_noise, sonar.shape), m.sonar_min, m.sonar_max
+            )
+        return laser, sonar
+
+    def _reading(
+        self, r: _Robot, laser: np.ndarray, sonar: np.ndarray, reward: float, collided: bool
+    ) -> Reading:
+        return Reading(
+            robot=r.name,
+            episode=r.episode,
+            step=r.step,
+            episode_step=r.episode_step,
+            sim_time=self.sim_time,
+            pose=self.world.poses[r.index],
+            v=r.v,
+            omega=r.omega,
+            laser=laser,
+            sonar=sonar,
+            reward=reward,
+            episode_return=r.episode_return,
+            outcome=r.outcome,
+            collided=collided,
+        )
+
+    def close(self) -> None:
+        self.world.close()

@@ -1,0 +1,149 @@
+"""The PyBullet world: walls and obstacles as one static mesh, robots driven kinematically.
+
+Each control step integrates the unicycle model exactly over a few sub-steps, teleports the
+robot's body and asks PyBullet for contacts after each one; on contact the robot stays at its
+last free pose. This is exact (no motor lag) and the fastest drive measured (FIELD-NOTES:
+kinematic ~2500 steps/s, base velocity ~1650, wheel URDF ~600 with a 0.2 s lag). There is no
+hidden physics state: a pose is all there is to a robot, and a reset is one teleport,
+bit-identical every time (no saveState/restoreState needed, nor its ~156 KB per state).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+
+import numpy as np
+
+from services.sim.maps import Box, Map, Pose
+from services.sim.robot import RobotModel
+
+# `import pybullet` prints "pybullet build time: ..." from C (measured here: on stderr);
+# keep it out of every service's log.
+sys.stderr.flush()
+_saved, _devnull = os.dup(2), os.open(os.devnull, os.O_WRONLY)
+os.dup2(_devnull, 2)
+try:
+    import pybullet as pb
+finally:
+    os.dup2(_saved, 2)
+    os.close(_saved)
+    os.close(_devnull)
+
+BODY_HEIGHT = 0.25  # the robot's box, centred at SENSOR_HEIGHT
+SENSOR_HEIGHT = 0.2
+CYLINDER_SIDES = 32
+ALL_GROUPS = (1 << 30) - 1
+MAX_ROBOTS = 28  # one collision-group bit each, above the two PyBullet uses
+
+
+def _add_prism(
+    outline: list[tuple[float, float]],
+    height: float,
+    vertices: list[list[float]],
+    indices: list[int],
+) -> None:
+    """Appends a closed vertical prism over a convex counter-clockwise outline."""
+    base, n = len(vertices), len(outline)
+    vertices += [[x, y, 0.0] for x, y in outline] + [[x, y, height] for x, y in outline]
+    for i in range(n):
+        j = (i + 1) % n
+        indices += [base + i, base + j, base + n + j, base + i, base + n + j, base + n + i]
+    for i in range(1, n - 1):  # bottom (facing down) and top (facing up) fans
+        indices += [base, base + i + 1, base + i, base + n, base + n + i, base + n + i + 1]
+
+
+def shape_outline(shape: object) -> list[tuple[float, float]]:
+    """A shape's outline, counter-clockwise; a cylinder as a polygon whose sides touch the
+    circle (so the collision body is never thinner than the circle, and at most 0.5% wider)."""
+    if isinstance(shape, Box):
+        c, s = math.cos(shape.angle), math.sin(shape.angle)
+        hw, hd = shape.width / 2, shape.depth / 2
+        return [
+            (shape.x + c * dx - s * dy, shape.y + s * dx + c * dy)
+            for dx, dy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd))
+        ]
+    r = shape.radius / math.cos(math.pi / CYLINDER_SIDES)
+    return [
+        (shape.x + r * math.cos(a), shape.y + r * math.sin(a))
+        for a in np.linspace(0, math.tau, CYLINDER_SIDES, endpoint=False)
+    ]
+
+
+class World:
+    """One PyBullet client with a map's walls and `n_robots` robot bodies."""
+
+    def __init__(
+        self, m: Map, n_robots: int, model: RobotModel | None = None, substeps: int = 4
+    ) -> None:
+        if not 1 <= n_robots <= MAX_ROBOTS:
+            raise ValueError(f"a world holds 1 to {MAX_ROBOTS} robots, not {n_robots}")
+        self.map = m
+        self.model = model or RobotModel()
+        self.substeps = substeps
+        self.client = pb.connect(pb.DIRECT)
+        c = self.client
+        pb.setPhysicsEngineParameter(deterministicOverlappingPairs=1, physicsClientId=c)
+        pb.setGravity(0, 0, 0, physicsClientId=c)
+        self.walls = self._build_walls(m)
+        half = [self.model.length / 2, self.model.width / 2, BODY_HEIGHT / 2]
+        shape = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c)
+        self.bodies = []
+        for i in range(n_robots):
+            # mass > 0: a mass-0 body gets no contacts with static walls (FIELD-NOTES). Own
+            # collision groups: the default ones made contact and ray queries 2x slower.
+            body = pb.createMultiBody(
+                1.0, shape, basePosition=[-10.0 - 2 * i, -10.0, SENSOR_HEIGHT], physicsClientId=c
+            )
+            pb.setCollisionFilterGroupMask(body, -1, 1 << (i + 2), ALL_GROUPS, physicsClientId=c)
+            self.bodies.append(body)
+        self.poses = [Pose(-10.0 - 2 * i, -10.0, 0.0) for i in range(n_robots)]
+
+    def _build_walls(self, m: Map) -> int:
+        """Every wall and obstacle in one static triangle mesh: one body (FIELD-NOTES)."""
+        vertices: list[list[float]] = []
+        indices: list[int] = []
+        for shape in m.shapes:
+            _add_prism(shape_outline(shape), m.wall_height, vertices, indices)
+        mesh = pb.createCollisionShape(
+            pb.GEOM_MESH, vertices=vertices, indices=indices, physicsClientId=self.client
+        )
+        return pb.createMultiBody(0, mesh, physicsClientId=self.client)
+
+    def place(self, i: int, pose: Pose) -> None:
+        pb.resetBasePositionAndOrientation(
+            self.bodies[i],
+            [pose.x, pose.y, SENSOR_HEIGHT],
+            (0.0, 0.0, math.sin(pose.theta / 2), math.cos(pose.theta / 2)),
+            physicsClientId=self.client,
+        )
+        self.poses[i] = pose
+
+    def in_contact(self, i: int) -> bool:
+        pb.performCollisionDetection(physicsClientId=self.client)
+        contacts = pb.getContactPoints(bodyA=self.bodies[i], physicsClientId=self.client)
+        return any(c[8] < 0.0 for c in contacts)  # c[8]: contact distance, < 0 = overlap
+
+    def move(self, i: int, v: float, omega: float, dt: float) -> bool:
+        """Drives robot i at (v, omega) for dt seconds; True if it hit something (it then
+        stops at its last free pose)."""
+        h = dt / self.substeps
+        for _ in range(self.substeps):
+            before = self.poses[i]
+            theta = before.theta
+            if abs(omega) < 1e-9:
+                x, y = before.x + v * h * math.cos(theta), before.y + v * h * math.sin(theta)
+            else:
+                x = before.x + v / omega * (math.sin(theta + omega * h) - math.sin(theta))
+                y = before.y - v / omega * (math.cos(theta + omega * h) - math.cos(theta))
+            self.place(i, Pose(x, y, math.remainder(theta + omega * h, math.tau)))
+            if self.in_contact(i):
+                self.place(i, before)
+                return True
+        return False
+
+    def close(self) -> None:
+        if self.client is not None and pb.isConnected(self.client):
+            pb.disconnect(self.client)
+        self.client = None
