@@ -11,11 +11,16 @@ import argparse
 import statistics
 import time
 from dataclasses import replace
+from pathlib import Path
 
-from protocol import MESSAGE_TYPES
+import numpy as np
+
+from protocol import MESSAGE_TYPES, Observation, robot_key
 from protocol.examples import example_messages
 from services import launcher
 from services.runtime import BusError, Input, Node, bus_config
+from services.sim.maps import Pose, load_map
+from services.sim.render import render_map
 
 # Every service of the main job: compose service command -> what it is.
 MAIN_JOB = {
@@ -62,6 +67,34 @@ def bus_check(session: launcher.Session, rounds: int) -> tuple[int, list[float]]
     return len(arrived), trips
 
 
+def watch_simulator(session: launcher.Session, seconds: float = 1.0) -> Observation | None:
+    """Listens to the simulator's robots for a moment; draws the last pose and scan seen."""
+    assert session.bus is not None
+    session.bus.input("obs", robot_key(session.bus.session_id, "*", "obs"))
+    seen: list[Observation] = []
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        event = session.bus.poll(0.1)
+        if isinstance(event, Input) and isinstance(event.message, Observation):
+            seen.append(event.message)
+    if not seen:
+        session.say(f"simulator: no observation within {seconds:g} s")
+        return None
+    last = seen[-1]
+    out = Path("runs") / session.bus.session_id
+    out.mkdir(parents=True, exist_ok=True)
+    picture = out / "demo-sim.png"
+    sim = next(spec for spec in session.specs if spec.command[1:2] == ("sim",))
+    task = load_map(sim.environment.get("VOXSHAPE_TASK", "1"))
+    pose = Pose(last.x, last.y, last.theta)
+    render_map(task, pose=pose, scan=np.array(last.laser), path=picture)
+    session.say(
+        f"simulator: {len(seen)} observations of robot {last.robot} in {seconds:g} s "
+        f"(step {last.step}, at x={last.x:.2f} y={last.y:.2f}); picture: {picture}"
+    )
+    return last
+
+
 def run(args: argparse.Namespace) -> int:
     session = launcher.open_session(args)
     have = {spec.command[1] for spec in session.specs if len(spec.command) > 1}
@@ -81,6 +114,8 @@ def run(args: argparse.Namespace) -> int:
             else "bus check: no message arrived"
         )
         if n_types != len(MESSAGE_TYPES):
+            code = 1
+        if "sim" in have and watch_simulator(session) is None:
             code = 1
     except (launcher.ServiceDied, launcher.LaunchAborted, BusError) as e:
         session.say(f"error: {e}")

@@ -18,6 +18,7 @@ import yaml
 LOCAL_VARIABLES = {
     "VOXSHAPE_ROUTER": "tcp/127.0.0.1:7447",  # where services connect
     "VOXSHAPE_ROUTER_LISTEN": "tcp/127.0.0.1:7447",  # where the router listens
+    "VOXSHAPE_PEER_LISTEN": "tcp/127.0.0.1:0",  # where peers listen for each other
 }
 _VARIABLE = re.compile(r"\$(?:\$|\{(\w+)(?:(:?[-?])([^}]*))?\}|(\w+))")
 

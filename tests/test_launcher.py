@@ -132,7 +132,7 @@ def test_up_rejects_a_broken_compose_file(tmp_path):
     assert "service 'a': `command` must be a list of strings" in result.stderr
 
 
-def test_demo_starts_what_exists_and_says_what_is_missing(session_id):
+def test_demo_starts_what_exists_and_says_what_is_missing(session_id, tmp_path):
     env = {**os.environ, "VOXSHAPE_SESSION": session_id}
     result = subprocess.run(
         [VOXSHAPE, "demo", "--port", str(free_port()), "--rounds", "5"],
@@ -140,11 +140,16 @@ def test_demo_starts_what_exists_and_says_what_is_missing(session_id):
         text=True,
         timeout=120,
         env=env,
+        cwd=tmp_path,  # it writes under ./runs
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "bus check: 7/7 message types crossed the router (35 messages)" in result.stdout
     assert "not built yet, so no robot learns in this demo" in result.stdout
-    assert "simulator: PyBullet world and robot (issue 3)" in result.stdout
+    assert "learner: SARSA(lambda) with dynamic reward shaping (issue 4)" in result.stdout
+    assert "simulator: PyBullet" not in result.stdout  # it exists now: started, not missing
+    line = next(line for line in result.stdout.splitlines() if "observations of robot r1" in line)
+    picture = tmp_path / line.rsplit("picture: ", 1)[1]
+    assert picture.is_file() and picture.stat().st_size > 10_000
     print(next(line for line in result.stdout.splitlines() if "bus check" in line))
 
 

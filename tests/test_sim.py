@@ -315,3 +315,15 @@ def test_render_gives_a_picture():
     picture = env.render()
     assert picture.ndim == 3 and picture.shape[2] == 3 and picture.std() > 10
     env.close()
+
+
+def test_several_robots_start_apart_and_clear_of_each_other():
+    sim = Simulation(load_map("1"), ("a", "b", "c"), seed=0)
+    readings = sim.reset_all()
+    poses = [r.pose for r in readings.values()]
+    for i, p in enumerate(poses):
+        assert sim.map.clearance(p.x, p.y) >= 0.3
+        for q in poses[i + 1 :]:
+            assert math.dist((p.x, p.y), (q.x, q.y)) > MODEL.length
+    first = sim.step({name: (0.0, 0.0) for name in sim.robots})
+    assert all(not r.collided for r in first.values())

@@ -132,6 +132,7 @@ class FreeSpace:
         ys = (np.arange(self.rows) + 0.5) * resolution
         px, py = np.meshgrid(xs, ys)  # [row, col]
         self.clearance = m.clearance(px, py)
+        self._distances: dict[float, np.ndarray] = {}
 
     def cell(self, x: float, y: float) -> tuple[int, int]:
         col = min(self.cols - 1, max(0, int(x / self.resolution)))
@@ -140,7 +141,14 @@ class FreeSpace:
 
     def distances_to_goal(self, robot_radius: float) -> np.ndarray:
         """Geodesic distance (metres) from every cell to the goal region for a robot whose
-        centre must keep `robot_radius` from obstacles; inf where the goal cannot be reached."""
+        centre must keep `robot_radius` from obstacles; inf where the goal cannot be reached.
+        Computed once per radius (read-only)."""
+        if robot_radius not in self._distances:
+            self._distances[robot_radius] = self._dijkstra(robot_radius)
+            self._distances[robot_radius].flags.writeable = False
+        return self._distances[robot_radius]
+
+    def _dijkstra(self, robot_radius: float) -> np.ndarray:
         m = self.map
         free = self.clearance >= robot_radius
         dist = np.full(free.shape, np.inf)

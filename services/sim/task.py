@@ -13,7 +13,7 @@ from typing import Literal
 
 import numpy as np
 
-from services.sim.maps import Map, Pose
+from services.sim.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
 from services.sim.robot import RobotModel
 from services.sim.sensors import Sensors
 from services.sim.world import World
@@ -101,7 +101,8 @@ class Simulation:
         self.rng = np.random.default_rng(seed)
 
     def reset(self, robot: str) -> Reading:
-        """Starts a new episode for one robot at the map's start pose (jittered)."""
+        """Starts a new episode for one robot at the map's start pose (jittered); if another
+        robot stands there, at the nearest free place around it."""
         r = self.robots[robot]
         s, j = self.map.start, self.map.start_jitter
         jitter = self.rng.uniform(-1.0, 1.0, 3) * (j.x, j.y, j.theta)
@@ -111,6 +112,8 @@ class Simulation:
             math.remainder(float(s.theta + jitter[2]), math.tau),
         )
         self.world.place(r.index, pose)
+        if len(self.robots) > 1 and self.world.in_contact(r.index):
+            self.world.place(r.index, self._free_start_near(r.index, pose))
         r.episode += 1
         r.step += 1
         r.episode_step = 0
@@ -119,6 +122,28 @@ class Simulation:
         r.outcome = "running"
         laser, sonar = self._sense()
         return self._reading(r, laser[r.index], sonar[r.index], 0.0, False)
+
+    def _free_start_near(self, index: int, pose: Pose) -> Pose:
+        """The first free pose on rings around `pose` (0.7 m apart, 16 places per ring) from
+        which the goal is reachable."""
+        m = self.map
+        reachable = np.isfinite(m.grid.distances_to_goal(PASSAGE_RADIUS))
+        for ring in range(1, 8):
+            for k in range(16):
+                a = pose.theta + k * math.tau / 16
+                x = pose.x + 0.7 * ring * math.cos(a)
+                y = pose.y + 0.7 * ring * math.sin(a)
+                if not (0 < x < m.width and 0 < y < m.height):
+                    continue
+                if m.clearance(x, y) < ROBOT_CLEARANCE or not reachable[m.grid.cell(x, y)]:
+                    continue
+                self.world.place(index, Pose(x, y, pose.theta))
+                if not self.world.in_contact(index):
+                    return Pose(x, y, pose.theta)
+        raise ValueError(
+            f"no free start pose for {len(self.robots)} robots near the start of {m.name}: "
+            "use fewer robots or a map with a larger start area"
+        )
 
     def reset_all(self) -> dict[str, Reading]:
         readings = {name: self.reset(name) for name in self.robots}
