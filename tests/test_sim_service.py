@@ -22,6 +22,13 @@ def start_sim(spawn, router, session_id, *extra, node="sim"):
     )
 
 
+def start_lockstep(spawn, router, session_id, *extra):
+    """A lockstep simulator that waits (up to 30 s) for the test's actions."""
+    return start_sim(
+        spawn, router, session_id, "--clock", "lockstep", "--action-timeout", "30", *extra
+    )
+
+
 def collect(node: Node, n: int, kind: type, timeout: float = 15.0) -> list:
     """The next `n` messages of one type (others are skipped)."""
     got, deadline = [], time.monotonic() + timeout
@@ -77,9 +84,7 @@ def wait_for_sim(node: Node, who: str = "sim") -> None:
 
 
 def test_lockstep_steps_only_on_the_action_for_the_current_step(spawn, router, session_id, policy):
-    sim = start_sim(
-        spawn, router, session_id, "--clock", "lockstep", "--action-timeout", "30", "--task", "1"
-    )
+    sim = start_lockstep(spawn, router, session_id, "--task", "1")
     wait_for_sim(policy)
     out = policy.output("action", robot_key(session_id, "r1", "action"))
     (start,) = collect(policy, 1, Observation)
@@ -134,14 +139,10 @@ def test_paced_clock_follows_the_real_time_factor(spawn, router, session_id, pol
 
 
 def test_two_robots_in_one_world_each_on_its_own_keys(spawn, router, session_id, policy):
-    sim = start_sim(
+    sim = start_lockstep(
         spawn,
         router,
         session_id,
-        "--clock",
-        "lockstep",
-        "--action-timeout",
-        "30",
         "--robot",
         "a",
         "--robot",
@@ -202,14 +203,10 @@ def test_episode_events_and_outcome_on_the_terminal_observation(
         'name = "tiny"\nsize = [3.0, 2.0]\ntimeout = 5.0\n'
         "[start]\npose = [0.6, 1.0, 0.0]\n[goal]\ncenter = [1.3, 1.0]\nradius = 0.3\n"
     )
-    sim = start_sim(
+    sim = start_lockstep(
         spawn,
         router,
         session_id,
-        "--clock",
-        "lockstep",
-        "--action-timeout",
-        "30",
         "--task",
         str(tiny),
     )
