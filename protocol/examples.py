@@ -53,6 +53,8 @@ def example_messages(
                 laser=(4.0,) * 180,
                 sonar=(1.5,) * 8,
                 reward=-1.0,
+                goal_distance=4.3,
+                goal_bearing=0.35,
                 outcome="running",
                 collided=False,
             ),

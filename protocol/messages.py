@@ -83,6 +83,8 @@ class Observation(Message):
     laser: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=1081)]
     sonar: Annotated[tuple[Annotated[float, Range(0.0, 100.0)], ...], Size(max=32)]
     reward: Reward  # R_RL of the transition that led here
+    goal_distance: Annotated[float, Range(0.0, 1e4)]  # straight line to the goal's centre
+    goal_bearing: Heading  # to the goal's centre, from the heading (+ = to the left)
     # How the episode stands after this step. Not "running": the episode ended here, no
     # action is expected for this step, and the next observation starts a new episode.
     outcome: Literal["running", "goal", "collision", "timeout"]

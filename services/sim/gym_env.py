@@ -61,12 +61,10 @@ class NavigationEnv(gym.Env):
         self._trajectory: list[tuple[float, float]] = []
 
     def _observation(self, r: Reading) -> dict[str, np.ndarray]:
-        dx, dy = self.map.goal_x - r.pose.x, self.map.goal_y - r.pose.y
-        bearing = math.remainder(math.atan2(dy, dx) - r.pose.theta, math.tau)
         return {
             "laser": r.laser.astype(np.float32),
             "sonar": r.sonar.astype(np.float32),
-            "goal": np.array([math.hypot(dx, dy), bearing], np.float32),
+            "goal": np.array([r.goal_distance, r.goal_bearing], np.float32),
             "velocity": np.array([r.v, r.omega], np.float32),
         }
 

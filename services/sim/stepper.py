@@ -172,6 +172,8 @@ class Stepper:
             laser=tuple(r.laser.tolist()),
             sonar=tuple(r.sonar.tolist()),
             reward=r.reward,
+            goal_distance=r.goal_distance,
+            goal_bearing=r.goal_bearing,
             outcome=r.outcome,
             collided=r.collided,
         )

@@ -59,6 +59,8 @@ class Reading:
     laser: np.ndarray
     sonar: np.ndarray
     reward: float  # R_RL of the transition that led here (0 after a reset)
+    goal_distance: float  # straight line to the goal's centre, metres
+    goal_bearing: float  # to the goal's centre from the heading, radians (+ = left)
     episode_return: float
     outcome: Outcome
     collided: bool  # touched something during the last step
@@ -205,18 +207,22 @@ class Simulation:
     def _reading(
         self, r: _Robot, laser: np.ndarray, sonar: np.ndarray, reward: float, collided: bool
     ) -> Reading:
+        pose = self.world.poses[r.index]
+        dx, dy = self.map.goal_x - pose.x, self.map.goal_y - pose.y
         return Reading(
             robot=r.name,
             episode=r.episode,
             step=r.step,
             episode_step=r.episode_step,
             sim_time=self.sim_time,
-            pose=self.world.poses[r.index],
+            pose=pose,
             v=r.v,
             omega=r.omega,
             laser=laser,
             sonar=sonar,
             reward=reward,
+            goal_distance=math.hypot(dx, dy),
+            goal_bearing=math.remainder(math.atan2(dy, dx) - pose.theta, math.tau),
             episode_return=r.episode_return,
             outcome=r.outcome,
             collided=collided,
