@@ -9,6 +9,8 @@ from types import ModuleType
 
 from protocol import ProtocolError, VocabularyError
 from services import demo, launcher, router, tools
+from services.learner import commands as learner_commands
+from services.learner import node as learner_node
 from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
 from services.sim import commands as sim_commands
 from services.sim import node as sim_node
@@ -32,6 +34,14 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
     ),
     "router": ("run the zenoh router of a session", add_bus_arguments, router.run),
     "sim": ("run the simulator: PyBullet world, robots, episodes", *_module(sim_node)),
+    "learner": (
+        "run the learner: SARSA(lambda) with dynamic reward shaping",
+        *_module(learner_node),
+    ),
+    "train": (
+        "train plain SARSA(lambda) in one process and report convergence",
+        *_module(learner_commands),
+    ),
     "map": (
         "draw a task's map (start, goal, optional path and scan) as PNG",
         sim_commands.add_map_arguments,

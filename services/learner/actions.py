@@ -1,0 +1,58 @@
+"""From Q-values to what the robot does: epsilon-greedy over the discrete actions, or their
+Q-weighted blend sent as one continuous (v, omega) (after Millan et al. 2002)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from protocol import ACTION_NAMES
+from services.learner.config import LearnerConfig
+
+N_ACTIONS = len(ACTION_NAMES)
+
+
+@dataclass(frozen=True)
+class Decision:
+    weights: np.ndarray  # per discrete action (ACTION_NAMES order), summing to 1
+    v: float
+    omega: float
+    chooser: str  # "policy" or "teacher"
+
+    @property
+    def discrete(self) -> int:
+        """The action this decision is mostly made of."""
+        return int(np.argmax(self.weights))
+
+
+class ActionSet:
+    def __init__(self, config: LearnerConfig) -> None:
+        self.config = config
+        self.velocity = np.array([config.velocities[name] for name in ACTION_NAMES])
+        self.allowed = np.array([name in config.policy_actions for name in ACTION_NAMES])
+
+    def one_hot(self, index: int, chooser: str = "policy") -> Decision:
+        weights = np.zeros(N_ACTIONS)
+        weights[index] = 1.0
+        v, omega = self.velocity[index]
+        return Decision(weights, float(v), float(omega), chooser)
+
+    def choose(self, q: np.ndarray, epsilon: float, rng: np.random.Generator) -> Decision:
+        """Epsilon-greedy: a random allowed action, else the greedy one or the blend."""
+        allowed = np.flatnonzero(self.allowed)
+        if rng.random() < epsilon:
+            return self.one_hot(int(rng.choice(allowed)))
+        if not self.config.blend:
+            best = allowed[np.flatnonzero(q[allowed] == q[allowed].max())]
+            return self.one_hot(int(rng.choice(best)))  # ties broken at random
+        spread = q[allowed].max() - q[allowed].min()
+        if spread < 1e-9:  # nothing learnt here yet: one action, not a mix that cancels out
+            return self.one_hot(int(rng.choice(allowed)))
+        # The temperature is relative to the spread of Q in this state, so the blend has the
+        # same sharpness whatever the scale of the rewards.
+        z = (q[allowed] - q[allowed].max()) / (self.config.temperature * spread)
+        weights = np.zeros(N_ACTIONS)
+        weights[allowed] = np.exp(z) / np.exp(z).sum()
+        v, omega = weights @ self.velocity
+        return Decision(weights, float(v), float(omega), "policy")

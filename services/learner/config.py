@@ -1,0 +1,69 @@
+"""Every hyper-parameter of the learner, in one place, with the values used in experiments."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+
+@dataclass(frozen=True)
+class LearnerConfig:
+    # -- state representation (Pearson prototypes, after Millan et al. 2002) ---------------
+    laser_sectors: int = 12  # the 180 beams summarised as the nearest range per sector
+    use_sonar: bool = True  # append the 8 rear sonar ranges to the sensor vector
+    pearson_threshold: float = 0.9  # best correlation below this: a new prototype is born
+    goal_features: bool = True  # add the quantised goal bearing and distance to the state
+    bearing_bins: int = 8  # 45 degrees each, the first centred straight ahead
+    distance_edges: tuple[float, ...] = (1.0, 2.5)  # metres: bins [0,1) [1,2.5) [2.5,inf)
+    init_from_neighbour: bool = True  # a new state starts with its nearest state's Q-values
+    # Readings with nothing nearer than this (metres) share one "clear" prototype: the shape
+    # of far walls says nothing about where to go, and would multiply the states. None: off.
+    clear_range: float | None = 1.0
+
+    # -- actions ----------------------------------------------------------------------------
+    # (v m/s, omega rad/s) of each discrete action; names are protocol.ACTION_NAMES.
+    velocities: dict[str, tuple[float, float]] = field(
+        default_factory=lambda: {
+            "stop": (0.0, 0.0),
+            "forward": (0.5, 0.0),
+            "back": (-0.3, 0.0),
+            "left": (0.0, math.radians(60)),
+            "right": (0.0, -math.radians(60)),
+        }
+    )
+    # The policy chooses among these. "stop" is left to teachers: standing still never
+    # earns anything under R_RL (-1 per step), so exploring it only wastes episodes.
+    policy_actions: tuple[str, ...] = ("forward", "back", "left", "right")
+    blend: bool = True  # send the softmax(Q / temperature)-weighted mix of the actions
+    temperature: float = 0.2  # of the blend, in units of the state's Q spread (max - min):
+    # an action half the spread below the best gets exp(-0.5 / 0.2) = 8% of the best's weight
+
+    # -- SARSA(lambda) ------------------------------------------------------------------------
+    alpha: float = 0.2  # learning rate
+    gamma: float = 0.98  # discount
+    lam: float = 0.8  # trace decay (lambda)
+    # A policy action goes on until the state changes, at most this many steps (1: decide at
+    # every step). States are coarse: deciding inside one sees no progress, only -1 per step.
+    max_hold: int = 20
+    traces: Literal["replacing", "accumulating"] = "replacing"
+    epsilon_start: float = 0.2  # epsilon-greedy exploration, decaying linearly ...
+    epsilon_end: float = 0.01  # ... to this ...
+    epsilon_episodes: int = 60  # ... over this many episodes
+
+    # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
+    shaping: Literal["additive", "action_bias"] = "additive"
+    feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
+    command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
+    command_steps: int = 5  # a teacher command overrides the policy this many steps
+    feedback_window: int = 100  # steps kept for late feedback; older credit is dropped
+    bias_weight: float = 1.0  # action_bias: the policy ranks Q + beta * H, beta = ...
+    bias_decay: float = 0.97  # ... bias_weight * bias_decay ** episode
+
+    # -- convergence (see convergence.py) ---------------------------------------------------
+    converge_episodes: int = 3  # K consecutive goal episodes ...
+    converge_margin: float = 0.25  # ... each within (1 + margin) x the shortest seen
+
+    def epsilon(self, episode: int) -> float:
+        done = min(1.0, episode / max(1, self.epsilon_episodes))
+        return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)

@@ -1,0 +1,124 @@
+"""`voxshape learner`: the learner on the bus, one robot.
+
+Inputs:  voxshape/<session>/robot/<robot>/obs        the simulator's observations
+         voxshape/<session>/robot/<robot>/feedback   credited rewards and commands (arbiter)
+Outputs: voxshape/<session>/robot/<robot>/action     one per observation that is not terminal
+         voxshape/<session>/robot/<robot>/learning   a summary per step (for the logger)
+Checkpoints every `--checkpoint-every` seconds and on shutdown; restored on start.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from pathlib import Path
+
+from protocol import Action, CreditedFeedback, LearningSummary, Observation, check_id, robot_key
+from services.learner import checkpoint
+from services.learner.config import LearnerConfig
+from services.learner.sarsa import Learner
+from services.learner.traces import TraceBook
+from services.runtime import Input, Node, add_bus_arguments, bus_config, fields
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    parser.add_argument(
+        "--robot",
+        default=os.environ.get("VOXSHAPE_ROBOT", "r1"),
+        help="the robot it drives (VOXSHAPE_ROBOT)",
+    )
+    parser.add_argument(
+        "--checkpoint",
+        type=Path,
+        help="checkpoint file (default: runs/<session>/learner-<robot>.npz)",
+    )
+    parser.add_argument("--checkpoint-every", type=float, default=10.0, help="seconds")
+    parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint")
+    parser.add_argument("--traces", type=Path, help="initial traces to learn from first")
+    parser.add_argument("--seed", type=int, default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    robot = check_id(args.robot, "robot")
+    bus = bus_config("learner", args)
+    path = args.checkpoint or Path("runs") / bus.session / f"learner-{robot}.npz"
+    config = LearnerConfig()
+    learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
+    learner = learner or Learner(config, args.seed)
+    book = TraceBook()
+    with Node("learner", bus) as node:
+        node.log.info(
+            "learning",
+            extra=fields(
+                robot=robot, checkpoint=path, states=len(learner.states), episodes=learner.episode
+            ),
+        )
+        if args.traces:
+            replayed = TraceBook.load(args.traces).replay(learner)
+            node.log.info("learnt from initial traces", extra=fields(steps=replayed))
+        node.input("obs", robot_key(node.session_id, robot, "obs"))
+        node.input("feedback", robot_key(node.session_id, robot, "feedback"))
+        act = node.output("action", robot_key(node.session_id, robot, "action"))
+        summary = node.output(
+            "learning", robot_key(node.session_id, robot, "learning"), must_arrive=False
+        )
+        last_save = time.monotonic()
+        for event in node.events(tick=1.0):
+            if isinstance(event, Input) and isinstance(event.message, Observation):
+                obs = event.message
+                if obs.episode_step == 0 and learner.s is not None:
+                    learner.interrupt()  # missed the end of the last episode
+                decision = learner.step(obs)
+                book.record(obs, decision)
+                if decision is not None:
+                    act.put(
+                        Action(
+                            robot=robot,
+                            episode=obs.episode,
+                            step=obs.step,
+                            discrete=decision.discrete,
+                            v=decision.v,
+                            omega=decision.omega,
+                            chooser=decision.chooser,
+                        )
+                    )
+                summary.put(_summary(learner, obs))
+            elif isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
+                _apply(learner, event.message, node)
+            if time.monotonic() - last_save >= args.checkpoint_every:
+                checkpoint.save(learner, path)
+                last_save = time.monotonic()
+        checkpoint.save(learner, path)
+        if book.episodes:
+            book.save(path.with_name(f"traces-{robot}.npz"))
+        node.counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
+    return 0
+
+
+def _apply(learner: Learner, feedback: CreditedFeedback, node: Node) -> None:
+    if feedback.kind == "command":
+        learner.command(feedback.command)
+        return
+    for credit in feedback.credits:
+        if not learner.credit(credit.step, credit.weight, feedback.reward):
+            node.log.warning(
+                "feedback for a step outside the window dropped",
+                extra=fields(step=credit.step, teachers=",".join(feedback.teachers)),
+            )
+
+
+def _summary(learner: Learner, obs: Observation) -> LearningSummary:
+    state = learner.s if learner.s is not None else 0
+    return LearningSummary(
+        robot=obs.robot,
+        episode=obs.episode,
+        step=obs.step,
+        state=state,
+        states=len(learner.states),
+        q_values=tuple(float(q) for q in learner.Q[state]) if len(learner.Q) else (),
+        td_error=learner.td_error,
+        epsilon=learner.config.epsilon(learner.episode),
+        reward=obs.reward,
+    )

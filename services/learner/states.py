@@ -1,0 +1,97 @@
+"""States born incrementally from sensor readings (Pearson prototypes), plus goal features.
+
+A reading is summarised as a sensor vector: the nearest laser range in each of
+`laser_sectors` sectors, then the sonar ranges. Its Pearson correlation with every stored
+prototype is computed; if the best is below the threshold, the reading becomes a new
+prototype. Pearson's correlation compares shapes, not distances, so sensors alone cannot
+tell where the goal is: with `goal_features`, the state is (prototype, goal-bearing bin,
+goal-distance bin).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+import numpy as np
+
+from services.learner.config import LearnerConfig
+
+CLEAR = -1  # the prototype of readings with nothing within clear_range
+
+
+class Percept(Protocol):
+    """What the learner reads of an observation (protocol.Observation or a sim Reading)."""
+
+    laser: np.ndarray | tuple[float, ...]
+    sonar: np.ndarray | tuple[float, ...]
+    goal_distance: float
+    goal_bearing: float
+
+
+class StateSpace:
+    def __init__(self, config: LearnerConfig) -> None:
+        self.config = config
+        self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
+        self.keys: dict[tuple[int, int, int], int] = {}  # (prototype, bearing, distance)
+        self._matrix = np.zeros((0, 0))
+
+    def __len__(self) -> int:
+        return len(self.keys)
+
+    def sensor_vector(self, p: Percept) -> np.ndarray:
+        laser = np.asarray(p.laser, dtype=float)
+        sectors = np.array_split(laser, self.config.laser_sectors)
+        parts = [np.array([s.min() for s in sectors])]
+        if self.config.use_sonar:
+            parts.append(np.asarray(p.sonar, dtype=float))
+        return np.concatenate(parts)
+
+    def goal_bins(self, p: Percept) -> tuple[int, int]:
+        if not self.config.goal_features:
+            return 0, 0
+        n = self.config.bearing_bins
+        bearing = math.floor((p.goal_bearing + math.pi / n) / (2 * math.pi / n)) % n
+        distance = int(np.searchsorted(self.config.distance_edges, p.goal_distance, "right"))
+        return bearing, distance
+
+    def classify(self, p: Percept) -> tuple[int, int | None]:
+        """The state of a percept, and the state it was born from (None if not new)."""
+        vector = self.sensor_vector(p)
+        clear = self.config.clear_range is not None and vector.min() >= self.config.clear_range
+        if clear:
+            prototype, neighbour_prototype = CLEAR, None
+        else:
+            centred = vector - vector.mean()
+            norm = np.linalg.norm(centred)
+            unit = centred / norm if norm > 1e-9 else centred
+            prototype, neighbour_prototype = self._match(unit)
+        key = (prototype, *self.goal_bins(p))
+        if key in self.keys:
+            return self.keys[key], None
+        self.keys[key] = len(self.keys)
+        # The nearest existing state: same goal bins, best-matching prototype.
+        parent = (
+            self.keys.get((neighbour_prototype, *key[1:]))
+            if neighbour_prototype is not None
+            else None
+        )
+        return self.keys[key], parent
+
+    def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
+        """(prototype index, best other prototype when a new one was born)."""
+        if self.prototypes:
+            correlations = self._matrix @ unit  # Pearson: dot product of centred unit vectors
+            best = int(np.argmax(correlations))
+            if correlations[best] >= self.config.pearson_threshold:
+                return best, None
+        else:
+            best = None
+        self.prototypes.append(unit)
+        self._matrix = np.array(self.prototypes)
+        return len(self.prototypes) - 1, best
+
+    def restore(self, prototypes: np.ndarray, keys: np.ndarray) -> None:
+        self.prototypes = list(prototypes)
+        self._matrix = np.array(self.prototypes) if self.prototypes else np.zeros((0, 0))
+        self.keys = {tuple(int(v) for v in k): i for i, k in enumerate(keys)}

@@ -1,0 +1,126 @@
+"""Initial traces: episodes a teacher steered, recorded, saved, and replayed for learning.
+
+An episode in which the teacher gave at least one command is kept whole (the percepts, the
+action taken at each step and who chose it). Replaying it runs the very SARSA(lambda) update
+over it with those actions imposed, so the learner learns from the teacher's route before
+(and, replayed again, during) its own episodes. Files are .npz arrays, no pickle.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from services.learner.actions import N_ACTIONS, Decision
+from services.learner.sarsa import Learner, LearnerPercept
+
+OUTCOMES = ("running", "goal", "collision", "timeout")
+
+
+@dataclass(frozen=True)
+class TracePercept:
+    laser: np.ndarray
+    sonar: np.ndarray
+    goal_distance: float
+    goal_bearing: float
+    reward: float
+    outcome: str
+    step: int
+
+
+@dataclass
+class TraceBook:
+    """Recorded episodes: each a list of (percept, decision or None at the end)."""
+
+    episodes: list[list[tuple[TracePercept, Decision | None]]] = field(default_factory=list)
+    _current: list[tuple[TracePercept, Decision | None]] = field(default_factory=list)
+
+    def record(self, p: LearnerPercept, decision: Decision | None) -> None:
+        """Call with every percept and the decision taken on it (None once it ended)."""
+        self._current.append(
+            (
+                TracePercept(
+                    np.asarray(p.laser, float),
+                    np.asarray(p.sonar, float),
+                    float(p.goal_distance),
+                    float(p.goal_bearing),
+                    float(p.reward),
+                    p.outcome,
+                    int(p.step),
+                ),
+                decision,
+            )
+        )
+        if decision is None:
+            if any(d is not None and d.chooser == "teacher" for _, d in self._current):
+                self.episodes.append(self._current)
+            self._current = []
+
+    def replay(self, learner: Learner) -> int:
+        """Learns from every recorded episode; returns the number of steps replayed. The
+        replays do not count as the learner's own episodes."""
+        episode, steps = learner.episode, 0
+        for recorded in self.episodes:
+            learner.interrupt()
+            for percept, decision in recorded:
+                learner.step(percept, forced=decision)
+                steps += 1
+            learner.interrupt()
+        learner.episode = episode
+        return steps
+
+    def save(self, path: Path) -> None:
+        rows = [(i, p, d) for i, ep in enumerate(self.episodes) for p, d in ep]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(
+            path,
+            episode=np.array([i for i, _, _ in rows], dtype=np.int64),
+            laser=np.array([p.laser for _, p, _ in rows]),
+            sonar=np.array([p.sonar for _, p, _ in rows]),
+            goal=np.array([(p.goal_distance, p.goal_bearing) for _, p, _ in rows]),
+            reward=np.array([p.reward for _, p, _ in rows]),
+            outcome=np.array([OUTCOMES.index(p.outcome) for _, p, _ in rows], dtype=np.int64),
+            step=np.array([p.step for _, p, _ in rows], dtype=np.int64),
+            weights=np.array([d.weights if d else np.zeros(N_ACTIONS) for _, _, d in rows]),
+            velocity=np.array([(d.v, d.omega) if d else (0.0, 0.0) for _, _, d in rows]),
+            teacher=np.array([bool(d and d.chooser == "teacher") for _, _, d in rows]),
+            ended=np.array([d is None for _, _, d in rows]),
+        )
+
+    @classmethod
+    def load(cls, path: Path) -> TraceBook:
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as e:
+            raise ValueError(f"{path}: not a trace file ({e})") from None
+        book = cls()
+        for i in np.unique(data["episode"]) if len(data.get("episode", [])) else []:
+            rows = np.flatnonzero(data["episode"] == i)
+            book.episodes.append(
+                [
+                    (
+                        TracePercept(
+                            data["laser"][r],
+                            data["sonar"][r],
+                            float(data["goal"][r][0]),
+                            float(data["goal"][r][1]),
+                            float(data["reward"][r]),
+                            OUTCOMES[int(data["outcome"][r])],
+                            int(data["step"][r]),
+                        ),
+                        None
+                        if data["ended"][r]
+                        else Decision(
+                            data["weights"][r],
+                            float(data["velocity"][r][0]),
+                            float(data["velocity"][r][1]),
+                            "teacher" if data["teacher"][r] else "policy",
+                        ),
+                    )
+                    for r in rows
+                ]
+            )
+        return book

@@ -1,0 +1,72 @@
+"""In-process training: the simulator core and the learner core stepped directly, no bus.
+
+Fast and deterministic for a seed; the experiments (and `voxshape train`) build on it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from services.learner.config import LearnerConfig
+from services.learner.convergence import Convergence, Episode
+from services.learner.sarsa import Learner
+from services.sim.maps import load_map
+from services.sim.task import SimConfig, Simulation
+
+
+@dataclass
+class TrainResult:
+    task: str
+    seed: int
+    converged: bool
+    episodes: int
+    learning_time: float  # simulated seconds until convergence
+    steps: int
+    states: int
+    history: list[Episode]
+
+
+def train(
+    task: str,
+    seed: int,
+    config: LearnerConfig | None = None,
+    max_episodes: int = 500,
+    sim_config: SimConfig | None = None,
+    on_episode: Callable[[Episode, Learner], None] | None = None,
+) -> TrainResult:
+    """Plain SARSA(lambda) (no teacher) until convergence or `max_episodes`."""
+    config = config or LearnerConfig()
+    sim = Simulation(load_map(task), ("robot",), sim_config, seed=seed)
+    learner = Learner(config, seed=seed)
+    progress = Convergence(config)
+    steps = 0
+    try:
+        for _ in range(max_episodes):
+            reading = sim.reset("robot")
+            decision = learner.step(reading)
+            while decision is not None:
+                reading = sim.step({"robot": (decision.v, decision.omega)})["robot"]
+                decision = learner.step(reading)
+            steps += reading.episode_step
+            episode = Episode(
+                reading.outcome,
+                reading.episode_step,
+                reading.episode_step * sim.config.control_period,
+            )
+            if on_episode is not None:
+                on_episode(episode, learner)
+            if progress.add(episode):
+                break
+    finally:
+        sim.close()
+    return TrainResult(
+        task,
+        seed,
+        progress.converged,
+        progress.n_episodes,
+        progress.learning_time,
+        steps,
+        len(learner.states),
+        progress.episodes,
+    )

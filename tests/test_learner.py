@@ -1,0 +1,239 @@
+"""The learner's core: the SARSA(lambda) update by hand, state birth, the blend of actions,
+late feedback reaching exactly its steps, commands, traces and checkpoints."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+
+from protocol import ACTION_NAMES
+from services.learner import checkpoint
+from services.learner.actions import ActionSet
+from services.learner.config import LearnerConfig
+from services.learner.sarsa import Learner
+from services.learner.states import CLEAR, StateSpace
+from services.learner.traces import TraceBook
+
+FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
+
+
+@dataclass(frozen=True)
+class P:
+    """A crafted percept."""
+
+    laser: tuple
+    sonar: tuple = (1.0,) * 8
+    goal_distance: float = 3.0
+    goal_bearing: float = 0.0
+    reward: float = -1.0
+    outcome: str = "running"
+    step: int = 0
+
+
+WALL_LEFT = tuple([0.5] * 90 + [3.0] * 90)  # (beam 0 is on the right)
+WALL_RIGHT = tuple([3.0] * 90 + [0.5] * 90)
+
+EXACT = LearnerConfig(
+    alpha=0.5,
+    gamma=0.9,
+    lam=0.8,
+    blend=False,
+    epsilon_start=0.0,
+    epsilon_end=0.0,
+    max_hold=1,
+    clear_range=None,
+    use_sonar=False,
+)
+
+
+def test_the_update_against_a_hand_computed_two_step_example():
+    learner = Learner(EXACT, seed=0)
+    forward, left = learner.actions.one_hot(FORWARD), learner.actions.one_hot(LEFT)
+    learner.step(P(WALL_LEFT, step=0), forced=forward)  # s = A: nothing to learn yet
+    learner.step(P(WALL_RIGHT, reward=-1.0, step=1), forced=left)  # s' = B
+    a, b = 0, 1
+    # delta1 = -1 + 0.9 * Q(B, left) - Q(A, forward) = -1; e(A, fwd) = 1
+    assert learner.Q[a, FORWARD] == pytest.approx(0.5 * -1.0)
+    assert learner.e[a, FORWARD] == pytest.approx(0.9 * 0.8)
+    learner.step(P(WALL_LEFT, reward=99.0, outcome="goal", step=2))  # terminal
+    # delta2 = 99 + 0 - Q(B, left) = 99; e(B, left) = 1, e(A, fwd) = 0.72
+    assert learner.Q[b, LEFT] == pytest.approx(0.5 * 99.0)
+    assert learner.Q[a, FORWARD] == pytest.approx(-0.5 + 0.5 * 99.0 * 0.72)
+    assert learner.episode == 1 and learner.s is None and not learner.e.any()
+
+
+def test_accumulating_traces_add_up():
+    learner = Learner(replace(EXACT, traces="accumulating"), seed=0)
+    forward = learner.actions.one_hot(FORWARD)
+    for step in range(3):  # the same state-action three times
+        learner.step(P(WALL_LEFT, step=step), forced=forward)
+    # e after two updates: (1 * 0.72 + 1) * 0.72; replacing would give 0.72
+    assert learner.e[0, FORWARD] == pytest.approx((0.72 + 1) * 0.72)
+
+
+def test_states_are_born_from_pearson_correlation():
+    space = StateSpace(replace(EXACT, pearson_threshold=0.9))
+    a, _ = space.classify(P(WALL_LEFT))
+    same_shape, _ = space.classify(P(tuple(2 * r for r in WALL_LEFT)))  # farther, same shape
+    other, parent = space.classify(P(WALL_RIGHT))
+    assert a == same_shape == 0 and other == 1 and len(space.prototypes) == 2
+    assert parent == a  # its nearest state: best-matching prototype, same goal bins
+
+
+def test_goal_features_split_states_and_can_be_switched_off():
+    space = StateSpace(EXACT)
+    ahead, _ = space.classify(P(WALL_LEFT, goal_bearing=0.1))
+    behind, _ = space.classify(P(WALL_LEFT, goal_bearing=math.pi - 0.1))
+    near, _ = space.classify(P(WALL_LEFT, goal_bearing=0.1, goal_distance=0.5))
+    assert len({ahead, behind, near}) == 3 and len(space.prototypes) == 1
+    blind = StateSpace(replace(EXACT, goal_features=False))
+    assert (
+        blind.classify(P(WALL_LEFT, goal_bearing=0.1))[0]
+        == blind.classify(P(WALL_LEFT, goal_bearing=3.0, goal_distance=9.0))[0]
+    )
+
+
+def test_a_clear_view_is_one_state():
+    space = StateSpace(replace(EXACT, clear_range=1.0))
+    a, _ = space.classify(P(tuple([3.0] * 180)))
+    b, _ = space.classify(P(tuple([1.5] * 90 + [6.0] * 90)))
+    assert a == b and not space.prototypes and next(iter(space.keys))[0] == CLEAR
+
+
+def test_a_new_state_starts_from_its_nearest_neighbour():
+    learner = Learner(replace(EXACT, pearson_threshold=0.999), seed=0)
+    first = learner._state_of(P(WALL_LEFT))
+    learner.Q[first] = [1, 2, 3, 4, 5]
+    similar = tuple([0.5] * 60 + [3.0] * 120)  # correlated, but below the threshold
+    second = learner._state_of(P(similar))
+    assert second != first and list(learner.Q[second]) == [1, 2, 3, 4, 5]
+    elsewhere = learner._state_of(P(similar, goal_bearing=3.0))  # no neighbour with these bins
+    assert list(learner.Q[elsewhere]) == [0, 0, 0, 0, 0]
+
+
+def test_the_blend_weights_actions_by_q_and_credits_them_by_weight():
+    actions = ActionSet(LearnerConfig())
+    rng = np.random.default_rng(0)
+    q = np.array([0.0, 10.0, 0.0, 8.0, 0.0])  # stop forward back left right
+    decision = actions.choose(q, epsilon=0.0, rng=rng)
+    w = decision.weights
+    assert w[0] == 0.0  # stop is for teachers only
+    assert w[1] > w[3] > w[2] == w[4] > 0 and w.sum() == pytest.approx(1.0)
+    assert w[3] / w[1] == pytest.approx(math.exp(-2.0 / (0.2 * 10.0)))
+    assert decision.v == pytest.approx(w @ actions.velocity[:, 0])
+    assert decision.omega == pytest.approx(w @ actions.velocity[:, 1]) and decision.omega > 0
+    flat = actions.choose(np.zeros(5), epsilon=0.0, rng=rng)
+    assert sorted(flat.weights) == [0, 0, 0, 0, 1]  # nothing learnt: one action, no mush
+    discrete = ActionSet(LearnerConfig(blend=False)).choose(q, epsilon=0.0, rng=rng)
+    assert discrete.discrete == 1 and discrete.weights.max() == 1.0
+
+
+def test_late_feedback_reaches_exactly_the_credited_steps():
+    learner = Learner(EXACT, seed=0)
+    shapes = [WALL_LEFT, WALL_RIGHT, tuple([0.5] * 60 + [3.0] * 120), WALL_LEFT]
+    for step, laser in enumerate(shapes):
+        learner.step(P(laser, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
+    before = learner.Q.copy()
+    assert learner.credit(step=1, weight=0.5, f=10.0)
+    change = learner.Q - before
+    # step 1 was taken in state 1 (WALL_RIGHT); step 0 in state 0, one trace decay earlier
+    assert change[1, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0)
+    assert change[0, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0 * 0.72)
+    assert change[2].sum() == 0.0  # step 2 came after: untouched
+    assert np.count_nonzero(change) == 2
+
+
+def test_feedback_is_bounded_and_old_feedback_dropped():
+    learner = Learner(replace(EXACT, feedback_window=3, feedback_bound=50.0), seed=0)
+    for step in range(6):
+        learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
+    before = learner.Q.copy()
+    assert learner.credit(step=5, weight=1.0, f=1e6)
+    assert (learner.Q - before)[0, FORWARD] == pytest.approx(0.5 * 50.0 * (1 + 0.72 + 0.72**2))
+    assert not learner.credit(step=1, weight=1.0, f=10.0)
+    assert not learner.credit(step=99, weight=1.0, f=10.0)
+    assert learner.counters["feedback_dropped.too_old"] == 1
+    assert learner.counters["feedback_dropped.unknown_step"] == 1
+
+
+def test_a_command_overrides_the_policy_and_earns_h():
+    learner = Learner(EXACT, seed=0)
+    learner.step(P(WALL_LEFT, step=0))
+    learner.command("left")
+    taken = [learner.step(P(WALL_LEFT, step=k)) for k in range(1, 1 + EXACT.command_steps)]
+    assert all(d.chooser == "teacher" and d.discrete == LEFT for d in taken)
+    assert learner.step(P(WALL_LEFT, step=9)).chooser == "policy"
+    assert learner.Q[0, LEFT] > 0  # -1 per step + 10 for following the teacher
+
+
+def test_action_bias_keeps_teacher_rewards_out_of_q():
+    learner = Learner(replace(EXACT, shaping="action_bias"), seed=0)
+    for step in range(3):
+        learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
+    learner.credit(step=2, weight=1.0, f=10.0)
+    assert learner.Q[0, FORWARD] == 0.0 and learner.H[0, FORWARD] > 0
+
+
+def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None) -> None:
+    shapes = [WALL_LEFT, WALL_RIGHT, WALL_LEFT, WALL_RIGHT]
+    for step, laser in enumerate(shapes):
+        end = step == len(shapes) - 1
+        p = P(laser, reward=50.0 if end else -1.0, outcome="goal" if end else "running", step=step)
+        if step == command_at:
+            learner.command("left")
+        book.record(p, learner.step(p))
+
+
+def test_traces_are_recorded_saved_and_replayed(tmp_path):
+    teacher = Learner(EXACT, seed=1)
+    book = TraceBook()
+    run_episode(teacher, book)  # no command: not a trace
+    run_episode(teacher, book, command_at=0)  # steered: kept
+    assert len(book.episodes) == 1
+    book.save(tmp_path / "traces.npz")
+    loaded = TraceBook.load(tmp_path / "traces.npz")
+    student = Learner(EXACT, seed=2)
+    assert loaded.replay(student) == 4 and student.episode == 0
+    assert student.Q[:, LEFT].max() > 0  # learnt the teacher's left turns and the goal
+    direct = Learner(EXACT, seed=2)
+    book.replay(direct)
+    assert np.array_equal(direct.Q, student.Q)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    learner = Learner(EXACT, seed=3)
+    run_episode(learner, TraceBook())
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)
+    back = checkpoint.load(path, EXACT)
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
+    assert back.states.keys == learner.states.keys and back.episode == learner.episode
+    assert np.allclose(np.array(back.states.prototypes), np.array(learner.states.prototypes))
+    assert back.rng.random() == learner.rng.random()  # the random stream goes on
+
+
+def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):
+    learner = Learner(EXACT, seed=3)
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)  # the good one ...
+    run_episode(learner, TraceBook())
+    checkpoint.save(learner, path)  # ... becomes .prev
+    path.write_bytes(path.read_bytes()[:100])  # torn write
+    with pytest.raises(checkpoint.CheckpointError, match="corrupt checkpoint"):
+        checkpoint.load(path, EXACT)
+    back = checkpoint.load_latest(path, EXACT)
+    assert back.episode == 0 and "using the previous one" in caplog.text
+    checkpoint.previous(path).write_bytes(b"garbage")
+    with pytest.raises(checkpoint.CheckpointError, match=r"learner.prev.npz: corrupt"):
+        checkpoint.load_latest(path, EXACT)
+
+
+def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
+    path = tmp_path / "learner.npz"
+    checkpoint.save(Learner(EXACT), path)
+    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
+        checkpoint.load(path, replace(EXACT, laser_sectors=6))
+    assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
