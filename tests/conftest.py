@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from services.runtime import BusConfig, bus_config
+from services.runtime import BusConfig, Input, Node, bus_config
 from services.runtime import free_loopback_port as free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,3 +91,24 @@ def client_config(router, session_id) -> Callable[[str], BusConfig]:
 
 def bus_args(router: str, session_id: str, node: str) -> list[str]:
     return ["--session", session_id, "--node", node, "--mode", "client", "--connect", router]
+
+
+def collect(node: Node, n: int, kind: type, timeout: float = 15.0) -> list:
+    """The next `n` messages of one type (others are skipped)."""
+    got, deadline = [], time.monotonic() + timeout
+    while len(got) < n and time.monotonic() < deadline:
+        event = node.poll(0.1)
+        if isinstance(event, Input) and isinstance(event.message, kind):
+            got.append(event.message)
+    assert len(got) == n, f"got {len(got)} of {n} {kind.__name__} within {timeout} s"
+    return got
+
+
+def quiet(node: Node, seconds: float) -> list:
+    """Everything that arrives within `seconds`."""
+    got, deadline = [], time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        event = node.poll(0.05)
+        if isinstance(event, Input):
+            got.append(event.message)
+    return got

@@ -13,7 +13,7 @@ import pytest
 
 from protocol import Action, EpisodeEvent, Observation, robot_key
 from services.runtime import Input, Node
-from tests.conftest import VOXSHAPE, bus_args
+from tests.conftest import VOXSHAPE, bus_args, collect, quiet
 
 
 def start_sim(spawn, router, session_id, *extra, node="sim"):
@@ -27,27 +27,6 @@ def start_lockstep(spawn, router, session_id, *extra):
     return start_sim(
         spawn, router, session_id, "--clock", "lockstep", "--action-timeout", "30", *extra
     )
-
-
-def collect(node: Node, n: int, kind: type, timeout: float = 15.0) -> list:
-    """The next `n` messages of one type (others are skipped)."""
-    got, deadline = [], time.monotonic() + timeout
-    while len(got) < n and time.monotonic() < deadline:
-        event = node.poll(0.1)
-        if isinstance(event, Input) and isinstance(event.message, kind):
-            got.append(event.message)
-    assert len(got) == n, f"got {len(got)} of {n} {kind.__name__} within {timeout} s"
-    return got
-
-
-def quiet(node: Node, seconds: float) -> list:
-    """Everything that arrives within `seconds`."""
-    got, deadline = [], time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        event = node.poll(0.05)
-        if isinstance(event, Input):
-            got.append(event.message)
-    return got
 
 
 def act(
