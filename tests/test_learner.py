@@ -16,6 +16,7 @@ from services.learner.config import LearnerConfig
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
+from services.learner.train import train
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
 
@@ -46,6 +47,7 @@ EXACT = LearnerConfig(
     max_hold=1,
     clear_range=None,
     use_sonar=False,
+    goal_prior=False,
 )
 
 
@@ -237,3 +239,29 @@ def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
     with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
         checkpoint.load(path, replace(EXACT, laser_sectors=6))
     assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
+
+
+def test_goal_prior_shares_what_is_learnt_across_states_of_a_goal_cell():
+    learner = Learner(
+        replace(EXACT, goal_prior=True, pearson_threshold=0.99, init_from_neighbour=False), seed=0
+    )
+    forward = learner.actions.one_hot(FORWARD)
+    learner.step(P(WALL_LEFT, step=0), forced=forward)
+    learner.step(P(WALL_RIGHT, reward=-1.0, step=1), forced=forward)
+    # delta = -1; each tiling moves by alpha / 2 * delta, and Q(s) is their sum
+    assert learner.Q[0, FORWARD] == pytest.approx(0.25 * -1.0)
+    assert learner.value(0)[FORWARD] == pytest.approx(0.5 * -1.0)
+    unseen = learner._state_of(P(tuple([0.5] * 30 + [3.0] * 150)))  # a new shape, same cell
+    assert learner.Q[unseen, FORWARD] == 0.0
+    assert learner.value(unseen)[FORWARD] == pytest.approx(0.25 * -1.0)  # the cell's share
+
+
+def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():
+    result = train("1", seed=1, max_episodes=80)  # the default configuration, no teacher
+    print(
+        f"task 1, seed 1: converged={result.converged} after {result.episodes} episodes, "
+        f"{result.learning_time / 60:.1f} min of robot time, {result.states} states"
+    )
+    assert result.converged and result.episodes <= 80
+    last = result.history[-LearnerConfig().converge_episodes :]
+    assert all(e.outcome == "goal" for e in last)

@@ -23,7 +23,15 @@ from services.learner.sarsa import Learner
 
 VERSION = 1
 # Settings that decide what a state or an action is: a table learnt with others is useless.
-REPRESENTATION = ("laser_sectors", "use_sonar", "goal_features", "bearing_bins", "distance_edges")
+REPRESENTATION = (
+    "laser_sectors",
+    "use_sonar",
+    "goal_features",
+    "bearing_bins",
+    "distance_edges",
+    "clear_range",
+    "goal_prior",
+)
 log = logging.getLogger("voxshape.learner")
 
 
@@ -55,6 +63,7 @@ def save(learner: Learner, path: Path) -> None:
             f,
             Q=learner.Q,
             H=learner.H,
+            Q_goal=learner.Q_goal,
             prototypes=prototypes,
             keys=np.array(keys, dtype=np.int64).reshape(len(keys), 3),
             meta=np.array(json.dumps(meta)),
@@ -70,7 +79,9 @@ def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
     """The learner saved at `path`; raises CheckpointError saying what is wrong."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {name: data[name] for name in ("Q", "H", "prototypes", "keys", "meta")}
+            arrays = {
+                name: data[name] for name in ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
+            }
     except FileNotFoundError:
         raise CheckpointError(f"{path}: no such checkpoint") from None
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
@@ -97,7 +108,12 @@ def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
         raise CheckpointError(f"{path}: inconsistent tables {q.shape}, {h.shape}, {keys.shape}")
     learner = Learner(config, seed)
     learner.states.restore(arrays["prototypes"], keys)
+    if arrays["Q_goal"].shape != learner.Q_goal.shape:
+        raise CheckpointError(
+            f"{path}: goal table {arrays['Q_goal'].shape}, expected {learner.Q_goal.shape}"
+        )
     learner.Q, learner.H, learner.e = q.copy(), h.copy(), np.zeros_like(q)
+    learner.Q_goal = arrays["Q_goal"].copy()
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:

@@ -21,14 +21,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="states from the sensors alone (no goal bearing and distance)",
     )
-    parser.add_argument("--discrete", action="store_true", help="no blend: one action a step")
+    parser.add_argument(
+        "--blend",
+        action="store_true",
+        help="send the Q-weighted blend of the actions, not one action",
+    )
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    config = replace(
-        LearnerConfig(), goal_features=not args.no_goal_features, blend=not args.discrete
-    )
+    config = replace(LearnerConfig(), goal_features=not args.no_goal_features, blend=args.blend)
     with tqdm(total=args.max_episodes, unit="episode", disable=args.json, leave=False) as bar:
 
         def on_episode(episode: object, learner: object) -> None:

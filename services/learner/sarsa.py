@@ -62,9 +62,13 @@ class Learner:
         self.config = c = config or LearnerConfig()
         self.states = StateSpace(c)
         self.actions = ActionSet(c)
-        self.Q = np.zeros((0, N_ACTIONS))  # action values
+        self.Q = np.zeros((0, N_ACTIONS))  # action values of the states (the fine tiling)
         self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
         self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
+        # The coarse tiling (goal_prior): action values of the goal cells alone, added to Q.
+        self.tilings = 2 if c.goal_prior and c.goal_features else 1
+        self.Q_goal = np.zeros((self.states.n_cells, N_ACTIONS))
+        self.e_goal = np.zeros_like(self.Q_goal)
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
         self.s: int | None = None  # the previous state ...
@@ -101,14 +105,15 @@ class Learner:
                 return self.a
         a_next = None if terminal else (forced or self._select(s_next))
         if self.s is not None:
-            q_next = 0.0 if terminal else a_next.weights @ self.Q[s_next]
-            delta = self.G + self.discount * q_next - self.a.weights @ self.Q[self.s]
-            if c.traces == "replacing":
-                self.e[self.s] = np.maximum(self.e[self.s], self.a.weights)
-            else:
-                self.e[self.s] += self.a.weights
-            self.Q += c.alpha * delta * self.e
+            q_next = 0.0 if terminal else a_next.weights @ self.value(s_next)
+            delta = self.G + self.discount * q_next - self.a.weights @ self.value(self.s)
+            self._mark(self.e, self.s)
+            self._mark(self.e_goal, self.states.cells[self.s])
+            self.Q += c.alpha / self.tilings * delta * self.e
             self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
+            if self.tilings == 2:
+                self.Q_goal += c.alpha / self.tilings * delta * self.e_goal
+                self.e_goal *= self.discount * c.lam
             self.td_error = float(delta)
         self.G, self.discount, self.held = 0.0, 1.0, 0
         if terminal:
@@ -118,6 +123,19 @@ class Learner:
         self.s, self.a = s_next, a_next
         self.counters["decisions"] += 1
         return a_next
+
+    def value(self, s: int) -> np.ndarray:
+        """Q(s, .): the state's own values, plus its goal cell's with the goal prior."""
+        if self.tilings == 2:
+            return self.Q[s] + self.Q_goal[self.states.cells[s]]
+        return self.Q[s]
+
+    def _mark(self, e: np.ndarray, row: int) -> None:
+        """e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating), weighted by the blend."""
+        if self.config.traces == "replacing":
+            e[row] = np.maximum(e[row], self.a.weights)
+        else:
+            e[row] += self.a.weights
 
     def _h(self, r: float, s: int, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
@@ -150,14 +168,20 @@ class Learner:
             why = "too_old" if oldest is not None and step < oldest else "unknown_step"
             self.counters[f"feedback_dropped.{why}"] += 1
             return False
-        table = self.H if c.shaping == "action_bias" else self.Q
+        bias = c.shaping == "action_bias"
         credited = self.recent[index]
         trace = 1.0  # e_k(s_j, a_j) = (gamma lambda)^(k - j) along the episode, back from k
         for j in range(index, -1, -1):
             visit = self.recent[j]
             if visit.episode != credited.episode or trace < 1e-4:
                 break
-            table[visit.state] += c.alpha * weight * f * trace * visit.weights
+            change = c.alpha * weight * f * trace * visit.weights
+            if bias:
+                self.H[visit.state] += change
+            else:
+                self.Q[visit.state] += change / self.tilings
+                if self.tilings == 2:
+                    self.Q_goal[self.states.cells[visit.state]] += change / self.tilings
             trace *= c.gamma * c.lam
         self.counters["feedback_credited"] += 1
         return True
@@ -173,7 +197,7 @@ class Learner:
     def _select(self, s: int) -> Decision:
         if self.commands:
             return self.actions.one_hot(self.commands.popleft(), "teacher")
-        q = self.Q[s]
+        q = self.value(s)
         if self.config.shaping == "action_bias":
             q = q + self.config.bias_weight * self.config.bias_decay**self.episode * self.H[s]
         return self.actions.choose(q, self.config.epsilon(self.episode), self.rng)
@@ -195,10 +219,11 @@ class Learner:
         """Forgets the episode in progress without counting it (a gap in the observations,
         a replay that stops mid-episode)."""
         self.e[:] = 0.0
+        self.e_goal[:] = 0.0
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0
 
     def greedy_q(self, p: Percept) -> np.ndarray:
         """Q-values of the state a percept falls in (for summaries; may create the state)."""
-        return self.Q[self._state_of(p)]
+        return self.value(self._state_of(p))

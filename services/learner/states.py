@@ -34,6 +34,8 @@ class StateSpace:
         self.config = config
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
         self.keys: dict[tuple[int, int, int], int] = {}  # (prototype, bearing, distance)
+        self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
+        self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
 
     def __len__(self) -> int:
@@ -70,6 +72,7 @@ class StateSpace:
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
+        self.cells.append(self._cell(key))
         # The nearest existing state: same goal bins, best-matching prototype.
         parent = (
             self.keys.get((neighbour_prototype, *key[1:]))
@@ -77,6 +80,9 @@ class StateSpace:
             else None
         )
         return self.keys[key], parent
+
+    def _cell(self, key: tuple[int, int, int]) -> int:
+        return key[1] * (len(self.config.distance_edges) + 1) + key[2]
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
         """(prototype index, best other prototype when a new one was born)."""
@@ -95,3 +101,4 @@ class StateSpace:
         self.prototypes = list(prototypes)
         self._matrix = np.array(self.prototypes) if self.prototypes else np.zeros((0, 0))
         self.keys = {tuple(int(v) for v in k): i for i, k in enumerate(keys)}
+        self.cells = [self._cell(k) for k in self.keys]

@@ -1,0 +1,79 @@
+"""Plain SARSA(lambda) (no teacher) on every task and several seeds, with and without the
+goal-relative state features: episodes and learning time to convergence.
+
+    .venv/bin/python benchmarks/plain_rl.py --seeds 3 --max-episodes 300 [--blend]
+
+Runs in parallel processes (one per core); prints a Markdown table and writes JSON lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import replace
+
+from services.learner.config import LearnerConfig
+from services.learner.train import train
+
+
+def one(job: tuple[str, int, bool, bool, int]) -> dict:
+    task, seed, goal, blend, max_episodes = job
+    config = replace(LearnerConfig(), goal_features=goal, blend=blend)
+    r = train(task, seed, config, max_episodes)
+    return {
+        "task": task,
+        "seed": seed,
+        "goal_features": goal,
+        "blend": blend,
+        "converged": r.converged,
+        "episodes": r.episodes,
+        "learning_min": round(r.learning_time / 60, 1),
+        "states": r.states,
+    }
+
+
+def median(rows: list[dict], key: str) -> object:
+    return statistics.median(r[key] for r in rows) if rows else "-"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--seeds", type=int, default=3)
+    parser.add_argument("--max-episodes", type=int, default=300)
+    parser.add_argument("--tasks", default="1,2,3,4")
+    parser.add_argument("--blend", action="store_true")
+    parser.add_argument("--out", default="plain_rl.jsonl")
+    args = parser.parse_args()
+    jobs = [
+        (t, s, g, args.blend, args.max_episodes)
+        for g in (True, False)
+        for t in args.tasks.split(",")
+        for s in range(args.seeds)
+    ]
+    rows = []
+    with ProcessPoolExecutor(max_workers=os.cpu_count()) as pool, open(args.out, "w") as out:
+        for row in pool.map(one, jobs):
+            rows.append(row)
+            out.write(json.dumps(row) + "\n")
+            out.flush()
+    print(
+        "| goal features | task | converged | episodes (median, converged runs) | "
+        "learning time min (median) | states (median) |"
+    )
+    print("|---|---|---|---|---|---|")
+    for goal in (True, False):
+        for task in args.tasks.split(","):
+            runs = [r for r in rows if r["task"] == task and r["goal_features"] == goal]
+            done = [r for r in runs if r["converged"]]
+            print(
+                f"| {'on' if goal else 'off'} | {task} | {len(done)}/{len(runs)} | "
+                f"{median(done, 'episodes')} | {median(done, 'learning_min')} | "
+                f"{statistics.median(r['states'] for r in runs)} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
