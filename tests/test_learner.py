@@ -117,7 +117,7 @@ def test_a_new_state_starts_from_its_nearest_neighbour():
 
 
 def test_the_blend_weights_actions_by_q_and_credits_them_by_weight():
-    actions = ActionSet(LearnerConfig())
+    actions = ActionSet(LearnerConfig(blend=True))
     rng = np.random.default_rng(0)
     q = np.array([0.0, 10.0, 0.0, 8.0, 0.0])  # stop forward back left right
     decision = actions.choose(q, epsilon=0.0, rng=rng)
