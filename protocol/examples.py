@@ -115,7 +115,8 @@ def example_messages(
                 q_values=(0.0, 12.5, -3.0, 4.25, 1.0),
                 td_error=0.75,
                 epsilon=0.1,
-                reward=49.0,
+                reward=-1.0,
+                episode_return=37.5,
             ),
         ),
     ]

@@ -224,7 +224,8 @@ class LearningSummary(Message):
     q_values: Annotated[tuple[Reward, ...], Size(max=len(ACTION_NAMES))]
     td_error: Reward
     epsilon: Range01
-    reward: Reward  # r used in the update: R_RL plus credited teacher rewards
+    reward: Reward  # R_RL of the step
+    episode_return: Reward  # the sum of r the learner used this episode (R_RL + R_U)
 
 
 MESSAGE_TYPES: dict[str, type[Message]] = {

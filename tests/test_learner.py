@@ -12,7 +12,7 @@ import pytest
 from protocol import ACTION_NAMES
 from services.learner import checkpoint
 from services.learner.actions import ActionSet
-from services.learner.config import LearnerConfig
+from services.learner.config import LearnerConfig, with_settings
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
@@ -265,3 +265,31 @@ def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():
     assert result.converged and result.episodes <= 80
     last = result.history[-LearnerConfig().converge_episodes :]
     assert all(e.outcome == "goal" for e in last)
+
+
+def test_settings_from_the_command_line_are_typed_and_checked():
+    config = with_settings(
+        ["alpha=0.05", "blend=true", "traces=accumulating", "distance_edges=[1, 3]", "max_hold=3"]
+    )
+    assert (config.alpha, config.blend, config.traces, config.distance_edges, config.max_hold) == (
+        0.05,
+        True,
+        "accumulating",
+        (1, 3),
+        3,
+    )
+    with pytest.raises(ValueError, match="KEY one of"):
+        with_settings(["alhpa=0.1"])
+    with pytest.raises(ValueError, match="blend takes a bool"):
+        with_settings(["blend=3"])
+
+
+def test_the_summary_reports_the_episode_return():
+    learner = Learner(EXACT, seed=0)
+    forward = learner.actions.one_hot(FORWARD)
+    learner.step(P(WALL_LEFT, step=0), forced=forward)
+    learner.step(P(WALL_RIGHT, reward=-1.0, step=1), forced=forward)
+    learner.step(P(WALL_LEFT, reward=99.0, outcome="goal", step=2))
+    assert learner.episode_return == 98.0  # kept until the next episode starts
+    learner.step(P(WALL_LEFT, step=3), forced=forward)
+    assert learner.episode_return == 0.0

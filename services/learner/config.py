@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from typing import Literal
@@ -70,6 +72,40 @@ class LearnerConfig:
     converge_episodes: int = 3  # K consecutive goal episodes ...
     converge_margin: float = 0.25  # ... each within (1 + margin) x the shortest seen
 
+    # -- initial traces ---------------------------------------------------------------------
+    replay_every: int = 10  # replay the teacher's traces again every this many episodes (0: once)
+
     def epsilon(self, episode: int) -> float:
         done = min(1.0, episode / max(1, self.epsilon_episodes))
         return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)
+
+
+def with_settings(settings: list[str], base: LearnerConfig | None = None) -> LearnerConfig:
+    """`base` with `KEY=VALUE` settings applied (values in JSON: 0.1, true, "replacing",
+    [1.0, 2.5]); raises ValueError naming an unknown key or a value of the wrong type."""
+    config = base or LearnerConfig()
+    fields = {f.name: f for f in dataclasses.fields(config)}
+    changes = {}
+    for setting in settings:
+        key, sep, raw = setting.partition("=")
+        if not sep or key not in fields:
+            raise ValueError(
+                f"--set {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
+            )
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw  # a bare word: a string
+        current = getattr(config, key)
+        if isinstance(current, tuple) and isinstance(value, list):
+            value = tuple(value)
+        if isinstance(current, float) and type(value) is int:
+            value = float(value)
+        ok = type(value) is type(current) or (current is None and isinstance(value, float))
+        if not ok:
+            raise ValueError(
+                f"--set {setting!r}: {key} takes a {type(current).__name__}, "
+                f"like {json.dumps(current)}"
+            )
+        changes[key] = value
+    return dataclasses.replace(config, **changes)

@@ -16,10 +16,10 @@ from pathlib import Path
 
 from protocol import Action, CreditedFeedback, LearningSummary, Observation, check_id, robot_key
 from services.learner import checkpoint
-from services.learner.config import LearnerConfig
+from services.learner.config import with_settings
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
-from services.runtime import Input, Node, add_bus_arguments, bus_config, fields
+from services.runtime import ConfigError, Input, Node, add_bus_arguments, bus_config, fields
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,13 +38,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint")
     parser.add_argument("--traces", type=Path, help="initial traces to learn from first")
     parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a hyper-parameter of services/learner/config.py, e.g. alpha=0.1",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     bus = bus_config("learner", args)
     path = args.checkpoint or Path("runs") / bus.session / f"learner-{robot}.npz"
-    config = LearnerConfig()
+    try:
+        config = with_settings(args.set)
+    except ValueError as e:
+        raise ConfigError(str(e)) from None
     learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
     learner = learner or Learner(config, args.seed)
     book = TraceBook()
@@ -55,8 +65,9 @@ def run(args: argparse.Namespace) -> int:
                 robot=robot, checkpoint=path, states=len(learner.states), episodes=learner.episode
             ),
         )
-        if args.traces:
-            replayed = TraceBook.load(args.traces).replay(learner)
+        initial = TraceBook.load(args.traces) if args.traces else None
+        if initial:
+            replayed = initial.replay(learner)
             node.log.info("learnt from initial traces", extra=fields(steps=replayed))
         node.input("obs", robot_key(node.session_id, robot, "obs"))
         node.input("feedback", robot_key(node.session_id, robot, "feedback"))
@@ -72,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
                     learner.interrupt()  # missed the end of the last episode
                 decision = learner.step(obs)
                 book.record(obs, decision)
+                every = config.replay_every
+                if decision is None and initial and every and learner.episode % every == 0:
+                    initial.replay(learner)
                 if decision is not None:
                     act.put(
                         Action(
@@ -121,4 +135,5 @@ def _summary(learner: Learner, obs: Observation) -> LearningSummary:
         td_error=learner.td_error,
         epsilon=learner.config.epsilon(learner.episode),
         reward=obs.reward,
+        episode_return=learner.episode_return,
     )

@@ -78,6 +78,7 @@ class Learner:
         self.counters: Counter[str] = Counter()
         self.td_error = 0.0
         self.G, self.discount, self.held = 0.0, 1.0, 0  # the action in progress
+        self.episode_return = 0.0
 
     # -- Algorithm 1 ----------------------------------------------------------------------
     def step(self, p: LearnerPercept, forced: Decision | None = None) -> Decision | None:
@@ -86,11 +87,14 @@ class Learner:
         c = self.config
         s_next = self._state_of(p)
         terminal = p.outcome != "running"
-        if self.s is not None:
+        if self.s is None:  # the first step of an episode
+            self.episode_return = 0.0
+        else:
             r = p.reward
             if self.a.chooser == "teacher":
                 r = self._h(r, self.s, self.a)
             self.G += self.discount * r  # the reward of the action so far, discounted
+            self.episode_return += r
             self.discount *= c.gamma
             self.held += 1
             if (

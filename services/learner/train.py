@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, Episode
 from services.learner.sarsa import Learner
+from services.learner.traces import TraceBook
 from services.sim.maps import load_map
 from services.sim.task import SimConfig, Simulation
 
@@ -34,15 +35,21 @@ def train(
     max_episodes: int = 500,
     sim_config: SimConfig | None = None,
     on_episode: Callable[[Episode, Learner], None] | None = None,
+    traces: TraceBook | None = None,
 ) -> TrainResult:
-    """Plain SARSA(lambda) (no teacher) until convergence or `max_episodes`."""
+    """SARSA(lambda) without a live teacher until convergence or `max_episodes`; with
+    `traces`, learning first (and every `config.replay_every` episodes) from them."""
     config = config or LearnerConfig()
     sim = Simulation(load_map(task), ("robot",), sim_config, seed=seed)
     learner = Learner(config, seed=seed)
     progress = Convergence(config)
     steps = 0
     try:
-        for _ in range(max_episodes):
+        for episode in range(max_episodes):
+            if traces and (
+                episode == 0 or (config.replay_every and episode % config.replay_every == 0)
+            ):
+                traces.replay(learner)
             reading = sim.reset("robot")
             decision = learner.step(reading)
             while decision is not None:
