@@ -123,7 +123,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         session.stop()
     if missing:
-        session.say("not built yet, so no robot learns in this demo:")
+        session.say("not built yet, so nobody teaches the robot by voice in this demo:")
         for what in missing:
             session.say(f"  - {what}")
     return code

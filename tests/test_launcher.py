@@ -144,8 +144,9 @@ def test_demo_starts_what_exists_and_says_what_is_missing(session_id, tmp_path):
     )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "bus check: 7/7 message types crossed the router (35 messages)" in result.stdout
-    assert "not built yet, so no robot learns in this demo" in result.stdout
-    assert "learner: SARSA(lambda) with dynamic reward shaping (issue 4)" in result.stdout
+    assert "not built yet, so nobody teaches the robot by voice" in result.stdout
+    assert "speech service: vosk / pocketsphinx / mock (issue 5)" in result.stdout
+    assert "learner: SARSA" not in result.stdout  # it exists now: started, not missing
     assert "simulator: PyBullet" not in result.stdout  # it exists now: started, not missing
     line = next(line for line in result.stdout.splitlines() if "observations of robot r1" in line)
     picture = tmp_path / line.rsplit("picture: ", 1)[1]

@@ -95,3 +95,18 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
     _, err = again.communicate(timeout=20)
     restored = int(re.search(r"learning robot=r1 .* states=(\d+)", err).group(1))
     assert restored >= summaries[-1].states  # ... then resumed with what it had learnt
+
+
+def test_an_unusable_checkpoint_is_a_clear_error(router, session_id, tmp_path):
+    import subprocess
+
+    path = tmp_path / "learner.npz"
+    path.write_bytes(b"not a checkpoint")
+    result = subprocess.run(
+        [VOXSHAPE, "learner", *bus_args(router, session_id, "learner"), "--checkpoint", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2 and "corrupt checkpoint" in result.stderr
+    assert "run with --fresh" in result.stderr and "Traceback" not in result.stderr

@@ -55,7 +55,10 @@ def run(args: argparse.Namespace) -> int:
         config = with_settings(args.set)
     except ValueError as e:
         raise ConfigError(str(e)) from None
-    learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
+    try:
+        learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
+    except checkpoint.CheckpointError as e:
+        raise ConfigError(f"{e}. To start over, run with --fresh (it overwrites it).") from None
     learner = learner or Learner(config, args.seed)
     book = TraceBook()
     with Node("learner", bus) as node:
