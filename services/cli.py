@@ -11,6 +11,7 @@ from protocol import ProtocolError, VocabularyError
 from services import demo, launcher, router, tools
 from services.learner import commands as learner_commands
 from services.learner import node as learner_node
+from services.learner.config import SettingsError
 from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
 from services.sim import commands as sim_commands
 from services.sim import node as sim_node
@@ -83,7 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.log_level)
     try:
         return COMMANDS[args.command][2](args)
-    except (BusError, ConfigError, TopologyError, VocabularyError, ProtocolError, MapError) as e:
+    except (
+        BusError,
+        ConfigError,
+        TopologyError,
+        VocabularyError,
+        ProtocolError,
+        MapError,
+        SettingsError,
+    ) as e:
         print(f"voxshape {args.command}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -12,7 +12,7 @@ import pytest
 from protocol import ACTION_NAMES
 from services.learner import checkpoint
 from services.learner.actions import ActionSet
-from services.learner.config import LearnerConfig, with_settings
+from services.learner.config import LearnerConfig, SettingsError, with_settings
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
@@ -278,9 +278,9 @@ def test_settings_from_the_command_line_are_typed_and_checked():
         (1, 3),
         3,
     )
-    with pytest.raises(ValueError, match="KEY one of"):
+    with pytest.raises(SettingsError, match="KEY one of"):
         with_settings(["alhpa=0.1"])
-    with pytest.raises(ValueError, match="blend takes a bool"):
+    with pytest.raises(SettingsError, match="blend takes a bool"):
         with_settings(["blend=3"])
 
 

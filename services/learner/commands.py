@@ -8,9 +8,8 @@ from dataclasses import asdict, replace
 
 from tqdm import tqdm
 
-from services.learner.config import LearnerConfig, with_settings
+from services.learner.config import LearnerConfig, add_settings_argument, with_settings
 from services.learner.train import train
-from services.runtime import ConfigError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,24 +26,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="send the Q-weighted blend of the actions, not one action",
     )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a hyper-parameter of services/learner/config.py, e.g. alpha=0.1",
-    )
+    add_settings_argument(parser)
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        config = with_settings(
-            args.set,
-            replace(LearnerConfig(), goal_features=not args.no_goal_features, blend=args.blend),
-        )
-    except ValueError as e:
-        raise ConfigError(str(e)) from None
+    base = replace(LearnerConfig(), goal_features=not args.no_goal_features, blend=args.blend)
+    config = with_settings(args.set, base)
     with tqdm(total=args.max_episodes, unit="episode", disable=args.json, leave=False) as bar:
 
         def on_episode(episode: object, learner: object) -> None:

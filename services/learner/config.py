@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -80,16 +81,30 @@ class LearnerConfig:
         return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)
 
 
+class SettingsError(ValueError):
+    """A `--set KEY=VALUE` that does not fit the configuration."""
+
+
+def add_settings_argument(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a hyper-parameter of services/learner/config.py, e.g. alpha=0.1",
+    )
+
+
 def with_settings(settings: list[str], base: LearnerConfig | None = None) -> LearnerConfig:
     """`base` with `KEY=VALUE` settings applied (values in JSON: 0.1, true, "replacing",
-    [1.0, 2.5]); raises ValueError naming an unknown key or a value of the wrong type."""
+    [1.0, 2.5]); raises SettingsError naming an unknown key or a value of the wrong type."""
     config = base or LearnerConfig()
     fields = {f.name: f for f in dataclasses.fields(config)}
     changes = {}
     for setting in settings:
         key, sep, raw = setting.partition("=")
         if not sep or key not in fields:
-            raise ValueError(
+            raise SettingsError(
                 f"--set {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
             )
         try:
@@ -103,7 +118,7 @@ def with_settings(settings: list[str], base: LearnerConfig | None = None) -> Lea
             value = float(value)
         ok = type(value) is type(current) or (current is None and isinstance(value, float))
         if not ok:
-            raise ValueError(
+            raise SettingsError(
                 f"--set {setting!r}: {key} takes a {type(current).__name__}, "
                 f"like {json.dumps(current)}"
             )

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from protocol import Action, CreditedFeedback, LearningSummary, Observation, check_id, robot_key
 from services.learner import checkpoint
-from services.learner.config import with_settings
+from services.learner.config import add_settings_argument, with_settings
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError, Input, Node, add_bus_arguments, bus_config, fields
@@ -38,23 +38,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fresh", action="store_true", help="ignore an existing checkpoint")
     parser.add_argument("--traces", type=Path, help="initial traces to learn from first")
     parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a hyper-parameter of services/learner/config.py, e.g. alpha=0.1",
-    )
+    add_settings_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     bus = bus_config("learner", args)
     path = args.checkpoint or Path("runs") / bus.session / f"learner-{robot}.npz"
-    try:
-        config = with_settings(args.set)
-    except ValueError as e:
-        raise ConfigError(str(e)) from None
+    config = with_settings(args.set)
     try:
         learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
     except checkpoint.CheckpointError as e:
