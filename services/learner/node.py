@@ -118,14 +118,15 @@ def _apply(learner: Learner, feedback: CreditedFeedback, node: Node) -> None:
 
 
 def _summary(learner: Learner, obs: Observation) -> LearningSummary:
-    state = learner.s if learner.s is not None else 0
+    """After a terminal step the robot is in no state: state 0 and no Q-values."""
+    s = learner.s
     return LearningSummary(
         robot=obs.robot,
         episode=obs.episode,
         step=obs.step,
-        state=state,
+        state=s if s is not None else 0,
         states=len(learner.states),
-        q_values=tuple(float(q) for q in learner.Q[state]) if len(learner.Q) else (),
+        q_values=tuple(float(q) for q in learner.value(s)) if s is not None else (),
         td_error=learner.td_error,
         epsilon=learner.config.epsilon(learner.episode),
         reward=obs.reward,
