@@ -12,6 +12,10 @@ At every control step, with s the previous state and a the action taken in it:
     e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
     Q <- Q + alpha delta e;  e <- gamma lambda e;  s <- s', a <- a'
 
+With goal_prior, Q(s, .) is the sum of two tilings, the state's own values and its goal cell's
+(bearing and distance bins alone), each updated with alpha / 2; what is learnt about heading
+for the goal then holds in every state of that cell at once.
+
 With the blend, a is a mix of the discrete actions with weights w: Q(s, a) is w . Q(s, .)
 and each action's trace grows by its weight, so each is credited in proportion to its share.
 
