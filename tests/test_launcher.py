@@ -36,17 +36,22 @@ def read_until(proc: subprocess.Popen, pattern: str, timeout: float = 30.0) -> l
     pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
 
 
-def start_up(spawn, session_id: str, *extra: str) -> tuple[subprocess.Popen, int]:
+def start_up(spawn, session_id: str, cwd: Path, *extra: str) -> tuple[subprocess.Popen, int]:
+    """`voxshape up` in `cwd` (its services write under ./runs), on a free port."""
     port = free_port()
     env = {**os.environ, "VOXSHAPE_SESSION": session_id}
     proc = spawn(
-        [VOXSHAPE, "up", "--port", str(port), *extra], env=env, text=True, stderr=subprocess.STDOUT
+        [VOXSHAPE, "up", "--port", str(port), *extra],
+        env=env,
+        text=True,
+        stderr=subprocess.STDOUT,
+        cwd=cwd,
     )
     return proc, port
 
 
-def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id):
-    up, port = start_up(spawn, session_id)
+def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id, tmp_path):
+    up, port = start_up(spawn, session_id, tmp_path)
     lines = read_until(up, r"ready in")
     children = [int(m.group(1)) for line in lines if (m := re.search(r"\(pid (\d+)\)", line))]
     assert children, lines
@@ -101,7 +106,7 @@ def test_up_exits_non_zero_naming_the_service_that_died(spawn, session_id, tmp_p
         condition: service_healthy
 """,
     )
-    up, _ = start_up(spawn, session_id, "--compose", str(compose))
+    up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose))
     out, _ = up.communicate(timeout=60)
     assert up.returncode == 1, out
     assert "error: service 'broken' exited with 0; stopping the session" in out
@@ -116,7 +121,7 @@ def test_up_gives_up_on_a_service_that_never_announces_itself(spawn, session_id,
     depends_on: [router]
 """,
     )
-    up, _ = start_up(spawn, session_id, "--compose", str(compose), "--ready-timeout", "2")
+    up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose), "--ready-timeout", "2")
     out, _ = up.communicate(timeout=60)
     assert up.returncode == 1, out
     assert "waited 2 s for all services; not present: mute" in out
