@@ -293,3 +293,23 @@ def test_the_summary_reports_the_episode_return():
     assert learner.episode_return == 98.0  # kept until the next episode starts
     learner.step(P(WALL_LEFT, step=3), forced=forward)
     assert learner.episode_return == 0.0
+
+
+def test_convergence_is_k_goal_episodes_near_the_best_and_time_is_robot_time():
+    from services.learner.convergence import Convergence, Episode
+
+    progress = Convergence(LearnerConfig(converge_episodes=3, converge_margin=0.25))
+    history = [
+        ("timeout", 600, 0),
+        ("goal", 100, 2),
+        ("goal", 200, 1),
+        ("goal", 120, 0),
+        ("goal", 110, 1),
+        ("goal", 124, 0),
+        ("goal", 300, 0),
+    ]
+    done = [progress.add(Episode(o, n, n * 0.1, i)) for o, n, i in history]
+    # converged at the 6th: the last three (120, 110, 124) are within 125% of the best (100)
+    assert done == [False, False, False, False, False, True, True]
+    assert progress.n_episodes == 6 and progress.interventions == 4
+    assert progress.learning_time == pytest.approx((600 + 100 + 200 + 120 + 110 + 124) * 0.1)

@@ -231,7 +231,3 @@ class Learner:
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0
-
-    def greedy_q(self, p: Percept) -> np.ndarray:
-        """Q-values of the state a percept falls in (for summaries; may create the state)."""
-        return self.value(self._state_of(p))
