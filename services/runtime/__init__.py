@@ -10,7 +10,7 @@ from services.runtime.config import (
     bus_config,
     free_loopback_port,
 )
-from services.runtime.logs import configure_logging, fields
+from services.runtime.logs import configure_logging, fields, worth_logging
 from services.runtime.node import BusError, Event, Input, Node, Output, Presence, Tick
 
 __all__ = [
@@ -28,4 +28,5 @@ __all__ = [
     "configure_logging",
     "fields",
     "free_loopback_port",
+    "worth_logging",
 ]

@@ -23,6 +23,12 @@ def fields(**values: Any) -> dict[str, dict[str, Any]]:
     return {_FIELDS: values}
 
 
+def worth_logging(count: int) -> bool:
+    """For a repeated event counted `count` times: log the first ten, then the 100th, 1000th,
+    10,000th and every 100,000th, so a flood is visible without drowning the log."""
+    return count <= 10 or count in (100, 1000, 10_000) or count % 100_000 == 0
+
+
 class _TextFormatter(logging.Formatter):
     def format(self, record: logging.LogRecord) -> str:
         stamp = time.strftime("%H:%M:%S", time.localtime(record.created))

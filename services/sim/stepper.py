@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from protocol import Action, EpisodeEvent, Message, Observation
-from services.runtime import fields
+from services.runtime import fields, worth_logging
 from services.sim.task import Reading, Simulation
 
 Clock = Literal["paced", "lockstep"]
@@ -80,7 +80,7 @@ class Stepper:
         v, omega, clipped = self.sim.config.model.clip(action.v, action.omega)
         if clipped:
             self.counters["clipped"] += 1
-            if self.counters["clipped"] <= 10:
+            if worth_logging(self.counters["clipped"]):
                 log.warning(
                     "action clipped to the robot's limits",
                     extra=fields(
@@ -92,7 +92,7 @@ class Stepper:
     def _ignore(self, why: str, action: Action, detail: str) -> None:
         self.counters[f"ignored.{why}"] += 1
         n = self.counters[f"ignored.{why}"]
-        if n <= 10 or n % 1000 == 0:
+        if worth_logging(n):
             log.warning(
                 f"action ignored: it {detail}",
                 extra=fields(reason=why, robot=action.robot, step=action.step, count=n),
@@ -141,7 +141,7 @@ class Stepper:
         self.counters["stopped_without_action"] += 1
         if self.clock == "lockstep":  # every expired wait is worth a line (rate-limited)
             n = self.counters["stopped_without_action"]
-            if n <= 10 or n % 1000 == 0:
+            if worth_logging(n):
                 log.warning(
                     "no action within the wait: robot stopped for this step",
                     extra=fields(
