@@ -313,3 +313,17 @@ def test_convergence_is_k_goal_episodes_near_the_best_and_time_is_robot_time():
     assert done == [False, False, False, False, False, True, True]
     assert progress.n_episodes == 6 and progress.interventions == 4
     assert progress.learning_time == pytest.approx((600 + 100 + 200 + 120 + 110 + 124) * 0.1)
+
+
+def test_traces_are_replayed_again_every_replay_every_episodes():
+    book = TraceBook()
+    run_episode(Learner(EXACT, seed=1), book, command_at=0)
+    learner = Learner(replace(EXACT, replay_every=2), seed=2)
+    due = []
+    for finished in range(5):
+        learner.episode = finished
+        due.append(book.replay_if_due(learner) > 0)
+    assert due == [True, False, True, False, True] and learner.episode == 4
+    never = Learner(replace(EXACT, replay_every=0), seed=2)
+    never.episode = 4
+    assert book.replay_if_due(never) == 0

@@ -77,9 +77,8 @@ def run(args: argparse.Namespace) -> int:
                     learner.interrupt()  # missed the end of the last episode
                 decision = learner.step(obs)
                 book.record(obs, decision)
-                every = config.replay_every
-                if decision is None and initial and every and learner.episode % every == 0:
-                    initial.replay(learner)
+                if decision is None and initial:
+                    initial.replay_if_due(learner)
                 if decision is not None:
                     act.put(
                         Action(

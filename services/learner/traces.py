@@ -71,6 +71,12 @@ class TraceBook:
         learner.episode = episode
         return steps
 
+    def replay_if_due(self, learner: Learner) -> int:
+        """Replays when the learner has just finished a multiple of `replay_every` episodes
+        (0: only the replay before learning); returns the steps replayed."""
+        every = learner.config.replay_every
+        return self.replay(learner) if every and learner.episode % every == 0 else 0
+
     def save(self, path: Path) -> None:
         rows = [(i, p, d) for i, ep in enumerate(self.episodes) for p, d in ep]
         path.parent.mkdir(parents=True, exist_ok=True)

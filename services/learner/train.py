@@ -46,10 +46,10 @@ def train(
     steps = 0
     try:
         for episode in range(max_episodes):
-            if traces and (
-                episode == 0 or (config.replay_every and episode % config.replay_every == 0)
-            ):
+            if traces and episode == 0:
                 traces.replay(learner)
+            elif traces:
+                traces.replay_if_due(learner)
             reading = sim.reset("robot")
             decision = learner.step(reading)
             while decision is not None:
