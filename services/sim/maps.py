@@ -63,6 +63,15 @@ class Box:
     depth: float
     angle: float = 0.0  # radians
 
+    def corners(self) -> list[tuple[float, float]]:
+        """The four corners, counter-clockwise."""
+        c, s = math.cos(self.angle), math.sin(self.angle)
+        hw, hd = self.width / 2, self.depth / 2
+        return [
+            (self.x + c * dx - s * dy, self.y + s * dx + c * dy)
+            for dx, dy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd))
+        ]
+
     def distance(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         """Signed distance from points to the box surface (negative inside)."""
         c, s = math.cos(self.angle), math.sin(self.angle)

@@ -21,12 +21,7 @@ def _outline_segments(shapes: tuple) -> tuple[np.ndarray, np.ndarray]:
     segments, circles = [], []
     for shape in shapes:
         if isinstance(shape, Box):
-            c, s = math.cos(shape.angle), math.sin(shape.angle)
-            hw, hd = shape.width / 2, shape.depth / 2
-            pts = [
-                (shape.x + c * dx - s * dy, shape.y + s * dx + c * dy)
-                for dx, dy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd))
-            ]
+            pts = shape.corners()
             segments += [(*pts[i], *pts[(i + 1) % 4]) for i in range(4)]
         else:
             circles.append((shape.x, shape.y, shape.radius))

@@ -58,12 +58,7 @@ def shape_outline(shape: object) -> list[tuple[float, float]]:
     """A shape's outline, counter-clockwise; a cylinder as a polygon whose sides touch the
     circle (so the collision body is never thinner than the circle, and at most 0.5% wider)."""
     if isinstance(shape, Box):
-        c, s = math.cos(shape.angle), math.sin(shape.angle)
-        hw, hd = shape.width / 2, shape.depth / 2
-        return [
-            (shape.x + c * dx - s * dy, shape.y + s * dx + c * dy)
-            for dx, dy in ((-hw, -hd), (hw, -hd), (hw, hd), (-hw, hd))
-        ]
+        return shape.corners()
     r = shape.radius / math.cos(math.pi / CYLINDER_SIDES)
     return [
         (shape.x + r * math.cos(a), shape.y + r * math.sin(a))
