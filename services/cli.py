@@ -12,6 +12,11 @@ from services import demo, launcher, router, tools
 from services.learner import commands as learner_commands
 from services.learner import node as learner_node
 from services.learner.config import SettingsError
+from services.logger import node as logger_node
+from services.logger import replay as logger_replay
+from services.logger import report as logger_report
+from services.logger import view as logger_view
+from services.logger.run import RunError
 from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
 from services.sim import commands as sim_commands
 from services.sim import node as sim_node
@@ -64,6 +69,13 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
         tools.add_vocabulary_arguments,
         tools.vocabulary,
     ),
+    "logger": (
+        "record the session: event log, rerun recording, live viewer server",
+        *_module(logger_node),
+    ),
+    "view": ("look at a live or recorded session in rerun's viewer", *_module(logger_view)),
+    "replay": ("re-render a session's recording from its event log", *_module(logger_replay)),
+    "report": ("pictures and a summary of a recorded session", *_module(logger_report)),
 }
 
 
@@ -92,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
         ProtocolError,
         MapError,
         SettingsError,
+        RunError,
     ) as e:
         print(f"voxshape {args.command}: error: {e}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import pytest
 
+from protocol import MESSAGE_TYPES
 from services.topology import TopologyError, interpolate, load_topology
 from tests.conftest import ROOT, VOXSHAPE, free_port
 
@@ -124,7 +125,9 @@ def test_up_gives_up_on_a_service_that_never_announces_itself(spawn, session_id,
     up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose), "--ready-timeout", "2")
     out, _ = up.communicate(timeout=60)
     assert up.returncode == 1, out
-    assert "waited 2 s for all services; not present: mute" in out
+    # On a loaded machine slower services may be missing too: mute must be among them.
+    missing = re.search(r"waited 2 s for all services; not present: (.*)", out)
+    assert missing and "mute" in missing.group(1).split(", "), out
 
 
 def test_up_rejects_a_broken_compose_file(tmp_path):
@@ -148,7 +151,10 @@ def test_demo_starts_what_exists_and_says_what_is_missing(session_id, tmp_path):
         cwd=tmp_path,  # it writes under ./runs
     )
     assert result.returncode == 0, result.stdout + result.stderr
-    assert "bus check: 7/7 message types crossed the router (35 messages)" in result.stdout
+    n = len(MESSAGE_TYPES)
+    assert f"bus check: {n}/{n} message types crossed the router ({5 * n} messages)" in (
+        result.stdout
+    )
     assert "not built yet, so nobody teaches the robot by voice" in result.stdout
     assert "speech service: vosk / pocketsphinx / mock (issue 5)" in result.stdout
     assert "learner: SARSA" not in result.stdout  # it exists now: started, not missing

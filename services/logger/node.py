@@ -1,0 +1,279 @@
+"""`voxshape logger`: records a whole session.
+
+Inputs:  voxshape/<session>/**                   every message, raw (known types or not)
+         voxshape/<session>/presence/**          nodes joining and leaving
+Writes:  runs/<session>/events.msgpack           the durable event log (eventlog.py)
+         runs/<session>/session.json             map and settings (run.py)
+         runs/<session>/recording.rrd            the rerun recording, by a child process
+         runs/<session>/logger-stats.json        what was received and written
+
+Two processes, so that recording never slows the session down:
+- this one only appends raw samples to the event log's memory buffer (a few microseconds; no
+  decoding, no drawing) and writes the buffer out every `--flush-every` seconds. zenoh hands
+  the samples over through a FIFO channel, so its receiving thread never waits for Python or
+  the disk: a subscriber that made zenoh wait would, through BLOCK congestion control, make
+  the simulator and learner wait too (benchmarks/logger.py measures one);
+- a child, `voxshape replay RUN --follow`, at a lower CPU priority, follows the event log and
+  draws it with rerun (recording.py), serving viewers on `--serve-port`. When it falls behind
+  it draws fewer scans (counted); the event log is never thinned.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import os
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+
+import zenoh
+
+from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
+from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord
+from services.logger.run import (
+    RunDir,
+    RunError,
+    describe_session,
+    viewer_port,
+    write_json_atomically,
+    write_session_info,
+)
+from services.runtime import ConfigError, Node, Tick, add_bus_arguments, bus_config, fields
+
+RENDERER_STOP_S = 8.0  # then the renderer finishes on its own (it notices the logger is gone)
+# Samples zenoh may hold for this process before it makes the router wait (~20 s of a session)
+RECEIVE_QUEUE = 50_000
+
+
+class Receiver:
+    """Appends each raw sample to the event log and counts it, nothing else."""
+
+    def __init__(self, writer: EventLogWriter) -> None:
+        self.writer = writer
+        self.counts: Counter[str] = Counter()
+        self.record_seconds = 0.0
+        self.record_max = 0.0
+
+    def record(self, sample: zenoh.Sample) -> None:
+        t0 = time.perf_counter()
+        try:
+            key = str(sample.key_expr)
+            payload = sample.payload.to_bytes()
+            if len(payload) > MAX_PAYLOAD_BYTES:  # not a message by the protocol's definition
+                self.counts["dropped.oversized"] += 1
+                return
+            kind = "put" if sample.kind == zenoh.SampleKind.PUT else "delete"
+            self.writer.append(EventRecord(time.time(), key, kind, payload))
+            parts = key.split("/")
+            self.counts["presence" if "presence" in parts[2:3] else f"received.{parts[-1]}"] += 1
+        except Exception:  # a bad sample must not end the receiving thread
+            self.counts["errors"] += 1
+        finally:
+            took = time.perf_counter() - t0
+            self.record_seconds += took
+            self.record_max = max(self.record_max, took)
+
+    def drain(self, subscriber: zenoh.Subscriber) -> None:
+        """Records what a FIFO-channel subscriber receives, until it is undeclared."""
+        for sample in subscriber:
+            self.record(sample)
+
+    def stats(self) -> dict:
+        counts = dict.copy(self.counts)  # atomic under the GIL while the callback adds keys
+        n = sum(v for k, v in counts.items() if k.startswith(("received.", "presence")))
+        return {
+            "records": self.writer.records,
+            "bytes": self.writer.bytes,
+            "buffered_bytes": self.writer.buffered,  # not yet written to the file
+            "repaired_bytes": self.writer.repaired_bytes,
+            "record_us_mean": round(1e6 * self.record_seconds / n, 1) if n else 0.0,
+            "record_us_max": round(1e6 * self.record_max, 1),
+            **counts,
+        }
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    env = os.environ.get
+    parser.add_argument(
+        "--task",
+        default=env("VOXSHAPE_TASK", "1"),
+        help="the simulator's task number or map file, to draw the map (VOXSHAPE_TASK)",
+    )
+    parser.add_argument(
+        "--flush-every",
+        type=float,
+        default=0.05,
+        help="seconds between flushes of the event log (at most this much is lost if killed)",
+    )
+    parser.add_argument(
+        "--fsync-every",
+        type=float,
+        default=1.0,
+        help="seconds between fsyncs (what a power cut can lose); 0: only at the end",
+    )
+    parser.add_argument(
+        "--serve-port",
+        default=env("VOXSHAPE_VIEWER_PORT"),
+        help="serve the live recording to viewers on this port (VOXSHAPE_VIEWER_PORT, "
+        "default 9876; 0: do not serve)",
+    )
+    parser.add_argument(
+        "--serve-bind",
+        default=env("VOXSHAPE_VIEWER_BIND", "127.0.0.1"),
+        help="address to serve viewers on (VOXSHAPE_VIEWER_BIND)",
+    )
+    parser.add_argument(
+        "--no-recording", action="store_true", help="write only the event log (no rerun)"
+    )
+    parser.add_argument(
+        "--thin-after",
+        type=float,
+        default=0.5,
+        help="seconds behind the bus after which the recording draws fewer scans",
+    )
+    parser.add_argument("--keep-one-scan-in", type=int, default=10, help="when thinning")
+    parser.add_argument(
+        "--render-nice",
+        type=int,
+        default=5,
+        help="CPU niceness of the rendering process (higher: yields more to the session)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.flush_every <= 0 or args.fsync_every < 0:
+        raise ConfigError("--flush-every must be > 0 seconds and --fsync-every >= 0")
+    bus = bus_config("logger", args)
+    port = viewer_port(args.serve_port)
+    run_dir = RunDir.for_session(bus.session)
+    settings = {
+        "task": args.task,
+        "flush_every": args.flush_every,
+        "fsync_every": args.fsync_every,
+        "serve": f"{args.serve_bind}:{port}" if port and not args.no_recording else None,
+        "bus": {"mode": bus.mode, "connect": list(bus.connect), "listen": list(bus.listen)},
+    }
+    code = 0
+    with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up
+        try:
+            write_session_info(run_dir, describe_session(bus.session, args.task, settings))
+            writer = EventLogWriter(run_dir.events, bus.session)
+        except EventLogError as e:
+            raise RunError(str(e)) from None
+        receiver = Receiver(writer)
+        if writer.repaired_bytes:
+            node.log.warning(
+                "cut off an incomplete last record a killed logger left",
+                extra=fields(file=writer.path, bytes=writer.repaired_bytes),
+            )
+        samples = node.session.declare_subscriber(
+            session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE)
+        )
+        drainer = threading.Thread(
+            target=receiver.drain, args=(samples,), name="event-log", daemon=True
+        )
+        drainer.start()
+        presence = node.session.liveliness().declare_subscriber(  # rare: a callback will do
+            presence_key(bus.session), receiver.record, history=True
+        )
+        renderer = None if args.no_recording else _start_renderer(args, run_dir, bus.session, port)
+        node.log.info(
+            "logging",
+            extra=fields(
+                events=run_dir.events,
+                recording="no" if renderer is None else run_dir.recording,
+                renderer_pid=renderer.pid if renderer else "-",
+                serving=settings["serve"] or "no",
+            ),
+        )
+        last_sync = last_stats = time.monotonic()
+        renderer_reported = False
+        for event in node.events(tick=args.flush_every):
+            if not isinstance(event, Tick):
+                continue
+            now = time.monotonic()
+            try:
+                writer.flush()
+                if args.fsync_every and now - last_sync >= args.fsync_every:
+                    writer.sync()
+                    last_sync = now
+            except OSError as e:  # disk full, file gone
+                node.log.error(f"cannot write the event log {writer.path}: {e}; stopping")
+                code = 1
+                break
+            if renderer is not None and renderer.poll() is not None and not renderer_reported:
+                renderer_reported = True
+                node.log.error(
+                    "the recording process died; the event log goes on. Re-render the "
+                    f"recording afterwards with `voxshape replay {run_dir.path}`",
+                    extra=fields(exit_code=renderer.returncode),
+                )
+            if now - last_stats >= 1.0:
+                _save_stats(node, receiver, run_dir)
+                last_stats = now
+        samples.undeclare()  # the drainer records what was queued, then ends
+        drainer.join(10)
+        presence.undeclare()
+        try:
+            writer.close()
+        except OSError as e:
+            node.log.error(f"cannot write the event log {writer.path}: {e}")
+            code = 1
+        _save_stats(node, receiver, run_dir)
+        if renderer is not None:
+            _stop_renderer(node, renderer)
+    return code
+
+
+def _save_stats(node: Node, receiver: Receiver, run_dir: RunDir) -> None:
+    stats = receiver.stats()
+    write_json_atomically(run_dir.receiver_stats, stats)
+    for k, v in stats.items():
+        if isinstance(v, int):
+            node.counters[k] = v
+
+
+def _start_renderer(
+    args: argparse.Namespace, run_dir: RunDir, session: str, port: int
+) -> subprocess.Popen:
+    command = [
+        sys.executable,
+        "-m",
+        "services",
+        "replay",
+        str(run_dir.path),
+        "--follow",
+        "--until-stdin-closes",
+        "--recording-id",
+        session,
+        "--serve-port",
+        str(port),
+        "--serve-bind",
+        args.serve_bind,
+        "--thin-after",
+        str(args.thin_after),
+        "--keep-one-scan-in",
+        str(args.keep_one_scan_in),
+    ]
+    # Its stdin is a pipe from here: closed when the event log is complete, or by the kernel
+    # if this process dies; either way the renderer draws the rest and closes the recording.
+    renderer = subprocess.Popen(command, stdin=subprocess.PIPE)
+    with contextlib.suppress(OSError):  # not allowed here: it runs at normal priority
+        os.setpriority(os.PRIO_PROCESS, renderer.pid, args.render_nice)
+    return renderer
+
+
+def _stop_renderer(node: Node, renderer: subprocess.Popen) -> None:
+    """Lets the renderer draw the rest of the (now closed) event log and close the .rrd."""
+    renderer.stdin.close()
+    try:
+        renderer.wait(RENDERER_STOP_S)
+    except subprocess.TimeoutExpired:
+        node.log.warning(
+            "the recording is still catching up; it finishes on its own",
+            extra=fields(renderer_pid=renderer.pid),
+        )

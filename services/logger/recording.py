@@ -1,0 +1,550 @@
+"""Messages -> rerun: what a session looks like in the viewer.
+
+Entities (`<r>` a robot, `<t>` a teacher):
+
+    world/map                      y-up flip (rerun's 2D views are y-down)
+    world/map/static/...           walls and obstacles, goal, start pose
+    world/map/robots/<r>/body      footprint outline   (per step; thinned when behind)
+    world/map/robots/<r>/scan      laser hits          (per step; thinned when behind)
+    world/map/robots/<r>/heading   heading arrow       (per step)
+    world/map/poses/<r>            position            (per step; the "trails" view)
+    reward/env/<r>                 R_RL per step
+    reward/teacher/<r>             teacher reward x weight, at each credited step
+    reward/feedback/<r>            marker where credited feedback arrived (value: its reward)
+    reward/utterance/<r>           marker where an utterance arrived
+    action/policy/<r>, action/teacher/<r>   the discrete action taken, by who chose it
+    q/<r>                          Q-values of the current state, one series per action
+    states/<r>, td_error/<r>       number of states, TD error
+    episode/return/<r>, episode/steps/<r>, episode/interventions/<r>   the learning curve
+    log/<r>, log/teachers/<t>, log/session   text: episodes, utterances, feedback, presence
+
+Timelines: `step` (the robot's global step), `episode`, `sim_time` and `wall_time` (when the
+logger received the message; messages without a robot have only `wall_time`).
+Per-step data is buffered and sent as columns (`flush`), 5-20x cheaper than one call per item.
+No bus here: the same code renders live (following the event log) and in replays.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from protocol import (
+    ACTION_NAMES,
+    Action,
+    AudioChunk,
+    CreditedFeedback,
+    EpisodeEvent,
+    LearningSummary,
+    Message,
+    Observation,
+    Utterance,
+    to_wire,
+)
+from services.logger.decoding import Decoded, Known, PresenceChange, Rejected, Unknown
+from services.logger.tally import RobotTally, SessionTally
+from services.runtime import worth_logging
+from services.sim.maps import Box, Cylinder, Map
+from services.sim.robot import RobotModel
+
+log = logging.getLogger("voxshape.logger")
+
+APPLICATION = "voxshape"
+TRAIL_STEPS = 600  # the trails view shows the positions of this many steps before the cursor
+GOAL_MISMATCH_M = 0.05  # the map's goal and the one observations imply may differ this much
+TEXT_PREVIEW = 160
+
+WALL = (90, 90, 90)
+GOAL = (44, 160, 44, 90)
+START = (31, 119, 180)
+ROBOT = (214, 39, 40)
+SCAN = (255, 127, 14)
+TRAIL = (31, 119, 180)
+POLICY = (31, 119, 180)
+TEACHER = (214, 39, 40)
+FEEDBACK = (148, 103, 189)
+UTTERANCE = (23, 190, 207)
+
+
+def blueprint(world: Map | None) -> rrb.Blueprint:
+    """The default layout: the map (now, and trails), the text log, and the plots."""
+    bounds = None
+    if world is not None:  # after the y flip the map spans y in [-height, 0]
+        bounds = rrb.VisualBounds2D(
+            x_range=[-0.3, world.width + 0.3], y_range=[-world.height - 0.3, 0.3]
+        )
+    now = rrb.Spatial2DView(name="map", origin="world", visual_bounds=bounds)
+    trails = rrb.Spatial2DView(
+        name=f"trails ({TRAIL_STEPS} steps)",
+        origin="world",
+        contents=["+ world/map/static/**", "+ world/map/poses/**"],
+        visual_bounds=bounds,
+        time_ranges=rrb.VisibleTimeRange(
+            "step",
+            start=rrb.TimeRangeBoundary.cursor_relative(seq=-TRAIL_STEPS),
+            end=rrb.TimeRangeBoundary.cursor_relative(),
+        ),
+    )
+    plots = rrb.Vertical(
+        rrb.TimeSeriesView(name="rewards: environment, teacher, feedback", origin="reward"),
+        rrb.TimeSeriesView(name="Q-values of the current state", origin="q"),
+        rrb.TimeSeriesView(name="episode return (learning curve)", origin="episode/return"),
+        rrb.TimeSeriesView(
+            name="episode steps and interventions",
+            contents=["+ episode/steps/**", "+ episode/interventions/**"],
+        ),
+        rrb.TimeSeriesView(name="states", origin="states"),
+        rrb.TimeSeriesView(name="actions (0 stop 1 fwd 2 back 3 left 4 right)", origin="action"),
+    )
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Tabs(now, trails),
+                rrb.TextLogView(name="what happened", origin="log"),
+                row_shares=[3, 2],
+            ),
+            plots,
+            column_shares=[3, 2],
+        ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        # The step timeline, following the newest data: live, the robot as it moves; in a
+        # file, where the session ended.
+        rrb.TimePanel(state="collapsed", timeline="step", play_state="following"),
+    )
+
+
+@dataclass
+class _Column:
+    """Rows of one entity waiting to be sent together (all rows carry all four timelines)."""
+
+    kind: str  # scalar | scalars | point | points | arrow | strip
+    steps: list[int] = field(default_factory=list)
+    episodes: list[int] = field(default_factory=list)
+    sim_times: list[float] = field(default_factory=list)
+    wall_times: list[float] = field(default_factory=list)
+    values: list = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class _When:
+    step: int
+    episode: int
+    sim_time: float
+    wall_time: float
+
+
+class Recorder:
+    """Renders decoded event-log records into a rerun RecordingStream.
+
+    `record(decoded, detail=False)` skips the per-step visual detail (scan, footprint) of an
+    observation: what a logger that fell behind leaves out. Everything else is always drawn.
+    """
+
+    def __init__(self, stream: rr.RecordingStream, world: Map | None) -> None:
+        self.stream = stream
+        self.world = world
+        self.model = RobotModel()
+        self.tally = SessionTally()
+        self.counters: Counter[str] = Counter()
+        self._columns: dict[str, _Column] = {}
+        self._robots: set[str] = set()
+        self._goal_checked: set[str] = set()
+        self._pending_rows = 0
+        self.counters["thinned_scans"] = 0  # always reported, even when nothing was thinned
+
+    # -- static --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Logs the map and the y-up flip (static: visible at every time)."""
+        s = self.stream
+        s.log("world/map", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
+        m = self.world
+        if m is None:
+            return
+        outlines = [
+            np.array([*shape.corners(), shape.corners()[0]])
+            for shape in m.shapes
+            if isinstance(shape, Box)
+        ]
+        s.log(
+            "world/map/static/walls",
+            rr.LineStrips2D(outlines, colors=WALL, radii=0.02),
+            static=True,
+        )
+        cylinders = [c for c in m.shapes if isinstance(c, Cylinder)]
+        if cylinders:
+            s.log(
+                "world/map/static/obstacles",
+                rr.Ellipses2D(
+                    centers=[(c.x, c.y) for c in cylinders],
+                    half_sizes=[(c.radius, c.radius) for c in cylinders],
+                    colors=WALL,
+                ),
+                static=True,
+            )
+        s.log(
+            "world/map/static/goal",
+            rr.Points2D([(m.goal_x, m.goal_y)], radii=m.goal_radius, colors=GOAL, labels="goal"),
+            static=True,
+        )
+        st = m.start
+        s.log(
+            "world/map/static/start",
+            rr.Arrows2D(
+                origins=[(st.x, st.y)],
+                vectors=[(0.4 * math.cos(st.theta), 0.4 * math.sin(st.theta))],
+                colors=START,
+                labels="start",
+            ),
+            static=True,
+        )
+
+    def _new_robot(self, robot: str) -> None:
+        """Series styles of a robot's plots (static)."""
+        self._robots.add(robot)
+        s = self.stream
+        lines = {
+            f"reward/env/{robot}": (f"R_RL {robot}", (127, 127, 127)),
+            f"states/{robot}": (f"states {robot}", POLICY),
+            f"td_error/{robot}": (f"TD error {robot}", (127, 127, 127)),
+            f"episode/return/{robot}": (f"return {robot}", POLICY),
+            f"episode/steps/{robot}": (f"steps {robot}", POLICY),
+        }
+        for entity, (name, color) in lines.items():
+            s.log(entity, rr.SeriesLines(names=name, colors=color), static=True)
+        points = {
+            f"reward/teacher/{robot}": (f"teacher reward {robot}", TEACHER, "circle"),
+            f"reward/feedback/{robot}": (f"feedback arrives {robot}", FEEDBACK, "down"),
+            f"reward/utterance/{robot}": (f"utterance {robot}", UTTERANCE, "diamond"),
+            f"action/policy/{robot}": (f"policy {robot}", POLICY, "circle"),
+            f"action/teacher/{robot}": (f"teacher {robot}", TEACHER, "cross"),
+            f"episode/interventions/{robot}": (f"interventions {robot}", TEACHER, "square"),
+        }
+        for entity, (name, color, marker) in points.items():
+            s.log(
+                entity,
+                rr.SeriesPoints(names=name, colors=color, markers=marker, marker_sizes=3.0),
+                static=True,
+            )
+        s.log(
+            f"q/{robot}",
+            rr.SeriesLines(names=[f"Q({a}) {robot}" for a in ACTION_NAMES]),
+            static=True,
+        )
+        # Colours and sizes once; the per-step rows carry only positions.
+        where = f"world/map/robots/{robot}"
+        s.log(f"{where}/scan", rr.Points2D.from_fields(colors=SCAN, radii=0.02), static=True)
+        s.log(f"{where}/body", rr.LineStrips2D.from_fields(colors=ROBOT, radii=0.015), static=True)
+        s.log(f"{where}/heading", rr.Arrows2D.from_fields(colors=ROBOT, radii=0.02), static=True)
+        s.log(
+            f"world/map/poses/{robot}",
+            rr.Points2D.from_fields(colors=TRAIL, radii=0.03),
+            static=True,
+        )
+
+    # -- records -------------------------------------------------------------------------
+    def record(self, decoded: Decoded, *, detail: bool = True) -> None:
+        self.tally.observe(decoded)
+        self.counters["records"] += 1
+        match decoded:
+            case Known(message=message):
+                self.counters[f"messages.{message.TYPE}"] += 1
+                robot = getattr(message, "robot", None)
+                if isinstance(robot, str) and robot not in self._robots:
+                    self._new_robot(robot)
+                self._message(decoded, message, detail)
+            case PresenceChange(role=role, node=node, alive=alive):
+                self.counters["presence"] += 1
+                verb = "joined" if alive else "left"
+                self._text(decoded, "log/session", f"{role} {node} {verb} the session", "DEBUG")
+            case Unknown(type_name=type_name, fields=fields):
+                self.counters["unknown_types"] += 1
+                body = _preview(fields)
+                self._text(
+                    decoded, "log/session", f"{type_name} on {decoded.record.key}: {body}", "INFO"
+                )
+            case Rejected(problem=problem):
+                self.counters["rejected"] += 1
+                n = self.counters["rejected"]
+                if worth_logging(n):
+                    self._text(
+                        decoded,
+                        "log/session",
+                        f"rejected #{n} on {decoded.record.key}: {problem}",
+                        "WARN",
+                    )
+
+    def _message(self, decoded: Known, message: Message, detail: bool) -> None:
+        match message:
+            case Observation():
+                self._observation(decoded, message, detail)
+            case Action():
+                when = self._when_step(message.robot, message.step, decoded)
+                if message.discrete is not None:
+                    self._row(
+                        f"action/{message.chooser}/{message.robot}",
+                        "scalar",
+                        when,
+                        float(message.discrete),
+                    )
+            case LearningSummary():
+                when = self._when_step(message.robot, message.step, decoded)
+                if message.q_values:
+                    self._row(f"q/{message.robot}", "scalars", when, message.q_values)
+                self._row(f"states/{message.robot}", "scalar", when, float(message.states))
+                self._row(f"td_error/{message.robot}", "scalar", when, message.td_error)
+            case EpisodeEvent():
+                self._episode(decoded, message)
+            case CreditedFeedback():
+                self._feedback(decoded, message)
+            case Utterance():
+                self._utterance(decoded, message)
+            case AudioChunk():
+                if message.final:  # chunks are many: one line per stream, at its end
+                    self._text(
+                        decoded,
+                        f"log/teachers/{message.teacher}",
+                        f"{message.teacher}: audio stream {message.stream} ended "
+                        f"({message.seq + 1} chunks)",
+                        "DEBUG",
+                        robot=message.robot,
+                    )
+            case _:  # a type added to the protocol after this renderer: shown as text
+                wire = to_wire(message)
+                body = _preview({k: v for k, v in wire.items() if k not in ("schema", "type")})
+                self._text(
+                    decoded,
+                    "log/session",
+                    f"{message.TYPE}: {body}",
+                    "INFO",
+                    robot=getattr(message, "robot", None),
+                )
+
+    def _observation(self, decoded: Known, obs: Observation, detail: bool) -> None:
+        r = obs.robot
+        when = _When(obs.step, obs.episode, obs.sim_time, decoded.record.received)
+        self._row(f"world/map/poses/{r}", "point", when, (obs.x, obs.y))
+        c, s = math.cos(obs.theta), math.sin(obs.theta)
+        self._row(
+            f"world/map/robots/{r}/heading", "arrow", when, ((obs.x, obs.y), (0.35 * c, 0.35 * s))
+        )
+        self._row(f"reward/env/{r}", "scalar", when, obs.reward)
+        if detail:
+            corners = self.model.corners(obs.x, obs.y, obs.theta)
+            self._row(
+                f"world/map/robots/{r}/body", "strip", when, np.vstack([corners, corners[:1]])
+            )
+            self._row(f"world/map/robots/{r}/scan", "points", when, self._scan_points(obs))
+        else:
+            self.counters["thinned_scans"] += 1
+        if r not in self._goal_checked:
+            self._goal_checked.add(r)
+            self._check_goal(decoded, obs)
+
+    def _scan_points(self, obs: Observation) -> np.ndarray:
+        ranges = np.asarray(obs.laser, dtype=np.float64)
+        if len(ranges) == 0:
+            return np.zeros((0, 2))
+        model = self.model
+        step = model.laser_fov / len(ranges)
+        angles = obs.theta - model.laser_fov / 2 + step * (np.arange(len(ranges)) + 0.5)
+        hit = ranges < model.laser_max - 1e-6
+        lx = obs.x + model.laser_x * math.cos(obs.theta)
+        ly = obs.y + model.laser_x * math.sin(obs.theta)
+        return np.column_stack(
+            [lx + ranges[hit] * np.cos(angles[hit]), ly + ranges[hit] * np.sin(angles[hit])]
+        )
+
+    def _check_goal(self, decoded: Known, obs: Observation) -> None:
+        """The first observation says where the simulator's goal is: does the map agree?"""
+        if self.world is None:
+            return
+        a = obs.theta + obs.goal_bearing
+        gx, gy = obs.x + obs.goal_distance * math.cos(a), obs.y + obs.goal_distance * math.sin(a)
+        off = math.hypot(gx - self.world.goal_x, gy - self.world.goal_y)
+        if off > GOAL_MISMATCH_M:
+            self.counters["map_mismatch"] += 1
+            text = (
+                f"the simulator's goal for robot {obs.robot} is at ({gx:.2f}, {gy:.2f}), "
+                f"{off:.2f} m from the goal of the map drawn ({self.world.name}): give the "
+                "logger the simulator's --task"
+            )
+            log.warning(text)
+            self._text(decoded, f"log/{obs.robot}", text, "WARN", robot=obs.robot)
+
+    def _episode(self, decoded: Known, event: EpisodeEvent) -> None:
+        r = event.robot
+        tally = self.tally.robot(r)
+        when = _When(event.step, event.episode, event.sim_time, decoded.record.received)
+        if event.kind == "start":
+            self._text(decoded, f"log/{r}", f"episode {event.episode} starts", "DEBUG", when=when)
+            return
+        self._set_time(when)
+        self.stream.log(f"episode/return/{r}", rr.Scalars(event.env_return))
+        self.stream.log(f"episode/steps/{r}", rr.Scalars(float(event.episode_steps)))
+        self.stream.log(f"episode/interventions/{r}", rr.Scalars(float(tally.interventions)))
+        self._text(
+            decoded,
+            f"log/{r}",
+            f"episode {event.episode} ends: {event.kind} after {event.episode_steps} steps, "
+            f"return {event.env_return:+g}, {tally.interventions} intervention(s)",
+            "INFO",
+            when=when,
+        )
+
+    def _feedback(self, decoded: Known, feedback: CreditedFeedback) -> None:
+        r = feedback.robot
+        tally = self.tally.robot(r)
+        steps = [c.step for c in feedback.credits]
+        span = f"step {steps[0]}" if len(steps) == 1 else f"steps {min(steps)}-{max(steps)}"
+        who = ", ".join(feedback.teachers)
+        if feedback.kind == "reward":
+            what = f"reward {feedback.reward:+g}"
+            for credit in feedback.credits:
+                past = tally.time_of(credit.step)
+                when = _When(
+                    credit.step,
+                    past.episode if past else tally.episode,
+                    past.sim_time if past else tally.sim_time,
+                    past.wall_time if past else decoded.record.received,
+                )
+                self._set_time(when)
+                self.stream.log(f"reward/teacher/{r}", rr.Scalars(feedback.reward * credit.weight))
+        else:
+            what = f"command {feedback.command}"
+        now = self._when_now(tally, decoded)
+        self._set_time(now)
+        self.stream.log(f"reward/feedback/{r}", rr.Scalars(feedback.reward or 0.0))
+        self._text(decoded, f"log/{r}", f"{who}: {what}, credited to {span}", "INFO", when=now)
+
+    def _utterance(self, decoded: Known, utterance: Utterance) -> None:
+        tally = self.tally.robot(utterance.robot)
+        now = self._when_now(tally, decoded)
+        self._set_time(now)
+        self.stream.log(f"reward/utterance/{utterance.robot}", rr.Scalars(0.0))
+        self._text(
+            decoded,
+            f"log/teachers/{utterance.teacher}",
+            f"{utterance.teacher} to {utterance.robot}: {utterance.text!r} "
+            f"({utterance.confidence:.2f}, {utterance.language}, {utterance.engine})",
+            "INFO",
+            when=now,
+        )
+
+    # -- time and output -----------------------------------------------------------------
+    def _when_step(self, robot: str, step: int, decoded: Decoded) -> _When:
+        tally = self.tally.robot(robot)
+        past = tally.time_of(step)
+        if past is not None:
+            return _When(step, past.episode, past.sim_time, decoded.record.received)
+        return _When(step, tally.episode, tally.sim_time, decoded.record.received)
+
+    @staticmethod
+    def _when_now(tally: RobotTally, decoded: Decoded) -> _When | None:
+        """The robot's latest step, or None before its first observation."""
+        if tally.step is None:
+            return None
+        return _When(tally.step, tally.episode, tally.sim_time, decoded.record.received)
+
+    def _set_time(self, when: _When | None, wall_time: float | None = None) -> None:
+        s = self.stream
+        s.reset_time()
+        if when is None:
+            s.set_time("wall_time", timestamp=wall_time)
+            return
+        s.set_time("step", sequence=when.step)
+        s.set_time("episode", sequence=when.episode)
+        s.set_time("sim_time", duration=when.sim_time)
+        s.set_time("wall_time", timestamp=when.wall_time)
+
+    def _text(
+        self,
+        decoded: Decoded,
+        entity: str,
+        text: str,
+        level: str,
+        *,
+        robot: str | None = None,
+        when: _When | None = None,
+    ) -> None:
+        if when is None and robot is not None:
+            when = self._when_now(self.tally.robot(robot), decoded)
+        self._set_time(when, decoded.record.received)
+        self.stream.log(entity, rr.TextLog(text, level=level))
+
+    def _row(self, entity: str, kind: str, when: _When, value: object) -> None:
+        column = self._columns.get(entity)
+        if column is None:
+            column = self._columns[entity] = _Column(kind)
+        column.steps.append(when.step)
+        column.episodes.append(when.episode)
+        column.sim_times.append(when.sim_time)
+        column.wall_times.append(when.wall_time)
+        column.values.append(value)
+        self._pending_rows += 1
+
+    @property
+    def pending_rows(self) -> int:
+        return self._pending_rows
+
+    def flush(self) -> None:
+        """Sends the buffered per-step rows as columns."""
+        for entity, column in self._columns.items():
+            if column.steps:
+                self.stream.send_columns(
+                    entity,
+                    indexes=[
+                        rr.TimeColumn("step", sequence=column.steps),
+                        rr.TimeColumn("episode", sequence=column.episodes),
+                        rr.TimeColumn("sim_time", duration=column.sim_times),
+                        rr.TimeColumn("wall_time", timestamp=column.wall_times),
+                    ],
+                    columns=_columns_of(column),
+                )
+        self._columns.clear()
+        self._pending_rows = 0
+
+
+def _columns_of(column: _Column) -> rr.ComponentColumnList:
+    values = column.values
+    match column.kind:
+        case "scalar":
+            return rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64))
+        case "scalars":
+            flat = np.concatenate([np.asarray(v, dtype=np.float64) for v in values])
+            return rr.Scalars.columns(scalars=flat).partition([len(v) for v in values])
+        case "point":
+            return rr.Points2D.columns(positions=np.asarray(values, dtype=np.float64))
+        case "points":
+            flat = np.concatenate(values) if values else np.zeros((0, 2))
+            return rr.Points2D.columns(positions=flat).partition([len(v) for v in values])
+        case "arrow":
+            return rr.Arrows2D.columns(
+                origins=np.asarray([o for o, _ in values], dtype=np.float64),
+                vectors=np.asarray([v for _, v in values], dtype=np.float64),
+            )
+        case "strip":
+            return rr.LineStrips2D.columns(strips=values)
+    raise ValueError(f"unknown column kind {column.kind!r}")
+
+
+def _preview(fields: dict) -> str:
+    parts = []
+    for k, v in fields.items():
+        if k in ("id", "sent_at"):
+            continue
+        if isinstance(v, bytes):
+            text = f"<{len(v)} bytes>"
+        elif isinstance(v, list | tuple) and len(v) > 6:
+            text = f"[{len(v)} values]"
+        else:
+            text = str(v)
+        parts.append(f"{k}={text}")
+    body = ", ".join(parts)
+    return body if len(body) <= TEXT_PREVIEW else body[: TEXT_PREVIEW - 3] + "..."
