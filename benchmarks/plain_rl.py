@@ -1,7 +1,8 @@
 """Plain SARSA(lambda) (no teacher) on every task and several seeds, with and without the
 goal-relative state features: episodes and learning time to convergence.
 
-    .venv/bin/python benchmarks/plain_rl.py --seeds 3 --max-episodes 300 [--blend]
+    .venv/bin/python benchmarks/plain_rl.py --seeds 3 --max-episodes 150 [--blend]
+        [--goal-features on,off] [--set KEY=VALUE ...]
 
 Runs in parallel processes (one per core); prints a Markdown table and writes JSON lines.
 """
@@ -15,13 +16,13 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
-from services.learner.config import LearnerConfig
+from services.learner.config import add_settings_argument, with_settings
 from services.learner.train import train
 
 
-def one(job: tuple[str, int, bool, bool, int]) -> dict:
-    task, seed, goal, blend, max_episodes = job
-    config = replace(LearnerConfig(), goal_features=goal, blend=blend)
+def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:
+    task, seed, goal, blend, max_episodes, settings = job
+    config = replace(with_settings(list(settings)), goal_features=goal, blend=blend)
     r = train(task, seed, config, max_episodes)
     return {
         "task": task,
@@ -32,6 +33,7 @@ def one(job: tuple[str, int, bool, bool, int]) -> dict:
         "episodes": r.episodes,
         "learning_min": round(r.learning_time / 60, 1),
         "states": r.states,
+        "settings": settings,
     }
 
 
@@ -42,14 +44,17 @@ def median(rows: list[dict], key: str) -> object:
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--max-episodes", type=int, default=300)
+    parser.add_argument("--max-episodes", type=int, default=150)
+    parser.add_argument("--goal-features", default="on,off", help="on, off or on,off")
+    add_settings_argument(parser)
     parser.add_argument("--tasks", default="1,2,3,4")
     parser.add_argument("--blend", action="store_true")
     parser.add_argument("--out", default="plain_rl.jsonl")
     args = parser.parse_args()
+    goals = [g == "on" for g in args.goal_features.split(",")]
     jobs = [
-        (t, s, g, args.blend, args.max_episodes)
-        for g in (True, False)
+        (t, s, g, args.blend, args.max_episodes, tuple(args.set))
+        for g in goals
         for t in args.tasks.split(",")
         for s in range(args.seeds)
     ]
@@ -64,7 +69,7 @@ def main() -> None:
         "learning time min (median) | states (median) |"
     )
     print("|---|---|---|---|---|---|")
-    for goal in (True, False):
+    for goal in goals:
         for task in args.tasks.split(","):
             runs = [r for r in rows if r["task"] == task and r["goal_features"] == goal]
             done = [r for r in runs if r["converged"]]

@@ -48,6 +48,8 @@ EXACT = LearnerConfig(
     clear_range=None,
     use_sonar=False,
     goal_prior=False,
+    pearson_threshold=0.9,
+    near_range=None,
 )
 
 
@@ -74,6 +76,16 @@ def test_accumulating_traces_add_up():
         learner.step(P(WALL_LEFT, step=step), forced=forward)
     # e after two updates: (1 * 0.72 + 1) * 0.72; replacing would give 0.72
     assert learner.e[0, FORWARD] == pytest.approx((0.72 + 1) * 0.72)
+
+
+def test_near_bits_tell_a_wall_close_ahead_from_one_far_ahead():
+    space = StateSpace(replace(EXACT, pearson_threshold=None, near_range=0.6))
+    far, _ = space.classify(P(tuple([2.0] * 180)))
+    close_ahead, _ = space.classify(P(tuple([2.0] * 60 + [0.4] * 60 + [2.0] * 60)))
+    close_left, _ = space.classify(P(tuple([2.0] * 120 + [0.4] * 60)))
+    assert len({far, close_ahead, close_left}) == 3  # Pearson alone: all alike in shape
+    assert space.classify(P(tuple([3.0] * 180)))[0] == far
+    assert space.near_bits(P(tuple([2.0] * 60 + [0.4] * 60 + [2.0] * 60))) == 0b010
 
 
 def test_states_are_born_from_pearson_correlation():

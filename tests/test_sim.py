@@ -124,7 +124,7 @@ def test_commands_are_clipped_to_the_pioneer_limits():
 
 
 def test_a_collision_stops_the_robot_before_it_overlaps_and_ends_the_episode():
-    sim = open_room()
+    sim = open_room(collision="end")
     sim.reset("r1")
     sim.world.place(0, Pose(5.0, 3.0, 0.0))  # facing the east wall at x = 6
     for _ in range(100):
@@ -150,7 +150,7 @@ def test_collision_can_cost_a_penalty_and_go_on():
 
 
 def test_robots_collide_with_each_other_and_see_each_other():
-    sim = Simulation(load_map("1"), ("a", "b"), seed=0)
+    sim = Simulation(load_map("1"), ("a", "b"), SimConfig(collision="end"), seed=0)
     sim.reset_all()
     sim.world.place(0, Pose(2.0, 3.0, 0.0))
     sim.world.place(1, Pose(3.0, 3.0, math.pi))

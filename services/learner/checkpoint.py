@@ -21,7 +21,7 @@ from services.learner.actions import N_ACTIONS
 from services.learner.config import LearnerConfig
 from services.learner.sarsa import Learner
 
-VERSION = 1
+VERSION = 2
 # Settings that decide what a state or an action is: a table learnt with others is useless.
 REPRESENTATION = (
     "laser_sectors",
@@ -65,7 +65,7 @@ def save(learner: Learner, path: Path) -> None:
             H=learner.H,
             Q_goal=learner.Q_goal,
             prototypes=prototypes,
-            keys=np.array(keys, dtype=np.int64).reshape(len(keys), 3),
+            keys=np.array(keys, dtype=np.int64).reshape(len(keys), 4),
             meta=np.array(json.dumps(meta)),
         )
         f.flush()

@@ -90,7 +90,9 @@ class Learner:
         episode ended). `forced` imposes the action (replaying a teacher's trace)."""
         c = self.config
         s_next = self._state_of(p)
-        terminal = p.outcome != "running"
+        ended = p.outcome != "running"
+        terminal = ended and p.outcome != "timeout"  # a timeout cuts the episode short: s'
+        # still has a future, so the update bootstraps from it (truncation, not termination)
         if self.s is None:  # the first step of an episode
             self.episode_return = 0.0
         else:
@@ -103,7 +105,7 @@ class Learner:
             self.held += 1
             if (
                 s_next == self.s
-                and not terminal
+                and not ended
                 and forced is None
                 and not self.commands
                 and self.a.chooser == "policy"
@@ -114,6 +116,8 @@ class Learner:
         a_next = None if terminal else (forced or self._select(s_next))
         if self.s is not None:
             q_next = 0.0 if terminal else a_next.weights @ self.value(s_next)
+            if ended:
+                a_next = None
             delta = self.G + self.discount * q_next - self.a.weights @ self.value(self.s)
             self._mark(self.e, self.s)
             self._mark(self.e_goal, self.states.cells[self.s])
@@ -124,7 +128,7 @@ class Learner:
                 self.e_goal *= self.discount * c.lam
             self.td_error = float(delta)
         self.G, self.discount, self.held = 0.0, 1.0, 0
-        if terminal:
+        if ended:
             self._end_episode()
             return None
         self.recent.append(_Visit(p.step, p.step, self.episode, s_next, a_next.weights))

@@ -4,8 +4,10 @@ A reading is summarised as a sensor vector: the nearest laser range in each of
 `laser_sectors` sectors, then the sonar ranges. Its Pearson correlation with every stored
 prototype is computed; if the best is below the threshold, the reading becomes a new
 prototype. Pearson's correlation compares shapes, not distances, so sensors alone cannot
-tell where the goal is: with `goal_features`, the state is (prototype, goal-bearing bin,
-goal-distance bin).
+tell where the goal is, nor how near the walls are: the state is (prototype, near, goal-bearing
+bin, goal-distance bin), where `near` has a bit for each of the laser's right, front and left
+thirds with something within `near_range` (0 when off), and the goal bins are 0 without
+`goal_features`.
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ class StateSpace:
     def __init__(self, config: LearnerConfig) -> None:
         self.config = config
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
-        self.keys: dict[tuple[int, int, int], int] = {}  # (prototype, bearing, distance)
+        self.keys: dict[tuple[int, int, int, int], int] = {}  # (prototype, near, bearing, distance)
         self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
         self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
@@ -49,6 +51,12 @@ class StateSpace:
             parts.append(np.asarray(p.sonar, dtype=float))
         return np.concatenate(parts)
 
+    def near_bits(self, p: Percept) -> int:
+        if self.config.near_range is None:
+            return 0
+        thirds = np.array_split(np.asarray(p.laser, dtype=float), 3)
+        return sum(1 << i for i, third in enumerate(thirds) if third.min() < self.config.near_range)
+
     def goal_bins(self, p: Percept) -> tuple[int, int]:
         if not self.config.goal_features:
             return 0, 0
@@ -59,21 +67,22 @@ class StateSpace:
 
     def classify(self, p: Percept) -> tuple[int, int | None]:
         """The state of a percept, and the state it was born from (None if not new)."""
-        vector = self.sensor_vector(p)
-        clear = self.config.clear_range is not None and vector.min() >= self.config.clear_range
-        if clear:
+        vector = None if self.config.pearson_threshold is None else self.sensor_vector(p)
+        if vector is None:
+            prototype, neighbour_prototype = 0, None
+        elif self.config.clear_range is not None and vector.min() >= self.config.clear_range:
             prototype, neighbour_prototype = CLEAR, None
         else:
             centred = vector - vector.mean()
             norm = np.linalg.norm(centred)
             unit = centred / norm if norm > 1e-9 else centred
             prototype, neighbour_prototype = self._match(unit)
-        key = (prototype, *self.goal_bins(p))
+        key = (prototype, self.near_bits(p), *self.goal_bins(p))
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
         self.cells.append(self._cell(key))
-        # The nearest existing state: same goal bins, best-matching prototype.
+        # The nearest existing state: same bits and bins, best-matching prototype.
         parent = (
             self.keys.get((neighbour_prototype, *key[1:]))
             if neighbour_prototype is not None
@@ -81,8 +90,8 @@ class StateSpace:
         )
         return self.keys[key], parent
 
-    def _cell(self, key: tuple[int, int, int]) -> int:
-        return key[1] * (len(self.config.distance_edges) + 1) + key[2]
+    def _cell(self, key: tuple[int, int, int, int]) -> int:
+        return key[2] * (len(self.config.distance_edges) + 1) + key[3]
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
         """(prototype index, best other prototype when a new one was born)."""

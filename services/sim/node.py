@@ -65,8 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--collision",
         choices=("end", "continue"),
-        default="end",
-        help="a collision ends the episode, or costs a penalty and goes on",
+        default=SimConfig.collision,
+        help="a collision costs a penalty and goes on (default), or ends the episode",
     )
     parser.add_argument("--laser-noise", type=float, default=0.0, help="std dev, metres")
     parser.add_argument("--sonar-noise", type=float, default=0.0, help="std dev, metres")
