@@ -9,12 +9,18 @@ from protocol.messages import (
     Action,
     Alternative,
     AudioChunk,
+    ClockProbe,
+    ClockReply,
     Credit,
     CreditedFeedback,
     EpisodeEvent,
     LearningSummary,
     Message,
     Observation,
+    Said,
+    TeacherNotice,
+    TeacherStats,
+    TeachingStats,
     Utterance,
 )
 
@@ -93,6 +99,17 @@ def example_messages(
         ),
         (teacher_key(session, teacher, "utterance"), said),
         (
+            teacher_key(session, teacher, "said"),
+            Said(
+                teacher=teacher,
+                robot=robot,
+                text="muy bien",
+                language="es",
+                onset=now - 1.2,
+                end=now - 0.7,
+            ),
+        ),
+        (
             robot_key(session, robot, "feedback"),
             CreditedFeedback(
                 robot=robot,
@@ -117,6 +134,58 @@ def example_messages(
                 epsilon=0.1,
                 reward=-1.0,
                 episode_return=37.5,
+            ),
+        ),
+        *_arbiter_examples(session, robot, teacher, said, now),
+    ]
+
+
+def _arbiter_examples(
+    session: str, robot: str, teacher: str, said: Utterance, now: float
+) -> list[tuple[str, Message]]:
+    """The arbiter's messages: a clock exchange, a notice and a robot's teaching statistics."""
+    skew = 4.2  # this teacher's clock is 4.2 s behind the arbiter's
+    probe = ClockProbe(teacher=teacher, t0=now - skew, offset=4.1998, rtt=0.0006)
+    return [
+        (teacher_key(session, teacher, "clock"), probe),
+        (
+            teacher_key(session, teacher, "clock-reply"),
+            ClockReply(teacher=teacher, probe=probe.id, t0=probe.t0, t1=now + 3e-4, t2=now + 4e-4),
+        ),
+        (
+            teacher_key(session, teacher, "notice"),
+            TeacherNotice(
+                teacher=teacher,
+                robot=robot,
+                utterance=said.id,
+                kind="low_confidence",
+                meaning=None,
+                text="not understood, please repeat",
+            ),
+        ),
+        (
+            robot_key(session, robot, "teaching"),
+            TeachingStats(
+                robot=robot,
+                episode=3,
+                final=False,
+                interventions=4,
+                teachers=(
+                    TeacherStats(
+                        teacher=teacher,
+                        interventions=4,
+                        utterances=31,
+                        understood=27,
+                        ignored=4,
+                        compared=0,
+                        agreement=None,
+                        delay=1.35,
+                        delay_width=0.2,
+                        delay_learned=True,
+                        clock_offset=probe.offset,
+                        clock_rtt=probe.rtt,
+                    ),
+                ),
             ),
         ),
     ]

@@ -5,8 +5,13 @@ voxshape/<session>/robot/<robot>/action        learner/teacher -> simulator
 voxshape/<session>/robot/<robot>/episode       simulator -> *
 voxshape/<session>/robot/<robot>/feedback      arbiter -> learner
 voxshape/<session>/robot/<robot>/learning      learner -> logger
+voxshape/<session>/robot/<robot>/teaching      arbiter -> *   (interventions, teacher stats)
 voxshape/<session>/teacher/<teacher>/audio     teacher -> speech
 voxshape/<session>/teacher/<teacher>/utterance speech/teacher -> arbiter
+voxshape/<session>/teacher/<teacher>/said      teacher (as text) -> mock speech engine
+voxshape/<session>/teacher/<teacher>/clock     teacher -> arbiter (clock probe, NTP style)
+voxshape/<session>/teacher/<teacher>/clock-reply  arbiter -> teacher
+voxshape/<session>/teacher/<teacher>/notice    arbiter -> teacher (understood, or why not)
 voxshape/<session>/presence/<role>/<node>      liveliness token of every running node
 """
 
@@ -21,11 +26,16 @@ from protocol.messages import (
     ID_PATTERN,
     Action,
     AudioChunk,
+    ClockProbe,
+    ClockReply,
     CreditedFeedback,
     EpisodeEvent,
     LearningSummary,
     Message,
     Observation,
+    Said,
+    TeacherNotice,
+    TeachingStats,
     Utterance,
 )
 from protocol.schema import ProtocolError
@@ -38,10 +48,15 @@ ROBOT_TOPICS: dict[str, type[Message]] = {
     "episode": EpisodeEvent,
     "feedback": CreditedFeedback,
     "learning": LearningSummary,
+    "teaching": TeachingStats,
 }
 TEACHER_TOPICS: dict[str, type[Message]] = {
     "audio": AudioChunk,
     "utterance": Utterance,
+    "said": Said,
+    "clock": ClockProbe,
+    "clock-reply": ClockReply,
+    "notice": TeacherNotice,
 }
 SCOPES: dict[str, dict[str, type[Message]]] = {"robot": ROBOT_TOPICS, "teacher": TEACHER_TOPICS}
 

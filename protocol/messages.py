@@ -181,6 +181,26 @@ class Utterance(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
+class Said(Message):
+    """What a teacher said, as text, for the mock speech engine (a simulated teacher or
+    `voxshape teach --through-speech` -> `voxshape speech --engine mock`). The mock mishears
+    it as configured and publishes the Utterance; real engines take AudioChunk instead."""
+
+    TYPE: ClassVar[str] = "said"
+
+    teacher: Id
+    robot: Id
+    text: Text
+    language: Literal["en", "es"]
+    onset: WallTime  # teacher clock: the teacher started speaking
+    end: WallTime  # teacher clock
+
+    def check(self) -> None:
+        if self.end < self.onset:
+            raise ProtocolError("Said.end", f"end {self.end} is before onset {self.onset}")
+
+
+@dataclass(frozen=True, kw_only=True)
 class Credit:
     step: Count
     weight: Range01
@@ -228,6 +248,100 @@ class LearningSummary(Message):
     episode_return: Reward  # the sum of r the learner used this episode (R_RL + R_U)
 
 
+ClockOffset = Annotated[float, Range(-1e9, 1e9)]  # seconds, one clock minus another
+RoundTrip = Annotated[float, Range(0.0, 60.0)]  # seconds
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClockProbe(Message):
+    """A teacher asking the arbiter's clock, NTP style (teacher -> arbiter). `t0` is when it
+    left, on the teacher's clock. It also reports the teacher's best estimate from earlier
+    replies (None on a first probe): offset = arbiter clock - teacher clock, and its round trip.
+    The arbiter corrects the teacher's utterance times with the latest estimate reported."""
+
+    TYPE: ClassVar[str] = "clock_probe"
+
+    teacher: Id
+    t0: WallTime  # teacher clock
+    offset: ClockOffset | None
+    rtt: RoundTrip | None
+
+    def check(self) -> None:
+        if (self.offset is None) != (self.rtt is None):
+            raise ProtocolError("ClockProbe.offset", "offset and rtt go together: both or neither")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ClockReply(Message):
+    """The arbiter's answer to a ClockProbe (arbiter -> teacher). With t3, when it arrives on
+    the teacher's clock: offset = ((t1 - t0) + (t2 - t3)) / 2, rtt = (t3 - t0) - (t2 - t1)."""
+
+    TYPE: ClassVar[str] = "clock_reply"
+
+    teacher: Id
+    probe: MessageId  # the ClockProbe's id
+    t0: WallTime  # teacher clock, echoed from the probe
+    t1: WallTime  # arbiter clock: the probe arrived
+    t2: WallTime  # arbiter clock: this reply left
+
+    def check(self) -> None:
+        if self.t2 < self.t1:
+            raise ProtocolError("ClockReply.t2", f"t2 {self.t2} is before t1 {self.t1}")
+
+
+NoticeKind = Literal[
+    "understood", "low_confidence", "not_understood", "rate_limited", "unknown_robot", "too_late"
+]
+
+
+@dataclass(frozen=True, kw_only=True)
+class TeacherNotice(Message):
+    """What the arbiter made of one utterance, for the teacher client to show (arbiter ->
+    teacher): understood, or why it was ignored (rate-limited ones at most once a second)."""
+
+    TYPE: ClassVar[str] = "notice"
+
+    teacher: Id
+    robot: Id
+    utterance: MessageId
+    kind: NoticeKind
+    meaning: Name | None  # the vocabulary meaning, when understood
+    text: Text  # a sentence for people, e.g. "not understood, please repeat"
+
+
+@dataclass(frozen=True, kw_only=True)
+class TeacherStats:
+    """One teacher's part in a robot's teaching (within TeachingStats)."""
+
+    teacher: Id
+    interventions: Count  # understood utterances about this episode
+    utterances: Count  # utterances to this robot since the arbiter started
+    understood: Count
+    ignored: Count  # low confidence, not understood, rate limited, too late
+    compared: Count  # pairs of its judgement and another teacher's about the same steps
+    agreement: Range01 | None  # share of those with the same sign (None: none compared)
+    delay: Annotated[float, Range(0.0, 60.0)]  # centre of the reaction-delay window (s)
+    delay_width: Annotated[float, Range(0.0, 60.0)]  # its width (s)
+    delay_learned: bool  # learnt from this teacher's own reactions, else configured
+    clock_offset: ClockOffset | None  # arbiter clock - teacher clock (None: never synced)
+    clock_rtt: RoundTrip | None
+
+
+@dataclass(frozen=True, kw_only=True)
+class TeachingStats(Message):
+    """Interventions of one episode of a robot (the paper's Table 3) and each teacher's
+    statistics (arbiter -> *). Sent as they change; `final` once the episode ended and late
+    feedback had time to arrive."""
+
+    TYPE: ClassVar[str] = "teaching"
+
+    robot: Id
+    episode: Count
+    final: bool
+    interventions: Count  # understood utterances about this episode, all teachers
+    teachers: Annotated[tuple[TeacherStats, ...], Size(max=64)]
+
+
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.TYPE: cls
     for cls in (
@@ -236,7 +350,12 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         EpisodeEvent,
         AudioChunk,
         Utterance,
+        Said,
         CreditedFeedback,
         LearningSummary,
+        ClockProbe,
+        ClockReply,
+        TeacherNotice,
+        TeachingStats,
     )
 }

@@ -9,6 +9,8 @@ from types import ModuleType
 
 from protocol import ProtocolError, VocabularyError
 from services import demo, launcher, router, tools
+from services.arbiter import node as arbiter_node
+from services.experiment import commands as experiment_commands
 from services.learner import commands as learner_commands
 from services.learner import node as learner_node
 from services.learner.config import SettingsError
@@ -21,6 +23,8 @@ from services.runtime import BusError, ConfigError, add_bus_arguments, configure
 from services.sim import commands as sim_commands
 from services.sim import node as sim_node
 from services.sim.maps import MapError
+from services.speech import node as speech_node
+from services.teacher import node as teacher_node
 from services.topology import TopologyError
 
 Runner = Callable[[argparse.Namespace], int]
@@ -76,6 +80,22 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
     "view": ("look at a live or recorded session in rerun's viewer", *_module(logger_view)),
     "replay": ("re-render a session's recording from its event log", *_module(logger_replay)),
     "report": ("pictures and a summary of a recorded session", *_module(logger_report)),
+    "speech": (
+        "run the speech service: teachers' audio (or said text) in, utterances out",
+        *_module(speech_node),
+    ),
+    "teach": (
+        "teach a robot: speak, stream WAV files or type words; see what was understood",
+        *_module(teacher_node),
+    ),
+    "arbiter": (
+        "run the feedback arbiter: utterances in, credited rewards and commands out",
+        *_module(arbiter_node),
+    ),
+    "experiment": (
+        "run the paper's experiments in-process (simulated teacher): tables and figure",
+        *_module(experiment_commands),
+    ),
 }
 
 

@@ -10,7 +10,16 @@ from typing import Annotated, Any, Literal, Union
 
 from hypothesis import strategies as st
 
-from protocol import MESSAGE_TYPES, Action, CreditedFeedback, Message, Utterance
+from protocol import (
+    MESSAGE_TYPES,
+    Action,
+    ClockProbe,
+    ClockReply,
+    CreditedFeedback,
+    Message,
+    Said,
+    Utterance,
+)
 from protocol.messages import ACTION_NAMES, Credit
 from protocol.schema import Match, Range, Size
 
@@ -100,6 +109,25 @@ def _utterance(draw: st.DrawFn) -> Utterance:
     return dataclasses.replace(base, onset=onset, end=end)
 
 
+def _said(draw: st.DrawFn) -> Said:
+    base = draw(for_dataclass(Said))
+    onset, end = sorted((base.onset, base.end))
+    return dataclasses.replace(base, onset=onset, end=end)
+
+
+def _clock_probe(draw: st.DrawFn) -> ClockProbe:
+    base = draw(for_dataclass(ClockProbe))
+    if (base.offset is None) != (base.rtt is None):
+        base = dataclasses.replace(base, offset=None, rtt=None)
+    return base
+
+
+def _clock_reply(draw: st.DrawFn) -> ClockReply:
+    base = draw(for_dataclass(ClockReply))
+    t1, t2 = sorted((base.t1, base.t2))
+    return dataclasses.replace(base, t1=t1, t2=t2)
+
+
 def _even_pcm(message: Message) -> Message:
     pcm = getattr(message, "pcm", b"")
     return dataclasses.replace(message, pcm=pcm[: len(pcm) // 2 * 2]) if pcm else message
@@ -109,6 +137,9 @@ _CROSS_FIELD = {
     Action: st.composite(_action)(),
     CreditedFeedback: st.composite(_feedback)(),
     Utterance: st.composite(_utterance)(),
+    Said: st.composite(_said)(),
+    ClockProbe: st.composite(_clock_probe)(),
+    ClockReply: st.composite(_clock_reply)(),
 }
 
 

@@ -156,7 +156,7 @@ def test_demo_starts_what_exists_and_says_what_is_missing(session_id, tmp_path):
         result.stdout
     )
     assert "not built yet, so nobody teaches the robot by voice" in result.stdout
-    assert "speech service: vosk / pocketsphinx / mock (issue 5)" in result.stdout
+    assert "speech service" not in result.stdout  # it exists now: started, not missing
     assert "learner: SARSA" not in result.stdout  # it exists now: started, not missing
     assert "simulator: PyBullet" not in result.stdout  # it exists now: started, not missing
     line = next(line for line in result.stdout.splitlines() if "observations of robot r1" in line)

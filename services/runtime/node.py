@@ -104,6 +104,11 @@ class Output:
         self._publisher.put(encode(stamped))
         self._node.counters[f"sent.{self.name}"] += 1
 
+    def has_subscribers(self) -> bool:
+        """Whether a subscriber matches this key now, as far as zenoh knows (through a
+        router: once the router has told this session of the subscription)."""
+        return self._publisher.matching_status.matching
+
 
 class Node:
     def __init__(self, role: str, config: BusConfig, *, quiet: bool = False) -> None:

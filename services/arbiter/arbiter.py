@@ -1,0 +1,408 @@
+"""The arbiter's core: the only place where words become numbers. No bus here: messages and
+the arbiter's clock in, messages out (the node publishes each on its key).
+
+An utterance goes through, in order (each refusal is counted as `rejected.<reason>`; the
+teacher gets a TeacherNotice for those marked *):
+  teacher_mismatch   the utterance names another teacher than the key it came on
+  duplicate          a message id seen before (the first copy was answered)
+  too_many_teachers  more than `max_teachers` teachers
+  rate_limited *     the teacher's token bucket is empty (one notice per second at most)
+  unknown_robot *    no observation of that robot within the remembered history
+  low_confidence *   below `min_confidence` ("not understood, please repeat")
+  not_understood *   not a phrase of the vocabulary
+  too_late *         the steps it is about are no longer remembered
+then becomes a command (credited to the current step, sent at once) or a judgement: its onset
+(not its recognition or arrival time: recognition latency must not move the credit) goes from
+the teacher's clock to the simulator's (clocks.py), the teacher's reaction-delay window
+(credit.py) picks the steps, the merge policy (merge.py) combines teachers, and the reward
+bound g clips the result. Understood utterances are the interventions, counted per episode of
+the step they credit and published (TeachingStats) with each teacher's statistics.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, OrderedDict
+from dataclasses import dataclass, field
+
+from protocol import (
+    ClockProbe,
+    Credit,
+    CreditedFeedback,
+    Message,
+    Observation,
+    TeacherNotice,
+    TeacherStats,
+    TeachingStats,
+    Utterance,
+    Vocabulary,
+)
+from protocol.messages import NoticeKind
+from services.arbiter.clocks import SimulatorClock, TeacherClocks, answer
+from services.arbiter.config import ArbiterConfig, DelayWindow
+from services.arbiter.credit import MAX_CREDITS, ReactionDelay, SalientEvents, StepTimeline
+from services.arbiter.hygiene import RateLimits, RecentIds, Throttle
+from services.arbiter.meaning import NotUnderstood, examples_of, interpret
+from services.arbiter.merge import Agreement, Judgement, Merged, Merger
+
+FUTURE_TOLERANCE = 0.25  # s: an onset later than its arrival by more is a clock error
+EPISODES_KEPT = 16  # per robot, awaiting their final statistics
+PROBE_RATE, PROBE_BURST = 10.0, 20.0  # clock probes per second per teacher
+MAX_TEXT = 500
+
+
+@dataclass
+class _Tally:
+    """One teacher's utterances to one robot."""
+
+    utterances: int = 0
+    understood: int = 0
+    ignored: int = 0
+
+
+@dataclass
+class _Episode:
+    interventions: Counter[str] = field(default_factory=Counter)  # per teacher
+    ended_at: float | None = None  # arbiter clock
+    final: bool = False  # its final statistics were published
+
+
+@dataclass
+class _Robot:
+    timeline: StepTimeline
+    clock: SimulatorClock = field(default_factory=SimulatorClock)
+    events: SalientEvents = field(default_factory=SalientEvents)
+    last_seen: float = 0.0  # arbiter clock
+    episodes: OrderedDict[int, _Episode] = field(default_factory=OrderedDict)
+    tallies: dict[str, _Tally] = field(default_factory=dict)
+    changed: bool = False
+    stats_sent: float = float("-inf")
+
+    def tally(self, teacher: str) -> _Tally:
+        return self.tallies.setdefault(teacher, _Tally())
+
+    def episode(self, number: int) -> _Episode:
+        if number not in self.episodes:
+            self.episodes[number] = _Episode()
+        return self.episodes[number]
+
+
+@dataclass
+class _Teacher:
+    delay: ReactionDelay
+
+
+class Arbiter:
+    def __init__(self, config: ArbiterConfig, vocabulary: Vocabulary) -> None:
+        self.config = config
+        self.vocabulary = vocabulary
+        self.counters: Counter[str] = Counter()
+        self.clocks = TeacherClocks()
+        self.merger = Merger(config.merge, config.merge_window, config.merge_slack_steps)
+        self.agreement = Agreement(config.merge_slack_steps)
+        self._ids = RecentIds(config.remembered_ids)
+        self._rates = RateLimits(config.rate, config.burst)
+        self._probe_rates = RateLimits(PROBE_RATE, PROBE_BURST)
+        self._notices = Throttle(config.notice_every)
+        self._robots: dict[str, _Robot] = {}
+        self._teachers: dict[str, _Teacher] = {}
+
+    # -- inputs ---------------------------------------------------------------------------
+    def on_observation(self, obs: Observation, received_at: float) -> list[Message]:
+        """The step clock of a robot: timing, salient events, episodes."""
+        robot = self._robots.get(obs.robot)
+        if robot is None:
+            if len(self._robots) >= self.config.max_robots:
+                self.counters["rejected.too_many_robots"] += 1
+                return []
+            robot = self._robots[obs.robot] = _Robot(
+                StepTimeline(self.config.history_seconds, self.config.max_history_steps)
+            )
+        if not robot.timeline.add(obs.step, obs.wall_time, obs.episode, obs.outcome == "running"):
+            self.counters["timeline_restarted"] += 1
+            robot.events.clear()
+            robot.clock.reset()
+        robot.clock.observe(received_at, obs.wall_time)
+        robot.last_seen = received_at
+        if robot.events.observe(obs) is not None:
+            self.counters["salient_events"] += 1
+        episode = robot.episode(obs.episode)
+        if obs.outcome != "running" and episode.ended_at is None:
+            episode.ended_at = received_at
+        return []
+
+    def on_utterance(
+        self, utterance: Utterance, received_at: float, key_teacher: str | None = None
+    ) -> list[Message]:
+        """What an utterance becomes: feedback for the learner and a notice for the teacher."""
+        teacher_id, robot_id = utterance.teacher, utterance.robot
+        if key_teacher is not None and key_teacher != teacher_id:
+            self.counters["rejected.teacher_mismatch"] += 1
+            return []
+        if self._ids.seen(utterance.id):
+            self.counters["rejected.duplicate"] += 1
+            return []  # the first copy was answered
+        teacher = self._teacher(teacher_id)
+        if teacher is None:
+            return []
+        robot = self._robots.get(robot_id)
+        if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
+            robot = None  # its simulator went quiet: nothing to credit
+        tally = robot.tally(teacher_id) if robot is not None else _Tally()
+        tally.utterances += 1
+        if not self._rates.allow(teacher_id, received_at):
+            return self._ignore("rate_limited", utterance, tally, received_at)
+        if robot is None:
+            return self._ignore("unknown_robot", utterance, tally, received_at)
+        robot.changed = True
+        understood = interpret(
+            utterance.text, utterance.confidence, self.vocabulary, self.config.min_confidence
+        )
+        if isinstance(understood, NotUnderstood):
+            return self._ignore(understood.reason, utterance, tally, received_at)
+        meaning = understood.meaning
+        if understood.is_command:
+            out, episode = self._command(utterance, meaning.action or "stop", robot)
+            said = f"command {meaning.action}"
+        else:
+            judged = self._judge(utterance, meaning.reward or 0.0, teacher, robot, received_at)
+            if judged is None:
+                return self._ignore("too_late", utterance, tally, received_at)
+            out, episode = judged
+            said = f"{meaning.name} ({meaning.reward:+g})"
+        tally.understood += 1
+        record = robot.episodes.get(episode)
+        if record is None or record.final:  # its final statistics are out: too late for them
+            self.counters["intervention_after_final"] += 1
+        else:
+            record.interventions[teacher_id] += 1
+        text = f"understood {utterance.text!r}: {said}"
+        return [*out, self._notice(utterance, "understood", text, meaning.name)]
+
+    def on_clock_probe(
+        self, probe: ClockProbe, received_at: float, now: float, key_teacher: str | None = None
+    ) -> list[Message]:
+        """The reply to a teacher's clock probe; keeps the estimate it reports."""
+        if key_teacher is not None and key_teacher != probe.teacher:
+            self.counters["rejected.teacher_mismatch"] += 1
+            return []
+        if self._teacher(probe.teacher) is None:
+            return []
+        if self._ids.seen(probe.id):
+            self.counters["rejected.duplicate"] += 1
+            return []
+        if not self._probe_rates.allow(probe.teacher, received_at):
+            self.counters["rejected.probe_rate_limited"] += 1
+            return []
+        if self.clocks.record(probe, received_at):
+            self.counters["clock_reports"] += 1
+            for robot in self._robots.values():
+                robot.changed = robot.changed or probe.teacher in robot.tallies
+        self.counters["clock_probes"] += 1
+        return [answer(probe, received_at, now)]
+
+    def on_tick(self, now: float) -> list[Message]:
+        """Merged feedback that is due, and statistics: changed ones at most every
+        `stats_every` seconds, and each episode's final ones `settle` seconds after it ended."""
+        out: list[Message] = [self._feedback(m) for m in self.merger.due(now)]
+        for robot_id, robot in self._robots.items():
+            for number, episode in list(robot.episodes.items()):
+                settled = (
+                    episode.ended_at is not None and now - episode.ended_at >= self.config.settle
+                )
+                crowded = len(robot.episodes) > EPISODES_KEPT
+                if not episode.final and (settled or (crowded and episode.ended_at is not None)):
+                    out.append(self._stats(robot_id, robot, number, final=True))
+                    episode.final = True
+                if episode.final and len(robot.episodes) > EPISODES_KEPT:
+                    del robot.episodes[number]
+            while len(robot.episodes) > EPISODES_KEPT:  # never-ended episodes (a gap)
+                robot.episodes.popitem(last=False)
+            if robot.changed and now - robot.stats_sent >= self.config.stats_every:
+                current = robot.timeline.latest_episode
+                if current is not None:
+                    out.append(self._stats(robot_id, robot, current, final=False))
+                robot.changed, robot.stats_sent = False, now
+        return out
+
+    def flush(self) -> list[Message]:
+        """Feedback still held by the merge policy (on shutdown)."""
+        return [self._feedback(m) for m in self.merger.flush()]
+
+    # -- views ----------------------------------------------------------------------------
+    def delay_window(self, teacher: str) -> DelayWindow:
+        """The reaction-delay window used now for a teacher."""
+        state = self._teachers.get(teacher)
+        return state.delay.window() if state else self.config.window_of(teacher)
+
+    def delay_learned(self, teacher: str) -> bool:
+        state = self._teachers.get(teacher)
+        return state is not None and state.delay.learned
+
+    @property
+    def robots(self) -> list[str]:
+        return list(self._robots)
+
+    # -- helpers --------------------------------------------------------------------------
+    def _teacher(self, teacher: str) -> _Teacher | None:
+        state = self._teachers.get(teacher)
+        if state is None:
+            if len(self._teachers) >= self.config.max_teachers:
+                self.counters["rejected.too_many_teachers"] += 1
+                return None
+            state = self._teachers[teacher] = _Teacher(
+                ReactionDelay(self.config.window_of(teacher), self.config.learning)
+            )
+        return state
+
+    def _command(
+        self, utterance: Utterance, action: str, robot: _Robot
+    ) -> tuple[list[Message], int]:
+        """A command, credited to the current step (the learner applies h)."""
+        latest = robot.timeline.latest_running_step()
+        step, episode = latest or (robot.timeline.latest_step, robot.timeline.latest_episode)
+        self.counters["commands"] += 1
+        feedback = CreditedFeedback(
+            robot=utterance.robot,
+            kind="command",
+            reward=None,
+            command=action,  # type: ignore[arg-type]
+            credits=(Credit(step=step, weight=1.0),),
+            sources=(utterance.id,),
+            teachers=(utterance.teacher,),
+        )
+        return [feedback], episode
+
+    def _judge(
+        self, utterance: Utterance, reward: float, teacher: _Teacher, robot: _Robot, now: float
+    ) -> tuple[list[Message], int] | None:
+        """A qualifier or the goal, credited to the steps the teacher saw (None: too late):
+        the feedback to send now (merge policy, bound g) and the episode it is about."""
+        onset = self._onset_on_sim_clock(utterance, robot, now)
+        polarity = 1 if reward > 0 else -1 if reward < 0 else 0
+        if self.config.learning.enabled and polarity:
+            self._learn_delay(teacher, utterance.robot, robot, polarity, onset)
+        window = teacher.delay.window()
+        spread = robot.timeline.spread(onset - window.hi, onset - window.lo)
+        if spread is None:
+            return None
+        if spread.clamped:
+            self.counters["credited_latest_step"] += 1
+        judgement = Judgement(
+            robot=utterance.robot,
+            teacher=utterance.teacher,
+            source=utterance.id,
+            reward=reward,
+            weight=self.config.weight_of(utterance.teacher),
+            credits=spread.credits,
+            arrived=now,
+        )
+        self.agreement.add(judgement)
+        self.counters["judgements"] += 1
+        return [self._feedback(m) for m in self.merger.add(judgement)], spread.episode
+
+    def _onset_on_sim_clock(self, utterance: Utterance, robot: _Robot, received_at: float) -> float:
+        if self.clocks.report(utterance.teacher) is None:
+            self.counters["unsynced_teacher_utterances"] += 1
+        onset = robot.clock.to_sim(self.clocks.to_arbiter(utterance.teacher, utterance.onset))
+        arrival = robot.clock.to_sim(received_at)
+        if onset > arrival + FUTURE_TOLERANCE:
+            self.counters["onset_after_arrival"] += 1  # a clock error: the arrival is the bound
+            return arrival
+        return onset
+
+    def _learn_delay(
+        self, teacher: _Teacher, robot_id: str, robot: _Robot, polarity: int, onset: float
+    ) -> None:
+        """Offers a judgement as a candidate reaction to each salient event of its sign seen
+        shortly before its onset (within a step after it too: clocks are never exact)."""
+        within = self.config.learning.pair_within
+        for event in robot.events.seen_within(polarity, onset - within, onset + 0.05):
+            if teacher.delay.add((robot_id, event.step), onset - event.reference):
+                self.counters["delay_candidates"] += 1
+
+    def _feedback(self, merged: Merged) -> CreditedFeedback:
+        """The bound g of Algorithm 1 applied, at most MAX_CREDITS credits."""
+        bound = self.config.reward_bound
+        credits = merged.credits
+        if len(credits) > MAX_CREDITS:
+            credits = tuple(sorted(sorted(credits, key=lambda c: -c[1])[:MAX_CREDITS]))
+        total = sum(w for _, w in credits)
+        if abs(merged.reward) > bound:
+            self.counters["reward_clipped"] += 1
+        self.counters["feedback"] += 1
+        return CreditedFeedback(
+            robot=merged.robot,
+            kind="reward",
+            reward=max(-bound, min(bound, merged.reward)),
+            command=None,
+            credits=tuple(Credit(step=s, weight=min(1.0, w / total)) for s, w in credits),
+            sources=merged.sources[:64],
+            teachers=merged.teachers[:64],
+        )
+
+    def _ignore(
+        self, reason: NoticeKind, utterance: Utterance, tally: _Tally, now: float
+    ) -> list[Message]:
+        self.counters[f"rejected.{reason}"] += 1
+        tally.ignored += 1
+        if reason == "rate_limited" and not self._notices.due((utterance.teacher, reason), now):
+            return []
+        return [self._notice(utterance, reason, self._explain(reason, utterance), None)]
+
+    def _explain(self, reason: str, utterance: Utterance) -> str:
+        if reason in ("low_confidence", "not_understood"):
+            said = examples_of(self.vocabulary, utterance.language)
+            return f"not understood, please repeat (heard {utterance.text!r}; say e.g. {said})"
+        if reason == "rate_limited":
+            return (
+                f"too many utterances: slow down to {self.config.rate:g} per second; "
+                "some were ignored"
+            )
+        if reason == "unknown_robot":
+            known = ", ".join(self._robots) or "none yet"
+            return f"no robot {utterance.robot!r} is running in this session (robots: {known})"
+        return "too late: the steps you mean are no longer remembered, say it sooner"
+
+    def _notice(
+        self, utterance: Utterance, kind: NoticeKind, text: str, meaning: str | None
+    ) -> TeacherNotice:
+        self.counters[f"notices.{kind}"] += 1
+        return TeacherNotice(
+            teacher=utterance.teacher,
+            robot=utterance.robot,
+            utterance=utterance.id,
+            kind=kind,
+            meaning=meaning[:32] if meaning else None,
+            text=text[:MAX_TEXT],
+        )
+
+    def _stats(self, robot_id: str, robot: _Robot, number: int, final: bool) -> TeachingStats:
+        episode = robot.episodes.get(number) or _Episode()
+        teachers = []
+        for teacher_id, tally in list(robot.tallies.items())[:64]:
+            state = self._teachers.get(teacher_id)
+            window = state.delay.window() if state else self.config.window_of(teacher_id)
+            clock = self.clocks.report(teacher_id)
+            teachers.append(
+                TeacherStats(
+                    teacher=teacher_id,
+                    interventions=episode.interventions[teacher_id],
+                    utterances=tally.utterances,
+                    understood=tally.understood,
+                    ignored=tally.ignored,
+                    compared=self.agreement.compared[robot_id, teacher_id],
+                    agreement=self.agreement.share(robot_id, teacher_id),
+                    delay=window.centre,
+                    delay_width=window.width,
+                    delay_learned=state is not None and state.delay.learned,
+                    clock_offset=clock.offset if clock else None,
+                    clock_rtt=min(clock.rtt, 60.0) if clock else None,
+                )
+            )
+        return TeachingStats(
+            robot=robot_id,
+            episode=number,
+            final=final,
+            interventions=sum(episode.interventions.values()),
+            teachers=tuple(teachers),
+        )

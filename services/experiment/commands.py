@@ -1,0 +1,120 @@
+"""`voxshape experiment paper|sweep`: the command line of the experiments."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from pathlib import Path
+
+from services.experiment.paper import TASKS, experiment
+from services.experiment.session import SETTINGS
+from services.experiment.sweep import sweep
+
+
+def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in allowed]
+    if unknown or not names:
+        given = ", ".join(unknown) or "(none given)"
+        raise argparse.ArgumentTypeError(
+            f"unknown {what} {given}; choose from {', '.join(allowed)}"
+        )
+    return names
+
+
+def _values(text: str) -> list[float]:
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated numbers") from None
+
+
+def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
+    parser.add_argument("--seeds", type=int, default=seeds, help="runs per task and setting")
+    parser.add_argument("--max-episodes", type=int, default=150, help="then a run is censored")
+    parser.add_argument(
+        "--tasks",
+        type=lambda t: _names(t, TASKS, "task"),
+        default=list(TASKS),
+        help="comma-separated, e.g. 1,2",
+    )
+    parser.add_argument("--out", type=Path, default=Path(out))
+    parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    paper = sub.add_parser(
+        "paper",
+        help="the paper's Tables 2 and 3 and Figure 2: 4 tasks x 4 settings x seeds",
+        description="4 tasks x 4 settings x --seeds runs in parallel processes; writes "
+        "results.json, report.md and figure2.png to --out",
+    )
+    _add_common(paper, 10, "runs/experiment-paper")
+    paper.add_argument(
+        "--settings",
+        type=lambda s: _names(s, tuple(SETTINGS), "setting"),
+        default=list(SETTINGS),
+        help=f"comma-separated from {', '.join(SETTINGS)}",
+    )
+    sweeping = sub.add_parser(
+        "sweep",
+        help="speedup of feedback against noise, reaction delay (with and without the "
+        "arbiter's delay correction) and late feedback frequency",
+        description="rl+f with one thing changed per point, against plain RL; writes "
+        "sweep.json, sweep.md and sweep.png to --out",
+    )
+    _add_common(sweeping, 3, "runs/experiment-sweep")
+    sweeping.add_argument("--noise", type=_values, default=[], help="e.g. 0,0.1,0.2,0.3,0.4,0.5")
+    sweeping.add_argument("--delay", type=_values, default=[], help="seconds, e.g. 0,0.5,1,1.5,2")
+    sweeping.add_argument(
+        "--frequency",
+        type=_values,
+        default=[],
+        help="sporadic feedback probability, e.g. 0.05,0.2,0.5",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.seeds < 1 or args.max_episodes < 1:
+        print("voxshape experiment: --seeds and --max-episodes must be >= 1", file=sys.stderr)
+        return 2
+    if args.experiment == "sweep":
+        return run_sweep(args)
+    command = "voxshape experiment " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    summary = experiment(
+        args.out,
+        args.tasks,
+        args.settings,
+        args.seeds,
+        args.max_episodes,
+        command,
+        workers=args.workers,
+        progress=not args.no_progress,
+    )
+    print((args.out / "report.md").read_text())
+    print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
+          f"({summary['wall_time_s'] / 60:.1f} min)")  # fmt: skip
+    return 0
+
+
+def run_sweep(args: argparse.Namespace) -> int:
+    if not (args.noise or args.delay or args.frequency):
+        print("voxshape experiment sweep: give --noise, --delay or --frequency", file=sys.stderr)
+        return 2
+    sweep(
+        args.out,
+        args.tasks,
+        args.seeds,
+        args.max_episodes,
+        args.noise,
+        args.delay,
+        args.frequency,
+        workers=args.workers,
+        progress=not args.no_progress,
+    )
+    print((args.out / "sweep.md").read_text())
+    print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")
+    return 0

@@ -1,0 +1,316 @@
+"""`voxshape experiment paper`: the paper's Section 4 again, with many more runs.
+
+4 tasks x 4 settings x N seeds of services/experiment/session.py, in parallel processes (one
+per core). Writes to the output directory:
+
+- results.json: every run, and per task and setting the means (episodes, learning time,
+  interventions, share converged) with 95% confidence intervals; the speedup of each setting
+  (mean RL learning time over the tasks / the setting's, the paper's own ratio) and the mean
+  interventions of each feedback setting;
+- report.md: Tables 2 and 3 in the paper's layout, ours beside the paper's numbers;
+- figure2.png: episode duration against episode, one line per setting (the paper's Figure 2);
+- runs.jsonl: each run as it finishes.
+
+A run that does not converge within max_episodes is censored: it counts with its time so far
+(a lower bound) and is flagged; a setting's cell with censored runs is marked.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+from tqdm import tqdm
+
+from services.experiment.session import SETTINGS, RunResult, RunSpec, run
+
+TASKS = ("1", "2", "3", "4")
+LABELS = {"rl": "RL", "rl+f": "RL + F", "rl+t+f": "RL + T + F", "rl+t+f-perfect": "RL + T + F (PF)"}
+# The paper's Tables 2 and 3 (3 repeats per cell). Times in minutes.
+PAPER_EPISODES = {
+    "rl": {"1": 13, "2": 6, "3": 12, "4": 7},
+    "rl+f": {"1": 9, "2": 7, "3": 12, "4": 12},
+    "rl+t+f": {"1": 6, "2": 7, "3": 7, "4": 11},
+}
+PAPER_MINUTES = {
+    "rl": {"1": 103.93, "2": 66.4, "3": 100.65, "4": 99.1},
+    "rl+f": {"1": 19.59, "2": 15.1, "3": 38.2, "4": 23.43},
+    "rl+t+f": {"1": 12.85, "2": 13, "3": 18.09, "4": 24.61},
+    "rl+t+f-perfect": {"2": 7.6},
+}
+PAPER_INTERVENTIONS = {
+    "rl+f": {"1": 71, "2": 53, "3": 143, "4": 69},
+    "rl+t+f": {"1": 23, "2": 34, "3": 40, "4": 72},
+    "rl+t+f-perfect": {"2": 39},
+}
+PAPER_AVERAGE = {
+    "episodes": {"rl": 9.5, "rl+f": 10, "rl+t+f": 7.75},
+    "minutes": {"rl": 92.54, "rl+f": 24.08, "rl+t+f": 17.13},
+    "interventions": {"rl+f": 84, "rl+t+f": 42},
+    "speedup": {"rl+f": 3.84, "rl+t+f": 5.4},
+}
+# Student's t, two-sided 95%, by degrees of freedom (1-30); beyond, the normal's 1.96.
+T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
+       2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
+       2.060, 2.056, 2.052, 2.048, 2.045, 2.042)  # fmt: skip
+
+
+def mean_ci(values: Iterable[float]) -> tuple[float, float]:
+    """The mean and the half-width of its 95% confidence interval (Student's t; 0 for n=1)."""
+    values = list(values)
+    mean = statistics.fmean(values)
+    if len(values) < 2:
+        return mean, 0.0
+    t = T95[len(values) - 2] if len(values) - 1 <= len(T95) else 1.96
+    return mean, t * statistics.stdev(values) / math.sqrt(len(values))
+
+
+def run_all(
+    specs: list[RunSpec],
+    workers: int | None = None,
+    progress: bool = True,
+    log: Path | None = None,
+) -> list[RunResult]:
+    """Every run (in the order of `specs`), in parallel processes, with a progress bar on
+    stderr; with `log`, each result is appended to it as a JSON line as soon as it is done
+    (a long experiment cut short keeps what it ran)."""
+    workers = workers or os.cpu_count() or 1
+    results: list[RunResult | None] = [None] * len(specs)
+    with (
+        ProcessPoolExecutor(max_workers=workers) as pool,
+        tqdm(total=len(specs), unit="run", disable=not progress, leave=False) as bar,
+    ):
+        futures = {pool.submit(run, spec): i for i, spec in enumerate(specs)}
+        for future in as_completed(futures):
+            result = results[futures[future]] = future.result()
+            if log is not None:
+                with log.open("a") as lines:
+                    lines.write(json.dumps(result.to_json()) + "\n")
+            bar.update(1)
+    return [r for r in results if r is not None]
+
+
+def summarize(results: list[RunResult], seeds: int) -> dict:
+    """results.json's content: the runs, the means per task and setting, speedups."""
+    tasks = sorted({r.task for r in results})
+    settings = [s for s in SETTINGS if any(r.setting == s for r in results)]
+    cells: dict[str, dict[str, dict]] = {}
+    for task in tasks:
+        cells[task] = {}
+        for setting in settings:
+            runs = [r for r in results if r.task == task and r.setting == setting]
+            if not runs:
+                continue
+            cell = {"runs": len(runs)}
+            for key in ("episodes", "learning_time_s", "interventions"):
+                cell[key], cell[f"{key}_ci95"] = mean_ci(getattr(r, key) for r in runs)
+            cell["converged_fraction"] = sum(r.converged for r in runs) / len(runs)
+            cells[task][setting] = cell
+    means = {
+        s: statistics.fmean(cells[t][s]["learning_time_s"] for t in tasks if s in cells[t])
+        for s in settings
+    }
+    speedup = {s: means["rl"] / means[s] for s in settings if s != "rl" and "rl" in means}
+    interventions = {
+        s: statistics.fmean(cells[t][s]["interventions"] for t in tasks if s in cells[t])
+        for s in settings
+        if SETTINGS[s].feedback
+    }
+    return {
+        "seeds": seeds,
+        "tasks": cells,
+        "mean_learning_time_s": means,
+        "speedup": speedup,
+        "speedup_is_lower_bound": any(
+            cells[t]["rl"]["converged_fraction"] < 1 for t in tasks if "rl" in cells[t]
+        ),
+        "interventions": interventions,
+        "runs": [r.to_json() for r in results],
+    }
+
+
+def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) -> str:
+    cell = summary["tasks"].get(task, {}).get(setting)
+    if cell is None:
+        return "-"
+    censored = "≥" if cell["converged_fraction"] < 1 and key != "interventions" else ""
+    return f"{censored}{cell[key] / scale:.1f} ± {cell[key + '_ci95'] / scale:.1f}"
+
+
+def _paper(table: dict, setting: str, task: str) -> str:
+    value = table.get(setting, {}).get(task)
+    return "-" if value is None else f"{value:g}"
+
+
+def report(summary: dict, command: str, wall_seconds: float) -> str:
+    """The Markdown report: Tables 2 and 3 in the paper's layout, ours beside the paper's."""
+    tasks = list(summary["tasks"])
+    settings = [s for s in SETTINGS if any(s in summary["tasks"][t] for t in tasks)]
+    runs = summary["runs"]
+    censored = [r for r in runs if not r["converged"]]
+    head = "| task | " + " | ".join(f"{LABELS[s]} ours | paper" for s in settings) + " |"
+    rule = "|---|" + "---|---|" * len(settings)
+    lines = [
+        "# Dynamic reward shaping: the paper's experiments again",
+        "",
+        f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting), "
+        f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores.",
+        "",
+        "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
+        "Learning time is the robot's simulated time until convergence (3 goal episodes in "
+        "a row, each within 25% of the fewest steps). **Censored runs**: a run that did not "
+        "converge within the episode limit counts with its time so far, so its cell's mean "
+        f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored"
+        + (
+            ": " + ", ".join(f"task {r['task']} {r['setting']} seed {r['seed']}" for r in censored)
+            if 0 < len(censored) <= 12
+            else ""
+        )
+        + ").",
+        "",
+        "## Table 2: episodes (left) and learning time in minutes (right)",
+        "",
+        "Episodes:",
+        "",
+        head,
+        rule,
+    ]
+    for task in tasks:
+        row = [f"{_cell(summary, task, s, 'episodes')} | {_paper(PAPER_EPISODES, s, task)}"
+               for s in settings]  # fmt: skip
+        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+    lines += ["", "Learning time (minutes):", "", head, rule]
+    for task in tasks:
+        row = [f"{_cell(summary, task, s, 'learning_time_s', 60)} | "
+               f"{_paper(PAPER_MINUTES, s, task)}" for s in settings]  # fmt: skip
+        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+    average = [
+        f"{summary['mean_learning_time_s'][s] / 60:.1f} | {PAPER_AVERAGE['minutes'].get(s, '-')}"
+        for s in settings
+    ]
+    lines.append("| Avg | " + " | ".join(average) + " |")
+    lines += ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
+    lines += ["| setting | ours | paper |", "|---|---|---|"]
+    bound = "≥ " if summary["speedup_is_lower_bound"] else ""
+    for setting, value in summary["speedup"].items():
+        paper = PAPER_AVERAGE["speedup"].get(setting, "-")
+        lines.append(f"| {LABELS[setting]} | {bound}{value:.2f} | {paper} |")
+    if bound:
+        lines += [
+            "",
+            "RL did not always converge within the episode limit (plain SARSA(λ) does not "
+            "learn task 4 within 150 episodes): its mean is a lower bound, so the speedups "
+            "are lower bounds too.",
+        ]
+    feedback = [s for s in settings if SETTINGS[s].feedback]
+    lines += [
+        "",
+        "## Table 3: interventions (understood utterances until convergence)",
+        "",
+        "| task | " + " | ".join(f"{LABELS[s]} ours | paper" for s in feedback) + " |",
+        "|---|" + "---|---|" * len(feedback),
+    ]
+    for task in tasks:
+        row = [f"{_cell(summary, task, s, 'interventions')} | "
+               f"{_paper(PAPER_INTERVENTIONS, s, task)}" for s in feedback]  # fmt: skip
+        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+    average = [
+        f"{summary['interventions'][s]:.1f} | {PAPER_AVERAGE['interventions'].get(s, '-')}"
+        for s in feedback
+    ]
+    lines.append("| Avg | " + " | ".join(average) + " |")
+    noisy, perfect = "rl+t+f", "rl+t+f-perfect"
+    if "2" in summary["tasks"] and {noisy, perfect} <= set(summary["tasks"]["2"]):
+        lines += [
+            "",
+            "Task 2 with initial traces, noisy (20%) against perfect feedback (PF):",
+            "",
+            "| | time (min) ours | paper | interventions ours | paper |",
+            "|---|---|---|---|---|",
+        ]
+        for setting, name in ((noisy, "T2"), (perfect, "T2 PF")):
+            lines.append(
+                f"| {name} | {_cell(summary, '2', setting, 'learning_time_s', 60)} | "
+                f"{_paper(PAPER_MINUTES, setting, '2')} | "
+                f"{_cell(summary, '2', setting, 'interventions')} | "
+                f"{_paper(PAPER_INTERVENTIONS, setting, '2')} |"
+            )
+    lines += [
+        "",
+        "## Figure 2",
+        "",
+        "![episode duration against episode](figure2.png)",
+        "",
+        "Mean episode duration (robot minutes) of the runs still learning at each episode, "
+        "over all tasks and seeds, one line per setting.",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def figure2(results: list[RunResult], path: Path) -> None:
+    """Episode duration (minutes) against episode, one line per setting, averaged over the
+    runs (all tasks and seeds) that are still learning at that episode."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    markers = {"rl": "s", "rl+f": "D", "rl+t+f": "^", "rl+t+f-perfect": "v"}
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for setting in SETTINGS:
+        runs = [r.durations_s[: r.episodes] for r in results if r.setting == setting]
+        if not runs:
+            continue
+        longest = max(len(d) for d in runs)
+        mean = [statistics.fmean(d[i] for d in runs if len(d) > i) / 60 for i in range(longest)]
+        ax.plot(range(1, longest + 1), mean, marker=markers[setting], markersize=3,
+                label=LABELS[setting])  # fmt: skip
+    ax.set_xlabel("episode")
+    ax.set_ylabel("episode duration (robot minutes)")
+    ax.set_title("Average episode duration over the tasks (cf. the paper's Figure 2)")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def experiment(
+    out: Path,
+    tasks: list[str],
+    settings: list[str],
+    seeds: int,
+    max_episodes: int,
+    command: str,
+    workers: int | None = None,
+    progress: bool = True,
+    clock: Callable[[], float] | None = None,
+) -> dict:
+    """Runs the experiment and writes results.json, report.md and figure2.png to `out`."""
+    import time
+
+    clock = clock or time.monotonic
+    began = clock()
+    specs = [
+        RunSpec(task, setting, seed, max_episodes)
+        for task in tasks
+        for setting in settings
+        for seed in range(seeds)
+    ]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "runs.jsonl").unlink(missing_ok=True)
+    results = run_all(specs, workers, progress, log=out / "runs.jsonl")
+    wall = clock() - began
+    summary = summarize(results, seeds)
+    summary["command"] = command
+    summary["wall_time_s"] = round(wall, 1)
+    summary["max_episodes"] = max_episodes
+    (out / "results.json").write_text(json.dumps(summary, indent=1))
+    (out / "report.md").write_text(report(summary, command, wall))
+    figure2(results, out / "figure2.png")
+    return summary

@@ -1,0 +1,226 @@
+"""One training run of an experiment, in one process: the simulator, learner, arbiter and
+simulated teacher cores stepped together, no bus. Fast and deterministic for a seed.
+
+Time: the robot steps every control period (10 Hz) on a clock that is also the teacher's and
+the arbiter's (as in a lockstep session with synced clocks); between episodes the clock runs
+on for `PAUSE` seconds, so words about an episode's end still reach it. At each step:
+
+    the arbiter sees the observation (its step timeline, bumps and goals for delay learning)
+    the teacher watches the step and may start speaking (onset = display + its delay); what
+        it said is heard `speaking + recognition` seconds after the onset
+    utterances heard by now go to the arbiter (Arbiter.on_utterance at that time): the real
+        delay correction picks the credited steps; its CreditedFeedback goes to the learner
+        (Learner.credit for rewards, Learner.command for commands)
+    the learner learns from the step and decides the next action
+
+Interventions are the utterances the arbiter understood (its own count), per episode.
+"""
+
+from __future__ import annotations
+
+import heapq
+from dataclasses import asdict, dataclass, field, replace
+
+from protocol import CreditedFeedback, Observation, TeacherNotice, Utterance
+from protocol.vocabulary import load_vocabulary
+from services.arbiter.arbiter import Arbiter
+from services.arbiter.config import ArbiterConfig, DelayLearning
+from services.learner.config import LearnerConfig
+from services.learner.convergence import Convergence, Episode
+from services.learner.sarsa import Learner
+from services.sim.maps import load_map
+from services.sim.task import Reading, Simulation
+from services.simteacher.dictation import dictate
+from services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+
+START = 1_700_000_000.0  # the session clock at the first step (seconds)
+PAUSE = 3.0  # seconds between episodes (the robot is put back at the start)
+ROBOT, TEACHER = "r1", "teacher"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """What the robot gets from its teacher."""
+
+    feedback: bool  # the teacher judges while the robot learns
+    traces: int  # episodes the teacher dictates before learning (initial traces)
+    noise: float  # probability an utterance comes out wrong
+
+
+# The paper's four settings (Section 4): noise ~20% is its recognizer's error rate.
+SETTINGS: dict[str, Setting] = {
+    "rl": Setting(feedback=False, traces=0, noise=0.0),
+    "rl+f": Setting(feedback=True, traces=0, noise=0.2),
+    "rl+t+f": Setting(feedback=True, traces=3, noise=0.2),
+    "rl+t+f-perfect": Setting(feedback=True, traces=3, noise=0.0),
+}
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    task: str
+    setting: str
+    seed: int
+    max_episodes: int = 150
+    noise: float | None = None  # None: the setting's
+    delay: float | None = None  # the teacher's mean reaction delay; None: the profile's
+    delay_learning: bool = True  # the arbiter learns the teacher's delay (else TAMER's window)
+    profile: TeacherProfile = field(default_factory=TeacherProfile)
+
+
+@dataclass
+class RunResult:
+    task: str
+    setting: str
+    seed: int
+    converged: bool  # False: censored at max_episodes, its time so far counted
+    episodes: int
+    learning_time_s: float
+    interventions: int  # understood utterances until convergence (or the end)
+    trace_steps: int  # steps of the dictated traces (each a command)
+    durations_s: list[float]  # robot seconds of every episode run
+    delay_learned: bool  # the arbiter learnt the teacher's reaction delay
+    delay_window_s: tuple[float, float]  # the arbiter's window at the end (seconds)
+    counters: dict[str, int]
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+def run(spec: RunSpec) -> RunResult:
+    """Trains one robot on one task in one setting until convergence or max_episodes."""
+    setting = SETTINGS[spec.setting]
+    m = load_map(spec.task)
+    vocabulary = load_vocabulary()
+    profile = replace(
+        spec.profile,
+        noise=setting.noise if spec.noise is None else spec.noise,
+        delay=spec.profile.delay if spec.delay is None else spec.delay,
+    )
+    learner_config = LearnerConfig()
+    learner = Learner(learner_config, seed=spec.seed)
+    progress = Convergence(learner_config)
+    book = dictate(m, setting.traces, seed=10_000 + spec.seed) if setting.traces else None
+    teacher = SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
+    arbiter = Arbiter(
+        ArbiterConfig(learning=replace(DelayLearning(), enabled=spec.delay_learning)), vocabulary
+    )
+    heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance), a heap
+    sim = Simulation(m, (ROBOT,), seed=spec.seed)
+    now, order = START, 0
+    durations: list[float] = []
+    try:
+        for episode in range(spec.max_episodes):
+            if book and episode == 0:
+                book.replay(learner)
+            elif book:
+                book.replay_if_due(learner)
+            interventions = 0
+            reading = sim.reset(ROBOT)
+            for _ in range(sim.max_episode_steps + 1):
+                arbiter.on_observation(observation(reading, now), now)
+                if teacher is not None:
+                    for speech in teacher.watch(look(reading, now)):
+                        heapq.heappush(heard, (speech.heard_at, order, utterance(speech)))
+                        order += 1
+                interventions += deliver(heard, now, arbiter, learner)
+                decision = learner.step(reading)
+                if decision is None:
+                    break
+                reading = sim.step({ROBOT: (decision.v, decision.omega)})[ROBOT]
+                now += sim.config.control_period
+            now += PAUSE
+            interventions += deliver(heard, now, arbiter, learner)
+            seconds = reading.episode_step * sim.config.control_period
+            durations.append(seconds)
+            if progress.add(Episode(reading.outcome, reading.episode_step, seconds, interventions)):
+                break
+    finally:
+        sim.close()
+    window = arbiter.delay_window(TEACHER)
+    counters = {f"arbiter.{k}": v for k, v in arbiter.counters.items()}
+    counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
+    return RunResult(
+        task=spec.task,
+        setting=spec.setting,
+        seed=spec.seed,
+        converged=progress.converged,
+        episodes=progress.n_episodes,
+        learning_time_s=round(progress.learning_time, 1),
+        interventions=progress.interventions,
+        trace_steps=sum(len(e) for e in book.episodes) if book else 0,
+        durations_s=durations,
+        delay_learned=arbiter.delay_learned(TEACHER),
+        delay_window_s=(round(window.lo, 3), round(window.hi, 3)),
+        counters=counters,
+    )
+
+
+def deliver(
+    heard: list[tuple[float, int, Utterance]], now: float, arbiter: Arbiter, learner: Learner
+) -> int:
+    """Hands the utterances heard by `now` to the arbiter, and its feedback to the learner;
+    returns how many the arbiter understood (interventions)."""
+    understood = 0
+    while heard and heard[0][0] <= now:
+        at, _, said = heapq.heappop(heard)
+        for message in arbiter.on_utterance(said, at):
+            if isinstance(message, CreditedFeedback):
+                apply_feedback(learner, message)
+            elif isinstance(message, TeacherNotice) and message.kind == "understood":
+                understood += 1
+    return understood
+
+
+def apply_feedback(learner: Learner, feedback: CreditedFeedback) -> None:
+    """What the learner service does with the arbiter's feedback."""
+    if feedback.kind == "command":
+        learner.command(feedback.command)
+        return
+    for credit in feedback.credits:
+        learner.credit(credit.step, credit.weight, feedback.reward)
+
+
+def look(reading: Reading, now: float) -> Look:
+    pose = reading.pose
+    return Look(now, reading.episode, pose.x, pose.y, reading.collided, reading.outcome)
+
+
+def utterance(speech: Speech) -> Utterance:
+    return Utterance(
+        teacher=TEACHER,
+        robot=ROBOT,
+        text=speech.heard,
+        confidence=speech.confidence,
+        onset=speech.onset,
+        end=speech.end,
+        recognized_at=speech.heard_at,
+        engine="mock",
+        language="en",
+        alternatives=(),
+    )
+
+
+def observation(reading: Reading, now: float) -> Observation:
+    """The fields of the step the arbiter uses (no scans: it never reads them)."""
+    pose = reading.pose
+    return Observation(
+        robot=ROBOT,
+        episode=reading.episode,
+        step=reading.step,
+        episode_step=reading.episode_step,
+        sim_time=reading.sim_time,
+        wall_time=now,
+        x=pose.x,
+        y=pose.y,
+        theta=pose.theta,
+        v=reading.v,
+        omega=reading.omega,
+        laser=(),
+        sonar=(),
+        reward=reading.reward,
+        goal_distance=reading.goal_distance,
+        goal_bearing=reading.goal_bearing,
+        outcome=reading.outcome,
+        collided=reading.collided,
+    )

@@ -1,0 +1,270 @@
+"""The simulated teacher's pure core: a scripted person for experiments and tests (no bus).
+
+It knows the map's true geodesic distance to the goal (a grid search around walls and
+obstacles, never the straight line) and watches the robot:
+
+- every `interval` seconds of robot time it compares the distance now with the distance at
+  its previous look: progress of at least `small_change` metres is "good", of at least
+  `large_change` "excellent"; regress the same way is "bad" or "terrible"; a smaller change
+  (turning on the spot, or a standstill) gets no comment;
+- a bump (the first step of a run of collided steps) is "terrible", the goal is "goal";
+- it does not always speak: the chance it comments on what it saw follows the paper's
+  teacher, permanent during the first episodes and sporadic later (`FeedbackSchedule`);
+- it leans to praise with `positive_bias`: that share of its scolding is left unsaid;
+- it errs with probability `noise`, the kind of error drawn by the `Confusion` weights: a
+  wrong qualifier (the opposite judgement of the same strength, its own slip) or a misheard
+  word (what the mock speech engine's confusion core, services/speech/mock.py, makes of it:
+  another phrase of the vocabulary, a command included, with its lower confidence);
+- it reacts late: speech starts `delay` seconds (Gaussian, `jitter`, never negative) after
+  what it judges was displayed.
+
+It also dictates initial traces: the command that follows the shortest path from a pose
+("forward" when facing downhill on the geodesic distance, else the turn towards it).
+
+Words come from the vocabulary only (protocol/vocabulary.toml): the teacher names a meaning
+and says its first English phrase. Seeded: the same seed and readings give the same words.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from protocol.vocabulary import Vocabulary
+from services.sim.maps import PASSAGE_RADIUS, Map
+from services.speech.mock import MockRecognizer, MockSettings
+
+# Metres kept between the robot's centre and the walls when dictating a path: the widest
+# berth through which the goal can be reached from the pose (task 4's door is narrower than
+# twice the first).
+BERTHS = (0.45, 0.35, PASSAGE_RADIUS)
+RETURN_CELLS = 20  # nearer a wall than the berth: head for a cell with it at most this near
+FACING = math.radians(20)  # dictating: "forward" when the path is within this of the heading
+NEAREST_FREE_CELLS = 10  # a pose too near a wall takes the distance of a free cell this near
+OPPOSITE = {"good": "bad", "bad": "good", "excellent": "terrible", "terrible": "excellent"}
+OPPOSITE["goal"] = "terrible"
+
+
+@dataclass(frozen=True)
+class FeedbackSchedule:
+    """The chance the teacher comments on what it saw, by episode: `permanent` until episode
+    `permanent_episodes`, then falling linearly to `sporadic` over `fade_episodes`."""
+
+    permanent: float = 1.0
+    permanent_episodes: int = 5
+    fade_episodes: int = 10
+    sporadic: float = 0.2
+
+    def probability(self, episode: int) -> float:
+        if episode < self.permanent_episodes:
+            return self.permanent
+        done = min(1.0, (episode - self.permanent_episodes + 1) / max(1, self.fade_episodes))
+        return self.permanent + done * (self.sporadic - self.permanent)
+
+
+@dataclass(frozen=True)
+class Confusion:
+    """Relative weights of the kinds of error, when one is made."""
+
+    wrong_qualifier: float = 0.5  # the teacher's slip: the opposite judgement
+    misheard: float = 0.5  # the recognizer's: another phrase of the vocabulary
+
+    def __post_init__(self) -> None:
+        if (
+            min(self.wrong_qualifier, self.misheard) < 0
+            or self.wrong_qualifier + self.misheard <= 0
+        ):
+            raise ValueError("confusion weights must be >= 0 and not both 0")
+
+
+@dataclass(frozen=True)
+class TeacherProfile:
+    interval: float = 1.0  # seconds of robot time between looks
+    small_change: float = 0.1  # metres of geodesic progress (regress) for good (bad) ...
+    large_change: float = 0.35  # ... and for excellent (terrible); 0.5 m/s at most
+    schedule: FeedbackSchedule = field(default_factory=FeedbackSchedule)
+    noise: float = 0.0  # probability an utterance comes out wrong
+    confusion: Confusion = field(default_factory=Confusion)
+    positive_bias: float = 0.0  # share of the scolding left unsaid
+    delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
+    jitter: float = 0.1  # standard deviation of the delay
+    speaking: float = 0.4  # seconds a word takes to say
+    recognition: float = 0.3  # seconds from the end of speech to the utterance
+
+    def __post_init__(self) -> None:
+        for name in ("noise", "positive_bias"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} {getattr(self, name)} is not within [0, 1]")
+        if self.interval <= 0 or self.delay < 0 or self.jitter < 0:
+            raise ValueError("interval must be > 0, delay and jitter >= 0 seconds")
+        if not 0 < self.small_change <= self.large_change:
+            raise ValueError("need 0 < small_change <= large_change (metres)")
+
+
+@dataclass(frozen=True)
+class Look:
+    """What the teacher sees at one step: its own clock's time and the robot's state."""
+
+    time: float  # when this step is displayed (seconds)
+    episode: int
+    x: float
+    y: float
+    collided: bool
+    outcome: str  # running, goal, collision, timeout
+
+
+@dataclass(frozen=True)
+class Speech:
+    """One utterance: the words said and heard, when speech starts, and when it is heard."""
+
+    meant: str  # the meaning the teacher had in mind
+    said: str  # the text the teacher spoke
+    heard: str  # the text recognized
+    confidence: float
+    onset: float  # teacher's clock
+    end: float  # of speech
+    heard_at: float  # end of speech plus recognition
+    error: str | None  # None, "wrong_qualifier" or "misheard"
+
+
+class GeodesicDistance:
+    """The true distance to the goal, around obstacles, from any pose the robot can take."""
+
+    def __init__(self, m: Map, robot_radius: float = PASSAGE_RADIUS) -> None:
+        self.grid = m.grid
+        self.distance = m.grid.distances_to_goal(robot_radius)
+
+    def __call__(self, x: float, y: float) -> float:
+        row, col = self.grid.cell(x, y)
+        d = self.distance[row, col]
+        if math.isfinite(d):
+            return float(d)
+        for ring in range(1, NEAREST_FREE_CELLS + 1):  # hugging a wall: the nearest free cell
+            r0, r1 = max(0, row - ring), min(self.grid.rows, row + ring + 1)
+            c0, c1 = max(0, col - ring), min(self.grid.cols, col + ring + 1)
+            window = self.distance[r0:r1, c0:c1]
+            if np.isfinite(window).any():
+                return float(window[np.isfinite(window)].min() + ring * self.grid.resolution)
+        return math.inf
+
+
+def downhill_heading(m: Map, x: float, y: float) -> float | None:
+    """The direction of steepest descent of the geodesic distance near (x, y), keeping the
+    widest berth from the walls that leads from the start to the goal; a robot nearer a wall
+    than that is first sent back to the nearest cell with that berth. None where there is no
+    way down (in the goal, or boxed in)."""
+    grid = m.grid
+    row, col = grid.cell(x, y)
+    start = grid.cell(m.start.x, m.start.y)
+    berth = next((b for b in BERTHS if math.isfinite(grid.distances_to_goal(b)[start])), BERTHS[-1])
+    distance = grid.distances_to_goal(berth)
+    if not math.isfinite(distance[row, col]):
+        for ring in range(1, RETURN_CELLS + 1):
+            r0, c0 = max(0, row - ring), max(0, col - ring)
+            window = distance[r0 : row + ring + 1, c0 : col + ring + 1]
+            offsets = np.argwhere(np.isfinite(window)) + np.array([r0 - row, c0 - col])
+            if len(offsets):
+                dr, dc = offsets[np.argmin(np.hypot(offsets[:, 0], offsets[:, 1]))]
+                return math.atan2(dr, dc)
+        distance = grid.distances_to_goal(BERTHS[-1])
+    best, best_distance = None, distance[row, col]
+    for dr in (-2, -1, 0, 1, 2):
+        for dc in (-2, -1, 0, 1, 2):
+            r, c = row + dr, col + dc
+            if 0 <= r < grid.rows and 0 <= c < grid.cols and distance[r, c] < best_distance:
+                best, best_distance = (dr, dc), distance[r, c]
+    return math.atan2(best[0], best[1]) if best else None
+
+
+def path_command(m: Map, x: float, y: float, theta: float) -> str:
+    """The command that follows the shortest path: forward when facing it, else turn to it."""
+    heading = downhill_heading(m, x, y)
+    error = 0.0 if heading is None else math.remainder(heading - theta, math.tau)
+    if abs(error) < FACING:
+        return "forward"
+    return "left" if error > 0 else "right"
+
+
+class SimulatedTeacher:
+    def __init__(
+        self, m: Map, vocabulary: Vocabulary, profile: TeacherProfile, seed: int = 0
+    ) -> None:
+        self.map = m
+        self.profile = profile
+        self.vocabulary = vocabulary
+        self.distance = GeodesicDistance(m)
+        self.rng = random.Random(seed)
+        self.recognizer = MockRecognizer(
+            vocabulary,
+            MockSettings(error_rate=1.0, misheard=1.0, dropped=0.0, inserted=0.0, seed=seed),
+        )
+        self._last_look: Look | None = None
+        self._last_distance = math.inf
+        self._bumping = False
+
+    def phrase(self, meaning: str) -> str:
+        """The teacher's words for a meaning: its first English phrase in the vocabulary."""
+        return self.vocabulary.meanings[meaning].phrases["en"][0]
+
+    def watch(self, look: Look) -> list[Speech]:
+        """What the teacher says about this step (usually nothing)."""
+        p = self.profile
+        distance = self.distance(look.x, look.y)
+        previous = self._last_look
+        new_episode = previous is None or previous.episode != look.episode
+        bump = look.collided and not self._bumping
+        self._bumping = look.collided
+        meaning = None
+        if look.outcome == "goal":
+            meaning = "goal"
+        elif bump:
+            meaning = "terrible"
+        elif not new_episode and look.time - previous.time >= p.interval - 1e-9:
+            meaning = self.judge(self._last_distance - distance)
+        if new_episode or meaning is not None or look.time - previous.time >= p.interval - 1e-9:
+            self._last_look, self._last_distance = look, distance
+        if meaning is None or not self._speaks(look.episode, meaning):
+            return []
+        return [self._say(meaning, look.time)]
+
+    def judge(self, progress: float) -> str | None:
+        """The qualifier for `progress` metres towards the goal (negative: away from it)."""
+        p = self.profile
+        size = abs(progress)
+        if size < p.small_change:
+            return None
+        if progress > 0:
+            return "excellent" if size >= p.large_change else "good"
+        return "terrible" if size >= p.large_change else "bad"
+
+    def _speaks(self, episode: int, meaning: str) -> bool:
+        p = self.profile
+        if self.rng.random() >= p.schedule.probability(episode):
+            return False
+        negative = (self.vocabulary.meanings[meaning].reward or 0.0) < 0
+        return not (negative and self.rng.random() < p.positive_bias)
+
+    def _say(self, meaning: str, seen_at: float) -> Speech:
+        p = self.profile
+        onset = seen_at + max(0.0, self.rng.gauss(p.delay, p.jitter))
+        heard_at = onset + p.speaking + p.recognition
+        said, heard, confidence, error = self.phrase(meaning), None, 0.95, None
+        if self.rng.random() < p.noise:
+            c = p.confusion
+            error = self.rng.choices(
+                ("wrong_qualifier", "misheard"), weights=(c.wrong_qualifier, c.misheard)
+            )[0]
+            if error == "wrong_qualifier":
+                said = self.phrase(OPPOSITE[meaning])
+            else:
+                (wrong,) = self.recognizer.hear(said, "en")
+                heard, confidence = wrong.text, wrong.confidence
+        end = onset + p.speaking
+        return Speech(meaning, said, heard or said, confidence, onset, end, heard_at, error)
+
+    def command(self, x: float, y: float, theta: float) -> str:
+        """The command the teacher dictates at this pose (initial traces)."""
+        return path_command(self.map, x, y, theta)

@@ -1,0 +1,11 @@
+"""`voxshape speech`: teachers' audio in, utterances out.
+
+audio.py      PCM and WAV helpers (16 kHz mono int16), shared with the teacher client
+segmenter.py  voice activity and endpointing of one audio stream (pure)
+streams.py    every teacher's streams: ordering, clocks, limits, segments (pure)
+engines.py    the recognizer interface and how an engine is chosen
+pocketsphinx_engine.py, vosk_engine.py, mock.py   the engines
+transcriber.py  segments or said text -> Utterance messages (pure)
+node.py       the service on the bus
+bench.py      accuracy, false accepts and speed on the WAV fixtures
+"""

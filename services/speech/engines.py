@@ -1,0 +1,69 @@
+"""The recognizer interface shared by the engines, and how `voxshape speech` picks one.
+
+A recognizer turns the audio of one endpointed utterance (int16 samples at 16 kHz, with a
+little quiet around the speech) into one vocabulary phrase with a confidence, or None when it
+heard nothing it knows (rejection). Every engine is restricted to the vocabulary: its text is
+always a phrase of `protocol/vocabulary.toml`, as written there.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from protocol.vocabulary import Vocabulary, normalize
+
+if TYPE_CHECKING:
+    from services.speech.pocketsphinx_engine import PocketsphinxSettings
+
+ENGINES = ("pocketsphinx", "vosk", "mock")
+
+
+class EngineError(RuntimeError):
+    """The engine cannot run as configured; the message says what is missing and the fix."""
+
+
+@dataclass(frozen=True)
+class Recognition:
+    text: str  # a vocabulary phrase, as written in the vocabulary
+    confidence: float  # 0..1
+    alternatives: tuple[tuple[str, float], ...] = ()  # other phrases and their confidence
+
+
+class Recognizer(Protocol):
+    engine: str
+    language: str
+
+    def recognize(self, samples: np.ndarray) -> Recognition | None:
+        """The phrase heard in one utterance, or None (nothing of the vocabulary)."""
+        ...
+
+
+def written_phrases(vocabulary: Vocabulary, language: str) -> dict[str, str]:
+    """Normalized phrase -> the phrase as written, for one language."""
+    return {normalize(p): p for p in vocabulary.phrases(language)}
+
+
+def open_recognizer(
+    engine: str,
+    vocabulary: Vocabulary,
+    language: str,
+    model: Path | None = None,
+    dictionary: Path | None = None,
+    pocketsphinx_settings: PocketsphinxSettings | None = None,
+) -> Recognizer:
+    """An audio engine ready to recognize; raises EngineError saying what is missing."""
+    if engine == "pocketsphinx":
+        from services.speech.pocketsphinx_engine import PocketsphinxRecognizer
+
+        return PocketsphinxRecognizer(
+            vocabulary, language, pocketsphinx_settings, model=model, dictionary=dictionary
+        )
+    if engine == "vosk":
+        from services.speech.vosk_engine import VoskRecognizer
+
+        return VoskRecognizer(vocabulary, language, model=model)
+    raise EngineError(f"unknown audio engine {engine!r}; choose one of {', '.join(ENGINES)}")

@@ -1,0 +1,212 @@
+"""`voxshape speech`: the speech service on the bus.
+
+Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk)
+         voxshape/<session>/teacher/*/said       text said (mock)
+Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from collections import Counter
+from pathlib import Path
+
+from protocol import (
+    AudioChunk,
+    Said,
+    Utterance,
+    Vocabulary,
+    load_vocabulary,
+    parse_key,
+    teacher_key,
+)
+from protocol.vocabulary import LANGUAGES
+from services.runtime import (
+    ConfigError,
+    Input,
+    Node,
+    Output,
+    Tick,
+    add_bus_arguments,
+    bus_config,
+    fields,
+    worth_logging,
+)
+from services.speech.engines import ENGINES, EngineError, Recognizer, open_recognizer
+from services.speech.mock import MockRecognizer, MockSettings
+from services.speech.pocketsphinx_engine import PocketsphinxSettings
+from services.speech.streams import AudioStreams, StreamLimits
+from services.speech.transcriber import AudioTranscriber, MockTranscriber
+
+TICK_S = 0.02  # idle streams and due mock results are looked at this often
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    env = os.environ.get
+    parser.add_argument(
+        "--engine",
+        choices=ENGINES,
+        default=env("VOXSHAPE_SPEECH_ENGINE", "pocketsphinx"),
+        help="pocketsphinx: offline English; vosk: needs --model; mock: text in (said "
+        "messages), text out (VOXSHAPE_SPEECH_ENGINE)",
+    )
+    parser.add_argument(
+        "--language",
+        choices=LANGUAGES,
+        default=env("VOXSHAPE_LANGUAGE", "en"),
+        help="language of the audio engines (VOXSHAPE_LANGUAGE); the mock takes each message's",
+    )
+    parser.add_argument(
+        "--model",
+        type=Path,
+        help="vosk: the model folder (default VOSK_MODEL_PATH); pocketsphinx: an acoustic "
+        "model folder instead of the bundled US-English one",
+    )
+    parser.add_argument("--dictionary", type=Path, help="pocketsphinx: pronunciation dictionary")
+    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
+    ps = parser.add_argument_group("pocketsphinx rejection of words outside the vocabulary")
+    defaults = PocketsphinxSettings()
+    ps.add_argument(
+        "--distractors",
+        type=int,
+        default=defaults.distractors,
+        help="dictionary words competing with the vocabulary (0: no rejection; more rejects "
+        "more and loses more of the vocabulary, see the README)",
+    )
+    ps.add_argument("--distractor-weight", type=float, default=defaults.distractor_weight)
+    mock = parser.add_argument_group("mock engine")
+    mock.add_argument("--error-rate", type=float, default=0.0, help="0..1 of utterances")
+    mock.add_argument(
+        "--confusion",
+        default="misheard=0.6,dropped=0.3,inserted=0.1",
+        help="relative weights of the kinds of error",
+    )
+    mock.add_argument("--latency", type=float, default=0.3, help="seconds after the speech")
+    mock.add_argument("--latency-jitter", type=float, default=0.0, help="+- seconds, uniform")
+    mock.add_argument("--seed", type=int, default=None)
+    limits = StreamLimits()
+    parser.add_argument("--max-streams", type=int, default=limits.max_streams)
+    parser.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=limits.idle_timeout_s,
+        help="seconds after which a stream without its final chunk is ended",
+    )
+
+
+def mock_settings(args: argparse.Namespace) -> MockSettings:
+    try:
+        weights = {
+            k.strip(): float(v) for k, v in (p.split("=") for p in args.confusion.split(","))
+        }
+        unknown = set(weights) - {"misheard", "dropped", "inserted"}
+        if unknown:
+            raise ValueError(f"unknown kind {sorted(unknown)[0]!r}")
+        return MockSettings(
+            error_rate=args.error_rate,
+            latency_s=args.latency,
+            latency_jitter_s=args.latency_jitter,
+            seed=args.seed,
+            **weights,
+        )
+    except ValueError as e:
+        raise ConfigError(
+            f"mock engine: {e} (e.g. --error-rate 0.2 --confusion "
+            "misheard=0.6,dropped=0.3,inserted=0.1 --latency 0.3)"
+        ) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    vocabulary = load_vocabulary(args.vocabulary)
+    bus = bus_config("speech", args)
+    if args.max_streams < 1 or args.idle_timeout <= 0:
+        raise ConfigError("--max-streams must be >= 1 and --idle-timeout > 0")
+    # the engine first: a missing model is reported before joining the bus
+    engine = MockRecognizer(vocabulary, mock_settings(args)) if args.engine == "mock" else None
+    recognizer = None if engine else _audio_engine(args, vocabulary)
+    with Node("speech", bus) as node:
+        counts: Counter[str] = Counter()
+
+        def report(kind: str, detail: str) -> None:
+            counts[kind] += 1
+            if worth_logging(counts[kind]):
+                node.log.warning(detail, extra=fields(problem=kind, count=counts[kind]))
+
+        core: AudioTranscriber | MockTranscriber
+        if engine is not None:
+            core = MockTranscriber(engine, node.counters)
+            node.input("said", teacher_key(node.session_id, "*", "said"))
+            node.log.info("listening", extra=fields(engine="mock", error_rate=args.error_rate))
+        else:
+            assert recognizer is not None
+            _describe(recognizer, node)
+            limits = StreamLimits(args.max_streams, args.idle_timeout)
+            streams = AudioStreams(limits=limits, counters=node.counters, report=report)
+            core = AudioTranscriber(recognizer, streams, report)
+            node.input("audio", teacher_key(node.session_id, "*", "audio"))
+            node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
+        outputs: dict[str, Output] = {}
+
+        def publish(utterances: list[Utterance]) -> None:
+            for u in utterances:
+                if u.teacher not in outputs:
+                    key = teacher_key(node.session_id, u.teacher, "utterance")
+                    outputs[u.teacher] = node.output("utterance", key)
+                outputs[u.teacher].put(u)
+                node.log.info(
+                    "heard",
+                    extra=fields(
+                        teacher=u.teacher,
+                        robot=u.robot,
+                        text=u.text,
+                        confidence=f"{u.confidence:.2f}",
+                        after_end_s=f"{u.recognized_at - u.end:.2f}",
+                    ),
+                )
+
+        for event in node.events(tick=TICK_S):
+            now = time.time()
+            if isinstance(event, Input):
+                teacher = parse_key(event.key).owner
+                message = event.message
+                if isinstance(core, AudioTranscriber) and isinstance(message, AudioChunk):
+                    publish(core.on_audio(teacher, message, now))
+                elif isinstance(core, MockTranscriber) and isinstance(message, Said):
+                    publish(core.on_said(teacher, message, now))
+            elif isinstance(event, Tick):
+                publish(core.on_tick(now))
+        publish(core.close(time.time()))
+    return 0
+
+
+def _audio_engine(args: argparse.Namespace, vocabulary: Vocabulary) -> Recognizer:
+    if args.distractors < 0 or args.distractor_weight <= 0:
+        raise ConfigError("--distractors must be >= 0 and --distractor-weight > 0")
+    settings = PocketsphinxSettings(
+        distractors=args.distractors, distractor_weight=args.distractor_weight
+    )
+    try:
+        return open_recognizer(
+            args.engine, vocabulary, args.language, args.model, args.dictionary, settings
+        )
+    except EngineError as e:
+        raise ConfigError(str(e)) from None
+
+
+def _describe(recognizer: Recognizer, node: Node) -> None:
+    missing = getattr(recognizer, "unpronounceable", [])
+    if missing:
+        node.log.warning(
+            "phrases left out: a word has no pronunciation in the dictionary (add it with "
+            "--dictionary)",
+            extra=fields(phrases=",".join(missing)),
+        )
+    node.log.info(
+        f"{recognizer.engine} ready",
+        extra=fields(
+            language=recognizer.language, distractors=getattr(recognizer, "distractor_count", "-")
+        ),
+    )

@@ -1,0 +1,392 @@
+"""`voxshape teach`: speak, stream recordings or type words to a robot of a session.
+
+Outputs: voxshape/<session>/teacher/<teacher>/audio      microphone or WAV chunks
+         voxshape/<session>/teacher/<teacher>/utterance  typed words (engine "typed")
+         voxshape/<session>/teacher/<teacher>/said       typed words, with --through-speech
+Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
+         voxshape/<session>/teacher/<teacher>/notice     what the arbiter made of it
+         voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
+         voxshape/<session>/robot/<robot>/obs, episode, feedback   the robot's status
+
+    voxshape teach                              type words (a prompt, or a script on stdin)
+    voxshape teach --wav good.wav --wav left.wav   stream recordings in real time (--fast)
+    voxshape teach --mic                        speak
+    voxshape teach --connect tls/lab.example:7447 --tls-root-ca ca.pem --user ana ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from protocol import (
+    AudioChunk,
+    CreditedFeedback,
+    EpisodeEvent,
+    Message,
+    Observation,
+    TeacherNotice,
+    Utterance,
+    Vocabulary,
+    check_id,
+    load_vocabulary,
+    robot_key,
+    teacher_key,
+)
+from protocol.messages import SAMPLE_RATE
+from protocol.vocabulary import LANGUAGES
+from services.runtime import (
+    ConfigError,
+    Input,
+    Node,
+    Output,
+    Presence,
+    add_bus_arguments,
+    bus_config,
+)
+from services.runtime.clock import ClockSyncError, sync_clock
+from services.speech.audio import AudioError, samples_to_pcm
+from services.teacher.board import Board, Shown
+from services.teacher.sources import (
+    Scheduled,
+    TeachError,
+    default_teacher_id,
+    microphone,
+    new_stream_id,
+    read_recordings,
+    typed,
+    typed_lines,
+    wav_stream,
+)
+
+TICK_S = 0.02
+CLOCK_SYNC_EVERY_S = 60.0  # clocks drift: the exchange with the arbiter is repeated
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    env = os.environ.get
+    parser.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="(VOXSHAPE_ROBOT)")
+    parser.add_argument(
+        "--teacher",
+        default=env("VOXSHAPE_TEACHER") or default_teacher_id(),
+        help="your id in the session (VOXSHAPE_TEACHER; default: your login name)",
+    )
+    parser.add_argument(
+        "--language", choices=LANGUAGES, default=env("VOXSHAPE_LANGUAGE", "en"), help="of typing"
+    )
+    source = parser.add_mutually_exclusive_group()
+    source.add_argument(
+        "--wav", type=Path, action="append", metavar="FILE", help="stream a recording (repeat)"
+    )
+    source.add_argument("--mic", action="store_true", help="speak into the microphone")
+    parser.add_argument("--device", help="--mic: input device name or number")
+    parser.add_argument("--fast", action="store_true", help="--wav: send at once, not paced")
+    parser.add_argument(
+        "--through-speech",
+        action="store_true",
+        help="typed words go to the speech service's mock engine (said), not straight out",
+    )
+    parser.add_argument(
+        "--linger", type=float, default=3.0, help="seconds to wait for what was understood"
+    )
+    parser.add_argument("--status-every", type=float, default=2.0, help="seconds between status")
+    parser.add_argument(
+        "--wait-speech",
+        type=float,
+        default=5.0,
+        help="seconds to wait for a speech service before sending audio",
+    )
+    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
+    parser.add_argument("--json", action="store_true", help="one JSON object per line")
+
+
+class Sender(Protocol):
+    """Where the messages to send come from: `due()` those to send now; `done` at the end."""
+
+    done: bool
+
+    def due(self) -> list[Message]: ...
+
+
+class Screen:
+    def __init__(self, as_json: bool) -> None:
+        self.as_json = as_json
+
+    def show(self, items: list[Shown]) -> None:
+        for item in items:
+            line = json.dumps(item.as_json()) if self.as_json else item.text
+            print(line, flush=True)
+
+    def note(self, event: str, message: str, **data: object) -> None:
+        self.show([Shown(event, message, {"message": message, **data})])
+
+
+def run(args: argparse.Namespace) -> int:
+    teacher = check_id(args.teacher, "teacher")
+    robot = check_id(args.robot, "robot")
+    if min(args.linger, args.status_every, args.wait_speech) < 0:
+        raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
+    vocabulary = load_vocabulary(args.vocabulary)
+    bus = bus_config("teacher", args)
+    screen = Screen(args.json)
+    board = Board(vocabulary, args.status_every)
+    mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
+    try:
+        recordings = read_recordings(args.wav or [])
+    except AudioError as e:
+        raise ConfigError(str(e)) from None
+    with ExitStack() as stack:
+        if args.mic:
+            try:
+                stack.enter_context(
+                    microphone(lambda s, t: mic_chunks.put((s, t)), device=args.device)
+                )
+            except TeachError as e:
+                raise ConfigError(str(e)) from None
+        node = stack.enter_context(Node("teacher", bus, quiet=True))
+        session = node.session_id
+        node.input("utterance", teacher_key(session, teacher, "utterance"))
+        node.input("notice", teacher_key(session, teacher, "notice"))
+        stack.enter_context(_ClockSync(node, teacher, screen))
+        for topic in ("obs", "episode", "feedback"):
+            node.input(topic, robot_key(session, robot, topic))
+        if args.wav or args.mic:
+            out = node.output("audio", teacher_key(session, teacher, "audio"))
+        elif args.through_speech:
+            out = node.output("said", teacher_key(session, teacher, "said"))
+        else:
+            out = node.output("utterance", teacher_key(session, teacher, "utterance"))
+        if args.wav or args.mic or args.through_speech:
+            _wait_for_speech(node, out, board, screen, args.wait_speech)
+        if args.wav:
+            start = time.time()
+            sender: Sender = _Scheduled(wav_stream(recordings, teacher, robot, start, args.fast))
+            screen.note(
+                "streaming",
+                f"streaming {len(args.wav)} file(s) to robot {robot}",
+                files=[str(f) for f in args.wav],
+                start_time=start,
+            )
+        elif args.mic:
+            sender = _Microphone(mic_chunks, teacher, robot)
+            screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
+        else:
+            sender = _Typed(teacher, robot, args.language, args.through_speech, screen, vocabulary)
+        _loop(node, out, sender, board, screen, args.linger)
+    return 0
+
+
+def _wait_for_speech(node: Node, out: Output, board: Board, screen: Screen, seconds: float) -> None:
+    """Until a speech node is present and something subscribes to what this teacher sends
+    (presence alone comes a moment before the subscription; a logger subscribes to all)."""
+    node.watch_presence(role="speech")
+    deadline = time.monotonic() + seconds
+    present: set[str] = set()
+    while not (present and out.has_subscribers()) and time.monotonic() < deadline:
+        event = node.poll(0.05)
+        if isinstance(event, Presence):
+            (present.add if event.alive else present.discard)(event.node)
+        _show_event(event, board, screen)
+    if not (present and out.has_subscribers()):
+        screen.note(
+            "warning",
+            f"no speech service listens in session {node.session_id!r} yet: what you say may be "
+            "lost (start one with `voxshape speech`, or `voxshape up`)",
+        )
+
+
+def _show_event(event: object, board: Board, screen: Screen) -> None:
+    if not isinstance(event, Input):
+        return
+    message = event.message
+    if isinstance(message, Utterance):
+        screen.show(board.understood(message))
+    elif isinstance(message, Observation):
+        screen.show(board.observation(message, time.monotonic()))
+    elif isinstance(message, EpisodeEvent):
+        screen.show(board.episode(message))
+    elif isinstance(message, CreditedFeedback):
+        screen.show(board.feedback(message))
+    elif isinstance(message, TeacherNotice):
+        screen.show(board.notice(message))
+
+
+class _ClockSync:
+    """Tells the arbiter this teacher's clock offset, at start and every minute, in a thread
+    (an exchange takes up to a few seconds when no arbiter answers; teaching goes on)."""
+
+    def __init__(self, node: Node, teacher: str, screen: Screen) -> None:
+        self.stop = threading.Event()
+        self.thread = threading.Thread(
+            target=self._run, args=(node, teacher, screen), name="clock-sync", daemon=True
+        )
+
+    def __enter__(self) -> _ClockSync:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5.0)
+
+    def _run(self, node: Node, teacher: str, screen: Screen) -> None:
+        warned = False
+        while not self.stop.is_set():
+            try:
+                estimate = sync_clock(node, teacher, n=4, reply_wait=0.3)
+                screen.note(
+                    "clock",
+                    f"clock: the arbiter's is {estimate.offset:+.3f} s from this one "
+                    f"(+-{estimate.rtt / 2 * 1000:.1f} ms)",
+                    offset=estimate.offset,
+                    rtt=estimate.rtt,
+                )
+            except ClockSyncError as e:
+                if not warned:  # no arbiter yet: say so once, keep trying
+                    screen.note("warning", f"{e}; your timing is taken as is until one answers")
+                    warned = True
+            except Exception as e:  # a closed session at shutdown, a bus error: stop quietly
+                if not self.stop.is_set():
+                    screen.note("warning", f"clock exchange stopped: {e}")
+                return
+            self.stop.wait(CLOCK_SYNC_EVERY_S)
+
+
+def _loop(
+    node: Node, out: Output, sender: Sender, board: Board, screen: Screen, linger: float
+) -> None:
+    lingering_until = None
+    for event in node.events(tick=TICK_S):
+        _show_event(event, board, screen)
+        for message in sender.due():
+            out.put(message)
+        if sender.done:
+            if lingering_until is None:
+                lingering_until = time.monotonic() + linger
+            elif time.monotonic() >= lingering_until:
+                break
+
+
+class _Scheduled:
+    """WAV chunks, each when due."""
+
+    def __init__(self, schedule: list[Scheduled]) -> None:
+        self._schedule = schedule
+        self._next = 0
+        self._t0 = time.monotonic()
+
+    @property
+    def done(self) -> bool:
+        return self._next >= len(self._schedule)
+
+    def due(self) -> list[Message]:
+        elapsed = time.monotonic() - self._t0
+        out = []
+        while not self.done and self._schedule[self._next].due_s <= elapsed:
+            out.append(self._schedule[self._next].message)
+            self._next += 1
+        return out
+
+
+class _Microphone:
+    """Chunks of the microphone as they come; never done (Ctrl-C ends it)."""
+
+    done = False
+
+    def __init__(self, captured: queue.SimpleQueue, teacher: str, robot: str) -> None:
+        self._captured = captured
+        self._teacher, self._robot = teacher, robot
+        self._stream = new_stream_id("mic")
+        self._seq = 0
+
+    def due(self) -> list[Message]:
+        out: list[Message] = []
+        while True:
+            try:
+                samples, capture_time = self._captured.get_nowait()
+            except queue.Empty:
+                return out
+            out.append(
+                AudioChunk(
+                    teacher=self._teacher,
+                    robot=self._robot,
+                    stream=self._stream,
+                    seq=self._seq,
+                    sample_rate=SAMPLE_RATE,
+                    pcm=samples_to_pcm(np.asarray(samples)),
+                    capture_time=capture_time,
+                    final=False,
+                )
+            )
+            self._seq += 1
+
+
+class _Typed:
+    """Lines typed at a prompt, or read from a script on stdin, as they come."""
+
+    def __init__(
+        self,
+        teacher: str,
+        robot: str,
+        language: str,
+        through_speech: bool,
+        screen: Screen,
+        vocabulary: Vocabulary,
+    ) -> None:
+        self._lines: queue.SimpleQueue = queue.SimpleQueue()
+        self._args = (teacher, robot, language)
+        self._through_speech = through_speech
+        self._screen = screen
+        self._vocabulary = vocabulary
+        self.done = False
+        interactive = sys.stdin.isatty()
+        if interactive:
+            print(f"type what you say to robot {robot}, one utterance per line (Ctrl-D ends)")
+        threading.Thread(target=self._read, args=(interactive,), daemon=True).start()
+
+    def _read(self, interactive: bool) -> None:
+        def lines() -> Iterator[str]:
+            while True:
+                if interactive:
+                    print("say> ", end="", flush=True)
+                line = sys.stdin.readline()
+                if not line:
+                    return
+                yield line
+
+        for text in typed_lines(lines()):
+            self._lines.put(text)
+        self._lines.put(None)
+
+    def due(self) -> list[Message]:
+        out: list[Message] = []
+        while True:
+            try:
+                text = self._lines.get_nowait()
+            except queue.Empty:
+                return out
+            if text is None:
+                self.done = True
+                return out
+            text = text[:500]
+            if self._vocabulary.lookup(text) is None:
+                self._screen.note(
+                    "note",
+                    f"{text!r} is not in the vocabulary: nobody will act on it "
+                    "(`voxshape vocabulary` lists the phrases)",
+                    text=text,
+                )
+            teacher, robot, language = self._args
+            out.append(typed(text, teacher, robot, language, time.time(), self._through_speech))

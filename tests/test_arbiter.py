@@ -1,0 +1,422 @@
+"""The arbiter's core without the bus: meaning, clocks, delay credit, merging, hygiene,
+interventions. Times are made up and exact, so the credited steps can be checked by hand."""
+
+from __future__ import annotations
+
+import random
+from dataclasses import replace
+
+import pytest
+
+from protocol import ClockProbe, CreditedFeedback, TeacherNotice, TeachingStats
+from protocol.vocabulary import load_vocabulary, parse_vocabulary
+from services.arbiter.arbiter import Arbiter
+from services.arbiter.clocks import SimulatorClock
+from services.arbiter.config import (
+    ArbiterConfig,
+    ArbiterConfigError,
+    DelayLearning,
+    DelayWindow,
+    parse_per_teacher,
+    parse_window,
+)
+from services.arbiter.credit import ReactionDelay, StepTimeline
+from services.arbiter.hygiene import RecentIds, TokenBucket
+from services.arbiter.scripted import (
+    ScriptedTeacher,
+    observation,
+    rehearse,
+    sync_in_process,
+    utterance,
+)
+from services.runtime.clock import estimate_from
+
+T0 = 1_700_000_000.0  # wall time of step 0
+PERIOD = 0.1
+VOCABULARY = load_vocabulary()
+
+
+def shown(step: int) -> float:
+    return T0 + step * PERIOD
+
+
+def arbiter(steps: int = 100, **settings) -> Arbiter:
+    """An arbiter that has seen robot r1 step at exactly 10 Hz, steps 0..steps-1."""
+    a = Arbiter(ArbiterConfig(**settings), VOCABULARY)
+    for k in range(steps):
+        a.on_observation(observation("r1", k, shown(k)), shown(k))
+    return a
+
+
+def feedback(messages: list) -> list[CreditedFeedback]:
+    return [m for m in messages if isinstance(m, CreditedFeedback)]
+
+
+def notices(messages: list) -> list[TeacherNotice]:
+    return [m for m in messages if isinstance(m, TeacherNotice)]
+
+
+def credits(message: CreditedFeedback) -> dict[int, float]:
+    return {c.step: round(c.weight, 6) for c in message.credits}
+
+
+# -- delay correction -------------------------------------------------------------------------
+
+
+def test_known_step_timing_and_delay_credit_the_steps_displayed_in_the_window():
+    a = arbiter(learning=DelayLearning(enabled=False))  # TAMER's 0.2-0.8 s window
+    onset = shown(50) + 0.55  # window: [shown(50) - 0.25, shown(50) + 0.35]
+    out = a.on_utterance(utterance("ana", "r1", "good", onset), received_at=shown(99))
+    (fb,) = feedback(out)
+    assert fb.kind == "reward" and fb.reward == 10.0 and fb.teachers == ("ana",)
+    sixth, twelfth = round(1 / 6, 6), round(1 / 12, 6)
+    assert credits(fb) == {
+        47: twelfth,
+        48: sixth,
+        49: sixth,
+        50: sixth,
+        51: sixth,
+        52: sixth,
+        53: twelfth,
+    }
+    assert notices(out)[0].kind == "understood" and notices(out)[0].meaning == "good"
+
+
+def test_recognition_latency_and_arrival_time_do_not_move_the_credit():
+    a, b = arbiter(), arbiter()
+    quick = utterance("ana", "r1", "bad", shown(40))
+    slow = replace(quick, recognized_at=quick.onset + 2.5, end=quick.onset + 1.1)
+    (fast,) = feedback(a.on_utterance(quick, received_at=shown(41)))
+    (late,) = feedback(b.on_utterance(slow, received_at=shown(70)))
+    assert credits(fast) == credits(late)
+
+
+def test_a_teachers_own_window_is_used():
+    a = arbiter(teacher_delay={"bob": DelayWindow(1.0, 1.1)}, learning=DelayLearning(enabled=False))
+    onset = shown(60) + 1.05 + 0.05  # centre of step 60's display
+    (fb,) = feedback(a.on_utterance(utterance("bob", "r1", "good", onset), shown(99)))
+    assert credits(fb) == {60: 1.0}
+
+
+def test_terminal_steps_are_never_credited():
+    a = Arbiter(ArbiterConfig(learning=DelayLearning(enabled=False)), VOCABULARY)
+    for k in range(20):
+        end = k == 10
+        a.on_observation(
+            observation("r1", k, shown(k), outcome="goal" if end else "running"), shown(k)
+        )
+    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", "good", shown(10) + 0.5), shown(19)))
+    assert 10 not in credits(fb) and abs(sum(credits(fb).values()) - 1) < 1e-6
+
+
+def test_feedback_older_than_the_history_is_too_late_and_the_teacher_is_told():
+    a = arbiter(history_seconds=5.0)
+    out = a.on_utterance(utterance("ana", "r1", "good", shown(10)), shown(99))
+    assert not feedback(out)
+    (notice,) = notices(out)
+    assert notice.kind == "too_late" and "too late" in notice.text
+    assert a.counters["rejected.too_late"] == 1
+
+
+# -- clocks -----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("skew", [-5.0, 5.0])
+def test_a_skewed_teacher_clock_is_corrected(skew):
+    reference = arbiter(learning=DelayLearning(enabled=False))
+    skewed = arbiter(learning=DelayLearning(enabled=False))
+    estimate, _ = sync_in_process(skewed, ScriptedTeacher("ana", skew=skew), T0, random.Random(1))
+    assert abs(estimate.offset - (-skew)) < 0.002  # within the round trip of the exchange
+    onset = shown(50) + 0.55
+    (want,) = feedback(reference.on_utterance(utterance("ana", "r1", "good", onset), shown(99)))
+    said = utterance("ana", "r1", "good", onset + skew)  # the teacher's clock
+    (got,) = feedback(skewed.on_utterance(said, shown(99)))
+    assert credits(got).keys() == credits(want).keys()
+    assert all(abs(credits(got)[s] - w) < 0.02 for s, w in credits(want).items())
+
+
+def test_without_sync_a_skew_moves_the_credit():
+    a = arbiter(learning=DelayLearning(enabled=False))
+    (behind,) = feedback(a.on_utterance(utterance("ana", "r1", "good", shown(80) - 5), shown(99)))
+    assert max(credits(behind)) < 40  # 5 s = 50 steps too early
+    (ahead,) = feedback(a.on_utterance(utterance("bob", "r1", "good", shown(80) + 5), shown(99)))
+    # An onset after its arrival is a clock error: the arrival is the best bound, and counted.
+    assert set(credits(ahead)) == set(range(91, 97))
+    assert a.counters["onset_after_arrival"] == 1 and a.counters["unsynced_teacher_utterances"] == 2
+
+
+def test_the_ntp_estimate_and_the_reply():
+    a = Arbiter(ArbiterConfig(), VOCABULARY)
+    probe = ClockProbe(teacher="ana", t0=100.0, offset=None, rtt=None)
+    (reply,) = a.on_clock_probe(probe, received_at=105.010, now=105.011)
+    assert (reply.probe, reply.t0, reply.t1, reply.t2) == (probe.id, 100.0, 105.010, 105.011)
+    estimate = estimate_from(reply, t3=100.021)  # 10 ms each way, arbiter 5 s ahead
+    assert estimate.offset == pytest.approx(5.0) and estimate.rtt == pytest.approx(0.020)
+    assert a.clocks.report("ana") is None  # a first probe reports nothing
+    a.on_clock_probe(replace(probe, id="0" * 32, offset=5.0, rtt=0.02), 106.0, 106.0)
+    assert a.clocks.report("ana").offset == 5.0
+
+
+def test_the_simulator_clock_is_the_smallest_recent_lag():
+    clock = SimulatorClock(window=3)
+    for received, wall in [(10.5, 10.0), (11.2, 11.0), (12.3, 12.0), (13.4, 13.0)]:
+        clock.observe(received, wall)
+    assert clock.offset == pytest.approx(0.2)  # (10.5 - 10.0) slid out of the window
+    assert clock.to_sim(20.0) == pytest.approx(19.8)
+
+
+# -- learning each teacher's delay ----------------------------------------------------------
+
+
+def test_a_teachers_delay_is_learnt_from_their_reactions_to_bumps():
+    teacher = ScriptedTeacher("ana", delay=1.7, skew=5.0)
+    learnt = rehearse(teacher, steps=1500)
+    tamer = rehearse(teacher, steps=1500, learn=False)
+    assert learnt.learned_after is not None and learnt.learned_after < 20
+    assert learnt.within_one_step() == 1.0
+    assert tamer.within_one_step(after_learning=False) == 0.0  # 0.2-0.8 s is 10 steps off
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.5, 1.0, 2.0])
+@pytest.mark.parametrize("skew", [-5.0, 5.0])
+def test_credit_lands_within_one_step_for_delays_up_to_2s_and_skews_of_5s(delay, skew):
+    result = rehearse(ScriptedTeacher("ana", delay=delay, skew=skew), steps=1200, seed=3)
+    assert result.within_one_step() == 1.0, result.median_error()
+
+
+def test_the_consensus_ignores_judgements_that_are_not_reactions():
+    delay = ReactionDelay(DelayWindow(0.2, 0.8), DelayLearning(min_samples=3))
+    rng = random.Random(0)
+    for event in range(6):
+        delay.add(event, 1.2 + rng.uniform(-0.03, 0.03))  # the reaction
+        for _ in range(2):
+            delay.add(event, rng.uniform(0.0, 3.0))  # other judgements after the bump
+    assert delay.learned
+    window = delay.window()
+    assert 1.1 < window.lo < window.centre < window.hi < 1.3
+
+
+def test_delay_is_not_learnt_from_too_few_events_or_when_disabled():
+    delay = ReactionDelay(DelayWindow(0.2, 0.8), DelayLearning(min_samples=3))
+    delay.add("a", 1.0)
+    delay.add("b", 1.0)
+    assert not delay.learned and delay.window() == DelayWindow(0.2, 0.8)
+    off = ReactionDelay(DelayWindow(0.2, 0.8), DelayLearning(enabled=False))
+    for event in "abcd":
+        off.add(event, 1.0)
+    assert off.window() == DelayWindow(0.2, 0.8)
+
+
+# -- meaning ----------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "expected"),
+    [
+        ("muy bien", "reward", 50.0),
+        ("¡Sigue así!", "reward", 10.0),
+        ("Por ahí no", "reward", -10.0),
+        ("keep going", "reward", 10.0),
+        ("NOT LIKE THAT.", "reward", -50.0),
+        ("objetivo", "reward", 100.0),
+        ("gira a la izquierda", "command", "left"),
+        ("go to your right", "command", "right"),
+        ("para ahí", "command", "stop"),
+    ],
+)
+def test_words_and_phrases_of_both_languages(text, kind, expected):
+    a = arbiter()
+    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99)))
+    assert fb.kind == kind
+    assert (fb.reward if kind == "reward" else fb.command) == expected
+
+
+@pytest.mark.parametrize(
+    "text", ["banana", "muy banana", "go sideways", "izquierda derecha", "bien bien", "?!", "gira"]
+)
+def test_unknown_words_and_phrases_are_ignored_and_the_teacher_asked_to_repeat(text):
+    a = arbiter()
+    out = a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99))
+    assert not feedback(out)
+    (notice,) = notices(out)
+    assert notice.kind == "not_understood" and notice.text.startswith(
+        "not understood, please repeat"
+    )
+    assert a.counters["rejected.not_understood"] == 1
+
+
+def test_low_confidence_is_ignored_and_the_teacher_asked_to_repeat():
+    a = arbiter(min_confidence=0.6)
+    out = a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.59), shown(99))
+    (notice,) = notices(out)
+    assert not feedback(out) and notice.kind == "low_confidence"
+    assert notice.text.startswith("not understood, please repeat")
+    assert feedback(
+        a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.6), shown(99))
+    )
+
+
+def test_a_command_is_credited_to_the_current_step():
+    a = arbiter()
+    out = a.on_utterance(utterance("ana", "r1", "avanza", shown(10)), shown(99))
+    (fb,) = feedback(out)
+    assert (fb.kind, fb.command, fb.reward, credits(fb)) == ("command", "forward", None, {99: 1.0})
+
+
+# -- bounds -----------------------------------------------------------------------------------
+
+
+def test_rewards_are_bounded_by_g():
+    loud = parse_vocabulary(
+        {"version": 1, "huge": {"kind": "qualifier", "reward": 500.0, "en": ["amazing"]}}
+    )
+    a = Arbiter(ArbiterConfig(reward_bound=100.0, teacher_weight={"bob": 3.0}), loud)
+    a.on_observation(observation("r1", 0, T0), T0)
+    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", "amazing", T0 + 0.5), T0 + 1))
+    assert fb.reward == 100.0
+    b = arbiter(reward_bound=100.0, teacher_weight={"bob": 3.0})
+    (weighted,) = feedback(
+        b.on_utterance(utterance("bob", "r1", "excellent", shown(90)), shown(99))
+    )
+    assert weighted.reward == 100.0 and b.counters["reward_clipped"] == 1
+
+
+# -- several teachers ---------------------------------------------------------------------------
+
+
+def judge_same_steps(a: Arbiter, *said: tuple[str, str]) -> list:
+    out = []
+    for i, (teacher, text) in enumerate(said):
+        out += a.on_utterance(utterance(teacher, "r1", text, shown(60) + 0.01 * i), shown(99))
+    return out
+
+
+def test_sum_sends_each_teacher_at_once_and_conflicts_cancel_in_the_learner():
+    a = arbiter()
+    out = feedback(judge_same_steps(a, ("ana", "good"), ("bob", "bad")))
+    assert [f.reward for f in out] == [10.0, -10.0]
+    assert a.agreement.compared["r1", "ana"] == 1 and a.agreement.share("r1", "ana") == 0.0
+
+
+def test_mean_merges_conflicting_teachers_by_weight_after_the_window():
+    a = arbiter(merge="mean", merge_window=1.0, teacher_weight={"ana": 3.0})
+    assert not feedback(judge_same_steps(a, ("ana", "good"), ("bob", "bad")))
+    assert not feedback(a.on_tick(shown(99) + 0.5))
+    (fb,) = feedback(a.on_tick(shown(99) + 1.0))
+    assert fb.reward == pytest.approx((3 * 10 - 10) / 4)
+    assert set(fb.teachers) == {"ana", "bob"} and len(fb.sources) == 2
+    assert abs(sum(c.weight for c in fb.credits) - 1) < 1e-6
+
+
+def test_majority_keeps_the_heavier_side_and_drops_a_tie():
+    a = arbiter(merge="majority")
+    judge_same_steps(a, ("ana", "good"), ("bob", "bad"), ("cy", "excellent"))
+    (fb,) = feedback(a.on_tick(shown(99) + 1.0))
+    assert fb.reward == pytest.approx(30.0) and set(fb.teachers) == {"ana", "cy"}
+    tie = arbiter(merge="majority")
+    judge_same_steps(tie, ("ana", "good"), ("bob", "bad"))
+    assert not feedback(tie.on_tick(shown(99) + 1.0))
+    assert tie.merger.counters["conflict_tie"] == 1
+
+
+def test_judgements_about_different_steps_are_not_merged():
+    a = arbiter(merge="mean")
+    a.on_utterance(utterance("ana", "r1", "good", shown(20)), shown(99))
+    a.on_utterance(utterance("bob", "r1", "bad", shown(70)), shown(99))
+    assert sorted(f.reward for f in feedback(a.on_tick(shown(99) + 1.0))) == [-10.0, 10.0]
+
+
+def test_per_teacher_statistics_and_interventions_per_episode():
+    a = Arbiter(ArbiterConfig(settle=3.0), VOCABULARY)
+    for k in range(30):
+        end = k == 19
+        episode = 0 if k <= 19 else 1
+        obs = observation("r1", k, shown(k), episode=episode, outcome="goal" if end else "running")
+        a.on_observation(obs, shown(k))
+        if k == 15:
+            a.on_utterance(utterance("ana", "r1", "good", shown(14)), shown(k))
+            a.on_utterance(utterance("ana", "r1", "banana", shown(14)), shown(k))
+            a.on_utterance(utterance("bob", "r1", "left", shown(14)), shown(k))
+    live = [m for m in a.on_tick(shown(29)) if isinstance(m, TeachingStats)]
+    assert [(s.episode, s.final) for s in live] == [(1, False)]
+    assert not [m for m in a.on_tick(shown(19) + 2.9) if isinstance(m, TeachingStats)]
+    (final,) = [m for m in a.on_tick(shown(19) + 3.0) if isinstance(m, TeachingStats)]
+    assert (final.episode, final.final, final.interventions) == (0, True, 2)
+    ana = next(t for t in final.teachers if t.teacher == "ana")
+    assert (ana.utterances, ana.understood, ana.ignored, ana.interventions) == (2, 1, 1, 1)
+    assert ana.delay == pytest.approx(0.5) and not ana.delay_learned and ana.clock_offset is None
+
+
+# -- hygiene ----------------------------------------------------------------------------------
+
+
+def test_duplicates_are_dropped_and_counted():
+    a = arbiter()
+    said = utterance("ana", "r1", "good", shown(90))
+    assert feedback(a.on_utterance(said, shown(99)))
+    assert a.on_utterance(said, shown(99)) == []
+    assert a.counters["rejected.duplicate"] == 1
+
+
+def test_a_flood_is_cut_counted_and_the_teacher_told_once():
+    a = arbiter(rate=4.0, burst=8.0)
+    out = []
+    for i in range(100):  # 100 in one second
+        out += a.on_utterance(utterance("ana", "r1", "good", shown(90)), shown(90) + i * 0.01)
+    assert len(feedback(out)) == 8 + 3  # the burst, then 4/s over 0.99 s
+    limited = [n for n in notices(out) if n.kind == "rate_limited"]
+    assert len(limited) == 1 and "slow down" in limited[0].text
+    assert a.counters["rejected.rate_limited"] == 100 - len(feedback(out))
+    other = a.on_utterance(utterance("bob", "r1", "good", shown(90)), shown(91))
+    assert feedback(other)  # another teacher is not limited
+
+
+def test_an_unknown_robot_is_rejected_and_the_teacher_told():
+    a = arbiter()
+    out = a.on_utterance(utterance("ana", "r9", "good", shown(90)), shown(99))
+    (notice,) = notices(out)
+    assert not feedback(out) and notice.kind == "unknown_robot" and "robots: r1" in notice.text
+    quiet = a.on_utterance(utterance("ana", "r1", "good", shown(99)), shown(99) + 60)
+    assert notices(quiet)[0].kind == "unknown_robot"  # its simulator went quiet
+
+
+def test_an_utterance_on_another_teachers_key_is_rejected():
+    a = arbiter()
+    assert a.on_utterance(utterance("ana", "r1", "good", shown(90)), shown(99), "bob") == []
+    assert a.counters["rejected.teacher_mismatch"] == 1
+
+
+def test_recent_ids_forget_the_oldest_and_buckets_refill():
+    ids = RecentIds(capacity=2)
+    assert not ids.seen("a") and not ids.seen("b") and ids.seen("a")
+    assert not ids.seen("c") and not ids.seen("b")  # b was the least recently seen
+    bucket = TokenBucket(rate=2.0, burst=2.0, now=0.0)
+    assert [bucket.take(0.0) for _ in range(3)] == [True, True, False]
+    assert bucket.take(0.5) and not bucket.take(0.5)
+
+
+# -- settings ---------------------------------------------------------------------------------
+
+
+def test_settings_errors_name_the_problem_and_the_fix():
+    assert parse_window("0.3:1.1") == DelayWindow(0.3, 1.1)
+    with pytest.raises(ArbiterConfigError, match=r"needs 0 <= lo < hi .* e\.g\. 0\.2:0\.8"):
+        parse_window("1:0.5")
+    with pytest.raises(ArbiterConfigError, match="is not LO:HI"):
+        parse_window("fast")
+    with pytest.raises(ArbiterConfigError, match=r"not TEACHER=VALUE, e\.g\. ana=2"):
+        parse_per_teacher(["ana"], float, "--teacher-weight", "ana=2")
+    with pytest.raises(ArbiterConfigError, match="use 1-64 of"):
+        parse_per_teacher(["a/b=2"], float, "--teacher-weight", "ana=2")
+    with pytest.raises(ArbiterConfigError, match="merge policy 'vote'"):
+        ArbiterConfig(merge="vote")  # type: ignore[arg-type]
+
+
+def test_the_step_timeline_is_bounded_and_starts_over_on_a_restart():
+    timeline = StepTimeline(history_seconds=1.0, max_steps=5)
+    for k in range(50):
+        timeline.add(k, shown(k), 0, True)
+    assert len(timeline) == 5 and timeline.latest_step == 49
+    assert timeline.spread(shown(10), shown(11)) is None  # forgotten: too late
+    assert not timeline.add(0, shown(60), 0, True)  # a restarted simulator
+    assert len(timeline) == 1 and timeline.latest_step == 0

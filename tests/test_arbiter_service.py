@@ -1,0 +1,133 @@
+"""`voxshape arbiter` on a real bus (a router process, loopback): utterances in, credited
+feedback, notices and statistics out, teacher clocks synced, bad input survived."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import time
+
+import msgpack
+import pytest
+
+from protocol import (
+    CreditedFeedback,
+    TeacherNotice,
+    TeachingStats,
+    robot_key,
+    teacher_key,
+    to_wire,
+)
+from services.arbiter.scripted import observation, utterance
+from services.runtime import Node, Presence
+from services.runtime.clock import ClockSyncError, sync_clock
+from tests.conftest import VOXSHAPE, bus_args, collect
+
+PERIOD = 0.05  # the fake simulator's step period
+SKEW = 5.0  # the teacher's clock is this far ahead
+
+
+def wait_present(node: Node, who: str, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        event = node.poll(0.1)
+        if isinstance(event, Presence) and event.node == who and event.alive:
+            return
+    pytest.fail(f"{who} did not join within {timeout} s")
+
+
+def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
+    spawn, router, session_id, client_config, tmp_path
+):
+    arbiter = spawn(
+        [VOXSHAPE, "arbiter", *bus_args(router, session_id, "arbiter")], cwd=tmp_path, text=True
+    )
+    with Node("test", client_config("teacher")) as node:
+        node.watch_presence(node="arbiter")
+        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        node.input("notice", teacher_key(session_id, "ana", "notice"))
+        node.input("teaching", robot_key(session_id, "r1", "teaching"))
+        obs = node.output("obs", robot_key(session_id, "r1", "obs"))
+        said = node.output("utterance", teacher_key(session_id, "ana", "utterance"))
+        wait_present(node, "arbiter")
+        time.sleep(0.3)  # its subscriptions reach the router with its token
+
+        teacher_clock = lambda: time.time() + SKEW  # noqa: E731
+        estimate = sync_clock(node, "ana", clock=teacher_clock)
+        assert abs(estimate.offset + SKEW) < 0.005 and estimate.rtt < 0.05, estimate
+
+        start = time.time()  # a simulator stepping every PERIOD: step k shown at start + k P
+        for k in range(30):
+            time.sleep(max(0.0, start + k * PERIOD - time.time()))
+            obs.put(observation("r1", k, start + k * PERIOD))
+        # Seen at the middle of step 20, said 0.5 s later on the teacher's clock: TAMER's
+        # 0.2-0.8 s window covers steps 14.5 to 26.5.
+        onset = start + 20.5 * PERIOD + 0.5 + SKEW
+        said.put(utterance("ana", "r1", "good", onset))
+        (fb,) = collect(node, 1, CreditedFeedback)
+        weights = {c.step: c.weight for c in fb.credits}
+        assert sorted(weights) == list(range(14, 27)), weights
+        expected = {k: 1 / 24 if k in (14, 26) else 1 / 12 for k in range(14, 27)}
+        assert all(abs(weights[k] - w) < 0.01 for k, w in expected.items()), weights
+        assert (fb.kind, fb.reward, fb.teachers) == ("reward", 10.0, ("ana",))
+        notice = collect(node, 1, TeacherNotice)[0]
+        assert notice.kind == "understood" and notice.meaning == "good"
+
+        # Malformed utterances are rejected without harm; unknown words get a notice.
+        key = teacher_key(session_id, "ana", "utterance")
+        bad = to_wire(utterance("ana", "r1", "good", onset))
+        node.session.put(key, msgpack.packb({**bad, "confidence": 2.0}))
+        node.session.put(key, b"\x00garbage")
+        said.put(utterance("ana", "r1", "cucumber", onset + 0.1))
+        notice = collect(node, 1, TeacherNotice)[0]
+        assert notice.kind == "not_understood" and "please repeat" in notice.text
+        said.put(utterance("ana", "r1", "avanza", onset + 0.2))
+        (command,) = collect(node, 1, CreditedFeedback)
+        assert (command.kind, command.command) == ("command", "forward")
+        assert command.credits[0].step == 29
+
+        stats = collect(node, 1, TeachingStats, timeout=5)[0]
+        (ana,) = stats.teachers
+        assert ana.clock_offset == pytest.approx(-SKEW, abs=0.005)
+        assert ana.utterances >= 1 and ana.understood >= 1
+
+    arbiter.send_signal(signal.SIGTERM)
+    _, err = arbiter.communicate(timeout=20)
+    assert arbiter.returncode == 0, err
+    assert "rejected.utterance=2" in err, err
+    assert (
+        "arbiter.rejected.not_understood=1" in err and "arbiter.clock_reports=8" in err
+    )  # n=8: every probe after the first
+
+
+def test_bad_settings_are_a_clear_error():
+    result = subprocess.run(
+        [VOXSHAPE, "arbiter", "--delay", "1:0.5"], capture_output=True, text=True, timeout=30
+    )
+    assert result.returncode == 2
+    assert "delay window 1:0.5 needs 0 <= lo < hi (seconds), e.g. 0.2:0.8" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_the_benchmark_prints_latency_and_accuracy(tmp_path):
+    result = subprocess.run(
+        [VOXSHAPE, "bench", "arbiter", "--json", "--utterances", "40"],
+        capture_output=True,
+        text=True,
+        timeout=90,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    figures = json.loads(result.stdout)
+    assert figures["lost"] == 0 and 0 < figures["latency_p50_ms"] <= figures["latency_p99_ms"]
+    assert figures["credit_within_one_step"]["delay=1.7s skew=+5s"] == 1.0
+    print({k: v for k, v in figures.items() if k.startswith("latency")})
+
+
+def test_sync_clock_says_when_no_arbiter_answers(client_config):
+    with (
+        Node("test", client_config("lonely")) as node,
+        pytest.raises(ClockSyncError, match="is `voxshape arbiter` running"),
+    ):
+        sync_clock(node, "ana", n=2, reply_wait=0.1)

@@ -1,0 +1,107 @@
+"""The experiments: one in-process run with the teacher through the arbiter's core, and a tiny
+`voxshape experiment paper` end to end."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from services.cli import main
+from services.experiment.paper import mean_ci
+from services.experiment.session import RunSpec, run
+
+
+def test_mean_and_95_percent_interval():
+    mean, half = mean_ci([1.0, 2.0, 3.0])
+    assert mean == 2.0
+    assert half == pytest.approx(4.303 * 1.0 / 3**0.5)
+    assert mean_ci([5.0]) == (5.0, 0.0)
+
+
+def test_feedback_goes_through_the_arbiter_into_the_learner():
+    result = run(RunSpec("1", "rl+f", seed=0, max_episodes=3))
+    c = result.counters
+    assert result.episodes == 3 and not result.converged  # censored: too few episodes
+    assert result.learning_time_s == pytest.approx(sum(result.durations_s), abs=0.1)
+    assert c["arbiter.judgements"] > 50
+    assert c["learner.feedback_credited"] >= c["arbiter.judgements"]  # one per credited step
+    assert c.get("learner.feedback_dropped.too_old", 0) == 0
+    assert c["arbiter.delay_candidates"] > 0  # it reacts to bumps and goals: delay learnt
+    # Misheard (20% noise, half of the errors): some ignored for low confidence, some
+    # heard as commands, which the learner obeys.
+    assert c["arbiter.rejected.low_confidence"] > 0
+    assert c["arbiter.commands"] == c["learner.commands"] > 0
+    assert result.interventions == c["arbiter.notices.understood"]
+
+
+def test_runs_are_deterministic_and_plain_rl_has_no_teacher():
+    spec = RunSpec("1", "rl", seed=3, max_episodes=2)
+    first, again = run(spec), run(spec)
+    assert first == again
+    assert first.interventions == 0 and "arbiter.judgements" not in first.counters
+
+
+def test_experiment_paper_end_to_end(tmp_path, capsys):
+    out = tmp_path / "paper"
+    code = main(
+        ["experiment", "paper", "--tasks", "1", "--settings", "rl,rl+t+f", "--seeds", "2",
+         "--max-episodes", "2", "--out", str(out), "--no-progress"]
+    )  # fmt: skip
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["seeds"] == 2
+    for setting in ("rl", "rl+t+f"):
+        cell = results["tasks"]["1"][setting]
+        assert cell["runs"] == 2 and cell["episodes"] == 2.0
+        assert cell["converged_fraction"] == 0.0  # censored at 2 episodes
+        assert cell["learning_time_s"] > 0 and "learning_time_s_ci95" in cell
+    assert results["tasks"]["1"]["rl"]["interventions"] == 0
+    assert results["tasks"]["1"]["rl+t+f"]["interventions"] > 0
+    assert set(results["speedup"]) == {"rl+t+f"} and results["speedup_is_lower_bound"]
+    assert set(results["interventions"]) == {"rl+t+f"}
+    streamed = [json.loads(line) for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert sorted(map(json.dumps, streamed)) == sorted(map(json.dumps, results["runs"]))
+    assert len(results["runs"]) == 4 and all(r["trace_steps"] > 0 for r in results["runs"]
+                                             if r["setting"] == "rl+t+f")  # fmt: skip
+    report = (out / "report.md").read_text()
+    assert "Table 2" in report and "Table 3" in report and "103.93" in report
+    assert "≥" in report and "censored" in report
+    assert (out / "figure2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "report.md" in capsys.readouterr().out
+
+
+def test_unknown_setting_is_refused(capsys):
+    with pytest.raises(SystemExit):
+        main(["experiment", "paper", "--settings", "rl,magic"])
+    assert "unknown setting magic" in capsys.readouterr().err
+
+
+def test_experiment_sweep_end_to_end(tmp_path, capsys):
+    out = tmp_path / "sweep"
+    code = main(
+        ["experiment", "sweep", "--tasks", "1", "--seeds", "1", "--max-episodes", "2",
+         "--noise", "0,0.5", "--delay", "1.5", "--out", str(out), "--no-progress"]
+    )  # fmt: skip
+    assert code == 0
+    points = json.loads((out / "sweep.json").read_text())["points"]
+    assert [(p["axis"], p["value"], p["correction"]) for p in points] == [
+        ("rl", 0.0, True),
+        ("noise", 0.0, True),
+        ("noise", 0.5, True),
+        ("delay", 1.5, True),
+        ("delay", 1.5, False),
+    ]
+    assert points[0]["speedup"] == 1.0
+    assert all(p["speedup"] > 0 and p["runs"] == 1 for p in points)
+    # The arbiter learns the 1.5 s delay from the teacher's reactions to bumps and goals
+    # within two episodes; without the correction it keeps TAMER's fixed window.
+    assert points[-2]["delay_learned_fraction"] == 1.0
+    assert points[-1]["delay_learned_fraction"] == 0.0
+    assert "speedup over RL" in (out / "sweep.md").read_text()
+    assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_sweep_needs_something_to_sweep(capsys):
+    assert main(["experiment", "sweep", "--tasks", "1", "--seeds", "1"]) == 2
+    assert "give --noise" in capsys.readouterr().err

@@ -1,0 +1,165 @@
+"""The simulated teacher's core: what it says, when, how it errs, and the traces it dictates."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+
+from protocol.vocabulary import load_vocabulary
+from services.sim.maps import load_map
+from services.simteacher.dictation import dictate
+from services.simteacher.teacher import (
+    Confusion,
+    FeedbackSchedule,
+    GeodesicDistance,
+    Look,
+    SimulatedTeacher,
+    TeacherProfile,
+)
+
+VOCABULARY = load_vocabulary()
+QUIET = TeacherProfile(jitter=0.0)  # always speaks, never errs, a steady 0.5 s delay
+
+
+def teacher(profile: TeacherProfile = QUIET, task: str = "1", seed: int = 0) -> SimulatedTeacher:
+    return SimulatedTeacher(load_map(task), VOCABULARY, profile, seed)
+
+
+def look(t: float, x: float, y: float, **kw: object) -> Look:
+    fields = {"episode": 0, "collided": False, "outcome": "running"} | kw
+    return Look(t, x=x, y=y, **fields)  # type: ignore[arg-type]
+
+
+def meanings(speeches: list) -> list[str]:
+    return [VOCABULARY.lookup(s.heard).name for s in speeches]
+
+
+def test_geodesic_distance_goes_around_the_wall():
+    m = load_map("4")  # the goal is in the other room, through a door at x = 5
+    distance = GeodesicDistance(m)
+    behind_the_wall = distance(4.6, 5.3)  # the straight line to the goal crosses the wall
+    assert behind_the_wall > math.hypot(m.goal_x - 4.6, m.goal_y - 5.3) + 1.0
+    assert behind_the_wall > distance(5.0, 3.0)  # farther than the door itself
+    assert distance(m.goal_x, m.goal_y) == 0.0
+    assert math.isfinite(distance(4.93, 1.0))  # hugging the wall: the nearest free cell's
+
+
+@pytest.mark.parametrize(
+    ("progress", "meaning"),
+    [(0.5, "excellent"), (0.2, "good"), (0.05, None), (-0.05, None), (-0.2, "bad"),
+     (-0.5, "terrible")],
+)  # fmt: skip
+def test_the_size_of_the_change_chooses_the_word(progress, meaning):
+    assert teacher().judge(progress) == meaning
+
+
+def test_it_praises_progress_and_scolds_regress_over_its_interval():
+    t = teacher()  # task 1: an open room, the goal up and to the right of the start
+    m = t.map
+    assert t.watch(look(0.0, 1.0, 1.0)) == []  # the first look: nothing to compare with
+    assert t.watch(look(0.5, 1.1, 1.1)) == []  # within the interval: still watching
+    toward = t.watch(look(1.0, 1.3, 1.3))  # 0.42 m nearer along the diagonal
+    assert meanings(toward) == ["excellent"]
+    away = t.watch(look(2.0, 1.15, 1.15))
+    assert meanings(away) == ["bad"]
+    assert t.watch(look(3.0, 1.15, 1.16)) == []  # about where it was: no comment
+    assert meanings(t.watch(look(3.1, 1.15, 1.16, collided=True))) == ["terrible"]  # a bump
+    assert t.watch(look(3.2, 1.15, 1.16, collided=True)) == []  # still the same bump
+    assert meanings(t.watch(look(3.3, m.goal_x, m.goal_y, outcome="goal"))) == ["goal"]
+
+
+def test_words_and_rewards_come_from_the_vocabulary():
+    t = teacher()
+    for meaning in ("goal", "excellent", "good", "bad", "terrible"):
+        heard = VOCABULARY.lookup(t.phrase(meaning))
+        assert heard is not None and heard.name == meaning
+
+
+def test_speech_starts_after_the_reaction_delay_and_is_heard_later():
+    profile = replace(QUIET, delay=1.2, speaking=0.4, recognition=0.3)
+    t = teacher(profile)
+    t.watch(look(10.0, 1.0, 1.0))
+    (speech,) = t.watch(look(11.0, 1.3, 1.3))
+    assert speech.onset == pytest.approx(12.2)
+    assert speech.end == pytest.approx(12.6)
+    assert speech.heard_at == pytest.approx(12.9)
+
+
+def test_feedback_is_permanent_at_first_and_sporadic_later():
+    schedule = FeedbackSchedule(permanent=1.0, permanent_episodes=5, fade_episodes=10, sporadic=0.2)
+    assert schedule.probability(0) == schedule.probability(4) == 1.0
+    assert 0.2 < schedule.probability(8) < 1.0
+    assert schedule.probability(14) == pytest.approx(0.2)
+    assert schedule.probability(100) == pytest.approx(0.2)
+    silent_later = replace(QUIET, schedule=FeedbackSchedule(permanent_episodes=1, sporadic=0.0,
+                                                            fade_episodes=1))  # fmt: skip
+    t = teacher(silent_later)
+    t.watch(look(0.0, 1.0, 1.0, episode=0))
+    assert t.watch(look(1.0, 1.3, 1.3, episode=0))
+    t.watch(look(5.0, 1.0, 1.0, episode=1))
+    assert t.watch(look(6.0, 1.3, 1.3, episode=1)) == []
+
+
+def steps_toward_and_away(t: SimulatedTeacher, n: int) -> list:
+    """n looks, alternately 0.2 m nearer and farther: n - 1 judgements (good, bad, ...)."""
+    speeches = []
+    for i in range(n):
+        d = 0.14 if i % 2 else 0.0
+        speeches += t.watch(look(float(i), 1.0 + d, 1.0 + d))
+    return speeches
+
+
+def test_a_positive_bias_leaves_scolding_unsaid():
+    fair = meanings(steps_toward_and_away(teacher(), 41))
+    assert fair.count("good") == fair.count("bad") == 20
+    biased = meanings(steps_toward_and_away(teacher(replace(QUIET, positive_bias=1.0)), 41))
+    assert biased == ["good"] * 20
+
+
+def test_a_wrong_qualifier_is_the_opposite_judgement():
+    profile = replace(QUIET, noise=1.0, confusion=Confusion(wrong_qualifier=1.0, misheard=0.0))
+    speeches = steps_toward_and_away(teacher(profile), 11)
+    assert [s.meant for s in speeches] == ["good", "bad"] * 5
+    assert meanings(speeches) == ["bad", "good"] * 5
+    assert all(s.error == "wrong_qualifier" and s.heard == s.said for s in speeches)
+
+
+def test_a_misheard_word_is_another_phrase_of_the_vocabulary_with_less_confidence():
+    profile = replace(QUIET, noise=1.0, confusion=Confusion(wrong_qualifier=0.0, misheard=1.0))
+    speeches = steps_toward_and_away(teacher(profile), 41)
+    assert all(s.error == "misheard" and s.heard != s.said for s in speeches)
+    assert all(VOCABULARY.lookup(s.heard) is not None for s in speeches)
+    assert max(s.confidence for s in speeches) < 0.95
+    kinds = {VOCABULARY.lookup(s.heard).kind for s in speeches}
+    assert "command" in kinds  # a judgement can be heard as a command
+
+
+def test_the_noise_rate_is_the_share_of_errors():
+    speeches = steps_toward_and_away(teacher(replace(QUIET, noise=0.2)), 1001)
+    share = sum(s.error is not None for s in speeches) / len(speeches)
+    assert 0.16 < share < 0.24
+
+
+def test_seeded_and_deterministic():
+    profile = replace(TeacherProfile(), noise=0.3, positive_bias=0.2)
+    first = steps_toward_and_away(teacher(profile, seed=7), 200)
+    again = steps_toward_and_away(teacher(profile, seed=7), 200)
+    other = steps_toward_and_away(teacher(profile, seed=8), 200)
+    assert first == again
+    assert first != other
+
+
+@pytest.mark.parametrize("task", ["2", "4"])
+def test_dictated_traces_follow_the_shortest_path_to_the_goal(task):
+    m = load_map(task)
+    book = dictate(m, 1, seed=1)
+    (episode,) = book.episodes
+    final = episode[-1][0]
+    assert final.outcome == "goal"
+    assert all(d.chooser == "teacher" for _, d in episode[:-1])
+    # Near the shortest path: at most 3x its length at 0.5 m/s (turns on the spot, and back
+    # to the berth from the walls, take time).
+    length = GeodesicDistance(m)(m.start.x, m.start.y)
+    assert len(episode) * 0.1 < 3 * length / 0.5

@@ -1,0 +1,175 @@
+"""`voxshape speech` on a real bus: WAV files streamed by `voxshape teach` through a router
+come out as utterances on the teacher's clock; the mock engine over the bus; garbage audio is
+rejected and counted while the service goes on; a missing vosk model is a clear error."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import time
+from dataclasses import replace
+
+import msgpack
+import pytest
+
+from protocol import AudioChunk, Utterance, teacher_key, to_wire
+from protocol.messages import SAMPLE_RATE
+from services.runtime import Node
+from services.speech.audio import read_wav
+from services.speech.bench import load_clips
+from tests.conftest import VOXSHAPE, bus_args, collect, quiet
+from tests.test_speech import FIXTURES
+
+CLIPS = {c.path.name: c for c in load_clips(FIXTURES)}
+
+
+def start_speech(spawn, router, session_id, cwd, *extra):
+    return spawn(
+        [VOXSHAPE, "speech", *bus_args(router, session_id, "speech"), *extra], cwd=cwd, text=True
+    )
+
+
+def teach(router, session_id, cwd, *extra, stdin="", timeout=60):
+    result = subprocess.run(
+        [VOXSHAPE, "teach", *bus_args(router, session_id, "teach"), "--json", *extra],
+        input=stdin,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=cwd,
+    )
+    assert result.returncode == 0, result.stderr
+    return [json.loads(line) for line in result.stdout.splitlines()]
+
+
+def stop(proc) -> str:
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
+    return err
+
+
+def test_wav_files_streamed_by_teach_come_out_as_utterances_on_the_teachers_clock(
+    spawn, router, session_id, client_config, tmp_path
+):
+    speech = start_speech(spawn, router, session_id, tmp_path)
+    files = [
+        "en-voc-turn-left-kal-diphone.wav",
+        "en-oov-hello-en-us.wav",  # outside the vocabulary: nothing comes out
+        "en-voc-very-good-cmu-us-slt-arctic-hts.wav",
+    ]
+    with Node("test", client_config("observer")) as node:
+        node.input("utterance", teacher_key(session_id, "ana", "utterance"))
+        args = ["--teacher", "ana", "--robot", "r7", "--fast", "--linger", "2"]
+        args += ["--wait-speech", "30"]
+        for name in files:
+            args += ["--wav", str(FIXTURES / name)]
+        shown = teach(router, session_id, tmp_path, *args)
+        utterances = collect(node, 2, Utterance, timeout=10)
+        assert quiet(node, 0.5) == []
+    start = next(e for e in shown if e["event"] == "streaming")["start_time"]
+    # where each file's speech lies on the teacher's clock (files are streamed back to back)
+    offsets, clock = [], 0.0
+    for name in files:
+        offsets.append(clock)
+        clock += len(read_wav(FIXTURES / name)) / SAMPLE_RATE + 0.5
+    expected = [(files[0], offsets[0]), (files[2], offsets[2])]
+    for utterance, (name, offset) in zip(utterances, expected, strict=True):
+        clip = CLIPS[name]
+        assert (utterance.teacher, utterance.robot, utterance.engine) == (
+            "ana",
+            "r7",
+            "pocketsphinx",
+        )
+        assert utterance.text == clip.text and utterance.language == "en"
+        assert utterance.onset == pytest.approx(start + offset + clip.speech_start_s, abs=0.06)
+        assert utterance.end == pytest.approx(start + offset + clip.speech_end_s, abs=0.1)
+        assert 0 < utterance.confidence <= 1
+    understood = [e["text"] for e in shown if e["event"] == "understood"]
+    assert understood == ["turn left", "very good"]  # teach shows what was understood
+    err = stop(speech)
+    assert "received.audio=" in err and "speech.rejected=1" in err and "sent.utterance=2" in err
+
+
+def test_the_mock_engine_hears_said_text_over_the_bus(
+    spawn, router, session_id, client_config, tmp_path
+):
+    speech = start_speech(
+        spawn, router, session_id, tmp_path, "--engine", "mock", "--latency", "0.3", "--seed", "1"
+    )
+    with Node("test", client_config("observer")) as node:
+        node.input("utterance", teacher_key(session_id, "luz", "utterance"))
+        teach(
+            router,
+            session_id,
+            tmp_path,
+            *("--teacher", "luz", "--language", "es", "--through-speech", "--linger", "1"),
+            *("--wait-speech", "30"),
+            stdin="muy bien\nizquierda\n# a comment\nbanana\n",
+        )
+        utterances = collect(node, 2, Utterance, timeout=10)
+    assert [u.text for u in utterances] == ["muy bien", "izquierda"]
+    for u in utterances:
+        assert (u.engine, u.language, u.teacher) == ("mock", "es", "luz")
+        assert 0.3 <= u.recognized_at - u.end < 1.5  # the latency, plus the trip
+    err = stop(speech)
+    assert "mock.correct=2" in err and "mock.out_of_vocabulary=1" in err
+
+
+def test_garbage_audio_is_rejected_and_counted_and_the_service_goes_on(
+    spawn, router, session_id, client_config, tmp_path
+):
+    speech = start_speech(spawn, router, session_id, tmp_path)
+    key = teacher_key(session_id, "eve", "audio")
+    good = AudioChunk(
+        teacher="eve",
+        robot="r1",
+        stream="s1",
+        seq=0,
+        sample_rate=16000,
+        pcm=bytes(1600),
+        capture_time=time.time(),
+        final=False,
+    )
+    wire = to_wire(good)
+    with Node("test", client_config("mallory")) as node:
+        out = node.output("audio", key)
+        deadline = time.monotonic() + 30
+        while not out.has_subscribers() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert out.has_subscribers(), "the speech service never subscribed"
+        node.session.put(key, b"\x93not msgpack at all")
+        node.session.put(key, msgpack.packb({**wire, "sample_rate": 8000}, use_bin_type=True))
+        node.session.put(key, msgpack.packb({**wire, "pcm": bytes(1601)}, use_bin_type=True))
+        node.session.put(key, msgpack.packb({**wire, "pcm": bytes(40_000)}, use_bin_type=True))
+        out.put(replace(good, teacher="mallory"))  # not eve's chunk
+        out.put(good)
+        out.put(replace(good, seq=0))  # repeated
+        node.input("utterance", teacher_key(session_id, "ana", "utterance"))
+        wav = str(FIXTURES / "en-voc-stop-en-us-klatt.wav")
+        teach(router, session_id, tmp_path, "--teacher", "ana", "--wav", wav, "--fast")
+        (utterance,) = collect(node, 1, Utterance, timeout=10)
+    assert utterance.text == "stop"
+    err = stop(speech)
+    assert "rejected.audio=4" in err
+    assert "audio.wrong_teacher=1" in err and "audio.out_of_order=1" in err
+    assert "sample_rate" in err and "odd byte count" in err  # named in the logged reasons
+
+
+def test_a_missing_vosk_model_is_a_clear_error_not_a_crash(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "VOSK_MODEL_PATH"}
+    result = subprocess.run(
+        [VOXSHAPE, "speech", "--engine", "vosk", "--language", "es"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 2
+    assert "https://alphacephei.com/vosk/models" in result.stderr
+    assert "vosk-model-small-es-0.42" in result.stderr and "VOSK_MODEL_PATH" in result.stderr
+    assert "Traceback" not in result.stderr

@@ -1,0 +1,185 @@
+"""`voxshape teach`: typed words reach the utterance topic, recordings are chunked on the
+teacher's clock, the robot's status and what was understood are shown, and inputs that cannot
+work (no microphone, a WAV in the wrong format) are clear errors."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import time
+import wave
+
+import numpy as np
+import pytest
+
+from protocol import (
+    AudioChunk,
+    Credit,
+    CreditedFeedback,
+    EpisodeEvent,
+    Said,
+    Utterance,
+    load_vocabulary,
+    teacher_key,
+)
+from protocol.examples import example_messages
+from protocol.messages import SAMPLE_RATE
+from services.runtime import Node, Presence
+from services.teacher.board import Board
+from services.teacher.sources import default_teacher_id, typed, typed_lines, wav_stream
+from tests.conftest import VOXSHAPE, bus_args, collect
+
+VOCABULARY = load_vocabulary()
+
+
+def test_typed_words_reach_the_utterance_topic(router, session_id, client_config, tmp_path):
+    with Node("test", client_config("observer")) as node:
+        node.input("utterance", teacher_key(session_id, "bob", "utterance"))
+        result = subprocess.run(
+            [
+                VOXSHAPE,
+                "teach",
+                *bus_args(router, session_id, "teach"),
+                *("--teacher", "bob", "--robot", "r2", "--linger", "0.5", "--json"),
+            ],
+            input="good\n\n  turn left  \nbanana\n",
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=tmp_path,
+        )
+        assert result.returncode == 0, result.stderr
+        utterances = collect(node, 3, Utterance, timeout=10)
+    assert [u.text for u in utterances] == ["good", "turn left", "banana"]
+    for u in utterances:
+        assert (u.teacher, u.robot, u.engine, u.confidence, u.language) == (
+            "bob",
+            "r2",
+            "typed",
+            1.0,
+            "en",
+        )
+        assert u.onset == u.end == u.recognized_at
+    shown = [json.loads(line) for line in result.stdout.splitlines()]
+    notes = [e["text"] for e in shown if e["event"] == "note"]
+    assert notes == ["banana"]  # told it is not in the vocabulary (sent all the same)
+    meanings = [e["meaning"] for e in shown if e["event"] == "understood"]
+    assert meanings == ["qualifier +10", "command left", "not in the vocabulary"]
+
+
+def test_no_microphone_is_a_clear_error(tmp_path):
+    result = subprocess.run(
+        [VOXSHAPE, "teach", "--mic"], capture_output=True, text=True, timeout=60, cwd=tmp_path
+    )
+    if result.returncode == 0:
+        pytest.skip("this machine has a microphone")
+    assert result.returncode == 2
+    assert "no audio library" in result.stderr or "no usable microphone" in result.stderr
+    assert "--wav" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_a_wav_in_another_format_says_how_to_convert_it(tmp_path):
+    path = tmp_path / "cd.wav"
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(2)
+        w.setsampwidth(2)
+        w.setframerate(44100)
+        w.writeframes(bytes(4 * 441))
+    for wav, expected in ((path, "44100 Hz, 2 channel(s)"), (tmp_path / "no.wav", "no such")):
+        result = subprocess.run(
+            [VOXSHAPE, "teach", "--wav", str(wav)],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=tmp_path,
+        )
+        assert result.returncode == 2 and expected in result.stderr, result.stderr
+    assert "sox" in result.stderr or "no such" in result.stderr
+
+
+def test_recordings_are_chunked_back_to_back_on_the_teachers_clock():
+    one, two = np.ones(8000, np.int16), np.ones(700, np.int16)
+    paced = wav_stream([one, two], "ana", "r1", start_time=1000.0)
+    chunks = [s.message for s in paced]
+    assert all(isinstance(c, AudioChunk) for c in chunks)
+    first = [c for c in chunks if c.stream == chunks[0].stream]
+    second = [c for c in chunks if c.stream != chunks[0].stream]
+    assert [c.seq for c in first] == list(range(10)) and first[-1].final
+    assert len(second) == 1 and second[0].final and len(second[0].pcm) == 2 * 700
+    assert [c.capture_time for c in first[:3]] == pytest.approx([1000.0, 1000.05, 1000.1])
+    assert second[0].capture_time == pytest.approx(1000.0 + 0.5 + 0.5)  # after a 0.5 s pause
+    assert paced[0].due_s == pytest.approx(0.05)  # sent once "recorded"
+    assert paced[-1].due_s == pytest.approx(1.0 + 700 / SAMPLE_RATE)
+    assert all(s.due_s == 0 for s in wav_stream([one], "ana", "r1", 0.0, fast=True))
+
+
+def test_typed_lines_and_what_they_become():
+    assert list(typed_lines(iter(["good\n", "\n", "# note\n", "  turn left \n"]))) == [
+        "good",
+        "turn left",
+    ]
+    said = typed("muy bien", "ana", "r1", "es", 5.0, through_speech=True)
+    assert isinstance(said, Said) and (said.onset, said.end, said.language) == (5.0, 5.0, "es")
+    utterance = typed("good", "ana", "r1", "en", 5.0, through_speech=False)
+    assert isinstance(utterance, Utterance) and utterance.engine == "typed"
+    assert default_teacher_id()  # a usable id whatever the login name
+
+
+def test_the_board_shows_status_episodes_feedback_and_what_was_understood():
+    examples = {m.TYPE: m for _, m in example_messages("s1")}
+    board = Board(VOCABULARY, status_every_s=2.0)
+    obs = examples["observation"]
+    (status,) = board.observation(obs, now=10.0)
+    assert "episode 3, step 57" in status.text and "last reward -1" in status.text
+    assert board.observation(obs, now=11.0) == []  # not more often than asked
+    episode = examples["episode"]
+    assert isinstance(episode, EpisodeEvent)
+    assert "ended: goal after 105 steps" in board.episode(episode)[0].text
+    feedback = CreditedFeedback(
+        robot="r1",
+        kind="command",
+        reward=None,
+        command="left",
+        credits=(Credit(step=7, weight=1.0),),
+        sources=(examples["utterance"].id,),
+        teachers=("ana",),
+    )
+    assert "took left from ana" in board.feedback(feedback)[0].text
+    (understood,) = board.understood(examples["utterance"])
+    assert understood.text == "understood 'muy bien': qualifier +50 (mock, confidence 0.87)"
+    assert understood.as_json()["event"] == "understood"
+
+
+def test_the_teacher_syncs_its_clock_and_shows_what_the_arbiter_made_of_its_words(
+    spawn, router, session_id, client_config, tmp_path
+):
+    arbiter = spawn(
+        [VOXSHAPE, "arbiter", *bus_args(router, session_id, "arbiter")], cwd=tmp_path, text=True
+    )
+    with Node("test", client_config("observer")) as node:  # wait until the arbiter is up
+        node.watch_presence(node="arbiter")
+        deadline = time.monotonic() + 20
+        while not isinstance(node.poll(0.1), Presence) and time.monotonic() < deadline:
+            pass
+    time.sleep(0.3)  # its subscriptions reach the router with its token
+    result = subprocess.run(
+        [
+            VOXSHAPE,
+            "teach",
+            *bus_args(router, session_id, "teach"),
+            *("--teacher", "bob", "--robot", "r9", "--linger", "2.5", "--json"),
+        ],
+        input="good\n",
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    shown = [json.loads(line) for line in result.stdout.splitlines()]
+    (clock,) = [e for e in shown if e["event"] == "clock"]
+    assert abs(clock["offset"]) < 0.05 and clock["rtt"] < 0.1, clock  # one host, one clock
+    (notice,) = [e for e in shown if e["event"] == "notice"]
+    assert (notice["robot"], notice["kind"]) == ("r9", "unknown_robot"), notice
+    arbiter.terminate()
+    assert arbiter.wait(20) == 0
