@@ -69,6 +69,21 @@ def test_the_update_against_a_hand_computed_two_step_example():
     assert learner.episode == 1 and learner.s is None and not learner.e.any()
 
 
+def test_a_timeout_bootstraps_from_the_next_state_a_goal_does_not():
+    learner = Learner(EXACT, seed=0)
+    forward, left = learner.actions.one_hot(FORWARD), learner.actions.one_hot(LEFT)
+    learner.step(P(WALL_LEFT, step=0), forced=forward)  # A
+    learner.step(P(WALL_RIGHT, step=1), forced=left)  # B; Q(A, fwd) = -0.5
+    learner.step(P(WALL_LEFT, step=2, outcome="goal", reward=20.0))
+    # Q(B, left) = 0.5 * 20 = 10; Q(A, fwd) = -0.5 + 0.5 * 20 * 0.72 = 6.7
+    learner.step(P(WALL_LEFT, step=3), forced=forward)  # a new episode, from A
+    learner.step(P(WALL_RIGHT, step=4, outcome="timeout"))  # cut short in B
+    # delta = -1 + 0.9 * Q(B, greedy = left) - Q(A, fwd) = -1 + 9 - 6.7 = 1.3, where a
+    # terminal state would give -1 + 0 - 6.7 = -7.7
+    assert learner.Q[0, FORWARD] == pytest.approx(6.7 + 0.5 * 1.3)
+    assert learner.episode == 2 and learner.s is None and not learner.e.any()
+
+
 def test_accumulating_traces_add_up():
     learner = Learner(replace(EXACT, traces="accumulating"), seed=0)
     forward = learner.actions.one_hot(FORWARD)
