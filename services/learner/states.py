@@ -67,16 +67,17 @@ class StateSpace:
 
     def classify(self, p: Percept) -> tuple[int, int | None]:
         """The state of a percept, and the state it was born from (None if not new)."""
-        vector = None if self.config.pearson_threshold is None else self.sensor_vector(p)
-        if vector is None:
-            prototype, neighbour_prototype = 0, None
-        elif self.config.clear_range is not None and vector.min() >= self.config.clear_range:
-            prototype, neighbour_prototype = CLEAR, None
-        else:
-            centred = vector - vector.mean()
-            norm = np.linalg.norm(centred)
-            unit = centred / norm if norm > 1e-9 else centred
-            prototype, neighbour_prototype = self._match(unit)
+        prototype, neighbour_prototype = 0, None  # without prototypes, one for all
+        if self.config.pearson_threshold is not None:
+            vector = self.sensor_vector(p)
+            clear_range = self.config.clear_range
+            if clear_range is not None and vector.min() >= clear_range:
+                prototype = CLEAR
+            else:
+                centred = vector - vector.mean()
+                norm = np.linalg.norm(centred)
+                unit = centred / norm if norm > 1e-9 else centred
+                prototype, neighbour_prototype = self._match(unit)
         key = (prototype, self.near_bits(p), *self.goal_bins(p))
         if key in self.keys:
             return self.keys[key], None
