@@ -9,7 +9,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 
-from protocol import ACTION_NAMES
+from protocol import ACTION_NAMES, Credit, CreditedFeedback
 from services.learner import checkpoint
 from services.learner.actions import ActionSet
 from services.learner.config import LearnerConfig, SettingsError, with_settings
@@ -186,6 +186,21 @@ def test_feedback_is_bounded_and_old_feedback_dropped():
     assert not learner.credit(step=99, weight=1.0, f=10.0)
     assert learner.counters["feedback_dropped.too_old"] == 1
     assert learner.counters["feedback_dropped.unknown_step"] == 1
+
+
+def test_credited_feedback_is_taken_whole_and_names_the_steps_it_dropped():
+    learner = Learner(replace(EXACT, feedback_window=3), seed=0)
+    for step in range(6):
+        learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
+    credits = (Credit(step=1, weight=0.5), Credit(step=5, weight=0.5))
+    reward = CreditedFeedback(
+        robot="r1", kind="reward", reward=10.0, command=None, credits=credits,
+        sources=("u1",), teachers=("ana",),
+    )  # fmt: skip
+    assert learner.take(reward) == [1]  # step 1 left the window; step 5 is credited
+    assert learner.counters["feedback_credited"] == 1
+    command = replace(reward, kind="command", reward=None, command="left")
+    assert learner.take(command) == [] and list(learner.commands) == [LEFT] * EXACT.command_steps
 
 
 def test_a_command_overrides_the_policy_and_earns_h():

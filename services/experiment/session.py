@@ -10,7 +10,7 @@ on for `PAUSE` seconds, so words about an episode's end still reach it. At each 
         it said is heard `speaking + recognition` seconds after the onset
     utterances heard by now go to the arbiter (Arbiter.on_utterance at that time): the real
         delay correction picks the credited steps; its CreditedFeedback goes to the learner
-        (Learner.credit for rewards, Learner.command for commands)
+        (Learner.take: Learner.credit for rewards, Learner.command for commands)
     the learner learns from the step and decides the next action
 
 Interventions are the utterances the arbiter understood (its own count), per episode.
@@ -21,7 +21,7 @@ from __future__ import annotations
 import heapq
 from dataclasses import asdict, dataclass, field, replace
 
-from protocol import CreditedFeedback, Observation, TeacherNotice, Utterance
+from protocol import CreditedFeedback, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
@@ -29,6 +29,7 @@ from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, Episode
 from services.learner.sarsa import Learner
 from services.sim.maps import load_map
+from services.sim.stepper import observation
 from services.sim.task import Reading, Simulation
 from services.simteacher.dictation import dictate
 from services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
@@ -118,7 +119,7 @@ def run(spec: RunSpec) -> RunResult:
             interventions = 0
             reading = sim.reset(ROBOT)
             for _ in range(sim.max_episode_steps + 1):
-                arbiter.on_observation(observation(reading, now), now)
+                arbiter.on_observation(observation(reading, now, scans=False), now)
                 if teacher is not None:
                     for speech in teacher.watch(look(reading, now)):
                         heapq.heappush(heard, (speech.heard_at, order, utterance(speech)))
@@ -166,19 +167,10 @@ def deliver(
         at, _, said = heapq.heappop(heard)
         for message in arbiter.on_utterance(said, at):
             if isinstance(message, CreditedFeedback):
-                apply_feedback(learner, message)
+                learner.take(message)
             elif isinstance(message, TeacherNotice) and message.kind == "understood":
                 understood += 1
     return understood
-
-
-def apply_feedback(learner: Learner, feedback: CreditedFeedback) -> None:
-    """What the learner service does with the arbiter's feedback."""
-    if feedback.kind == "command":
-        learner.command(feedback.command)
-        return
-    for credit in feedback.credits:
-        learner.credit(credit.step, credit.weight, feedback.reward)
 
 
 def look(reading: Reading, now: float) -> Look:
@@ -198,29 +190,4 @@ def utterance(speech: Speech) -> Utterance:
         engine="mock",
         language="en",
         alternatives=(),
-    )
-
-
-def observation(reading: Reading, now: float) -> Observation:
-    """The fields of the step the arbiter uses (no scans: it never reads them)."""
-    pose = reading.pose
-    return Observation(
-        robot=ROBOT,
-        episode=reading.episode,
-        step=reading.step,
-        episode_step=reading.episode_step,
-        sim_time=reading.sim_time,
-        wall_time=now,
-        x=pose.x,
-        y=pose.y,
-        theta=pose.theta,
-        v=reading.v,
-        omega=reading.omega,
-        laser=(),
-        sonar=(),
-        reward=reading.reward,
-        goal_distance=reading.goal_distance,
-        goal_bearing=reading.goal_bearing,
-        outcome=reading.outcome,
-        collided=reading.collided,
     )

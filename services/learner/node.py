@@ -105,15 +105,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _apply(learner: Learner, feedback: CreditedFeedback, node: Node) -> None:
-    if feedback.kind == "command":
-        learner.command(feedback.command)
-        return
-    for credit in feedback.credits:
-        if not learner.credit(credit.step, credit.weight, feedback.reward):
-            node.log.warning(
-                "feedback for a step outside the window dropped",
-                extra=fields(step=credit.step, teachers=",".join(feedback.teachers)),
-            )
+    for step in learner.take(feedback):
+        node.log.warning(
+            "feedback for a step outside the window dropped",
+            extra=fields(step=step, teachers=",".join(feedback.teachers)),
+        )
 
 
 def _summary(learner: Learner, obs: Observation) -> LearningSummary:

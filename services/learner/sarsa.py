@@ -38,7 +38,7 @@ from typing import Protocol
 
 import numpy as np
 
-from protocol import ACTION_NAMES
+from protocol import ACTION_NAMES, CreditedFeedback
 from services.learner.actions import N_ACTIONS, ActionSet, Decision
 from services.learner.config import LearnerConfig
 from services.learner.states import Percept, StateSpace
@@ -197,6 +197,16 @@ class Learner:
             trace *= c.gamma * c.lam
         self.counters["feedback_credited"] += 1
         return True
+
+    def take(self, feedback: CreditedFeedback) -> list[int]:
+        """The arbiter's credited feedback: a command, or a reward credited to its steps;
+        returns the steps that had left the window (dropped, counted)."""
+        if feedback.kind == "command":
+            self.command(feedback.command)
+            return []
+        return [
+            c.step for c in feedback.credits if not self.credit(c.step, c.weight, feedback.reward)
+        ]
 
     def command(self, action: str) -> None:
         """A teacher's command: the next `command_steps` actions are this one."""

@@ -56,7 +56,7 @@ class Stepper:
         self.waiting_since = time.monotonic()
         messages: list[Message] = []
         for reading in self.current.values():
-            messages += [self._event(reading, "start"), self._observation(reading)]
+            messages += [self._event(reading, "start"), observation(reading, time.time())]
         return messages
 
     def on_action(self, key_robot: str, action: Action) -> None:
@@ -127,11 +127,11 @@ class Stepper:
         readings = self.sim.step(velocities)
         messages: list[Message] = []
         for name, reading in readings.items():
-            messages.append(self._observation(reading))
+            messages.append(observation(reading, time.time()))
             if reading.outcome != "running":
                 messages.append(self._event(reading, reading.outcome))
                 reading = self.sim.reset(name)
-                messages += [self._event(reading, "start"), self._observation(reading)]
+                messages += [self._event(reading, "start"), observation(reading, time.time())]
             self.current[name] = reading
         self.counters["steps"] += 1
         self.waiting_since = now
@@ -156,28 +156,6 @@ class Stepper:
             )
 
     # -- messages -----------------------------------------------------------------------------
-    def _observation(self, r: Reading) -> Observation:
-        return Observation(
-            robot=r.robot,
-            episode=r.episode,
-            step=r.step,
-            episode_step=r.episode_step,
-            sim_time=r.sim_time,
-            wall_time=time.time(),
-            x=r.pose.x,
-            y=r.pose.y,
-            theta=r.pose.theta,
-            v=r.v,
-            omega=r.omega,
-            laser=tuple(r.laser.tolist()),
-            sonar=tuple(r.sonar.tolist()),
-            reward=r.reward,
-            goal_distance=r.goal_distance,
-            goal_bearing=r.goal_bearing,
-            outcome=r.outcome,
-            collided=r.collided,
-        )
-
     def _event(self, r: Reading, kind: str) -> EpisodeEvent:
         return EpisodeEvent(
             robot=r.robot,
@@ -189,3 +167,28 @@ class Stepper:
             wall_time=time.time(),
             env_return=r.episode_return,
         )
+
+
+def observation(r: Reading, wall_time: float, *, scans: bool = True) -> Observation:
+    """The message of a simulator reading; without `scans`, laser and sonar are left empty
+    (for readers that never look at them, e.g. the arbiter in in-process experiments)."""
+    return Observation(
+        robot=r.robot,
+        episode=r.episode,
+        step=r.step,
+        episode_step=r.episode_step,
+        sim_time=r.sim_time,
+        wall_time=wall_time,
+        x=r.pose.x,
+        y=r.pose.y,
+        theta=r.pose.theta,
+        v=r.v,
+        omega=r.omega,
+        laser=tuple(r.laser.tolist()) if scans else (),
+        sonar=tuple(r.sonar.tolist()) if scans else (),
+        reward=r.reward,
+        goal_distance=r.goal_distance,
+        goal_bearing=r.goal_bearing,
+        outcome=r.outcome,
+        collided=r.collided,
+    )
