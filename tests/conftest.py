@@ -93,14 +93,15 @@ def bus_args(router: str, session_id: str, node: str) -> list[str]:
     return ["--session", session_id, "--node", node, "--mode", "client", "--connect", router]
 
 
-def collect(node: Node, n: int, kind: type, timeout: float = 15.0) -> list:
-    """The next `n` messages of one type (others are skipped)."""
+def collect(node: Node, n: int, kind: type | tuple[type, ...], timeout: float = 15.0) -> list:
+    """The next `n` messages of one type, or of any of several (others are skipped). Zenoh
+    orders messages per key only: collect messages on different keys together."""
     got, deadline = [], time.monotonic() + timeout
     while len(got) < n and time.monotonic() < deadline:
         event = node.poll(0.1)
         if isinstance(event, Input) and isinstance(event.message, kind):
             got.append(event.message)
-    assert len(got) == n, f"got {len(got)} of {n} {kind.__name__} within {timeout} s"
+    assert len(got) == n, f"got {len(got)} of {n} {kind} within {timeout} s"
     return got
 
 
