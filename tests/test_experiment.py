@@ -8,6 +8,7 @@ import json
 import pytest
 
 from services.cli import main
+from services.experiment import distributed
 from services.experiment.paper import mean_ci
 from services.experiment.session import RunSpec, run
 
@@ -105,3 +106,11 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
 def test_sweep_needs_something_to_sweep(capsys):
     assert main(["experiment", "sweep", "--tasks", "1", "--seeds", "1"]) == 2
     assert "give --noise" in capsys.readouterr().err
+
+
+def test_the_distributed_run_learns_exactly_what_the_in_process_run_learns():
+    """Every service its own process over zenoh, on the lockstep clock: same seed, same
+    episodes, step for step."""
+    spec = RunSpec("1", "rl", seed=0, max_episodes=2)
+    local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
+    assert bus.durations_s == local.durations_s and len(bus.durations_s) == 2

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import argparse
+import json
 import shlex
 import sys
 from pathlib import Path
 
+from services.experiment import distributed
 from services.experiment.paper import TASKS, experiment
-from services.experiment.session import SETTINGS
+from services.experiment.session import SETTINGS, RunSpec
 from services.experiment.sweep import sweep
 
 
@@ -76,6 +78,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="sporadic feedback probability, e.g. 0.05,0.2,0.5",
     )
 
+    distributed = sub.add_parser(
+        "distributed",
+        help="one task and setting in-process and with every service its own process over "
+        "zenoh: same learning, how much slower",
+        description="runs --task in --setting for each seed both ways and compares the "
+        "episodes; writes distributed.json and distributed.md to --out",
+    )
+    distributed.add_argument("--task", choices=TASKS, default="1")
+    distributed.add_argument("--setting", choices=tuple(SETTINGS), default="rl")
+    distributed.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
+    distributed.add_argument("--max-episodes", type=int, default=150, help="then censored")
+    distributed.add_argument("--out", type=Path, default=Path("runs/experiment-distributed"))
+
 
 def run(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.max_episodes < 1:
@@ -83,6 +98,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.experiment == "sweep":
         return run_sweep(args)
+    if args.experiment == "distributed":
+        return run_distributed(args)
     command = "voxshape experiment " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
     summary = experiment(
         args.out,
@@ -117,4 +134,16 @@ def run_sweep(args: argparse.Namespace) -> int:
     )
     print((args.out / "sweep.md").read_text())
     print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")
+    return 0
+
+
+def run_distributed(args: argparse.Namespace) -> int:
+    spec = RunSpec(args.task, args.setting, 0, args.max_episodes)
+    comparison = distributed.compare(spec, list(range(args.seeds)))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
+    text = distributed.report(comparison)
+    (args.out / "distributed.md").write_text(text + "\n")
+    print(text)
+    print(f"wrote {args.out / 'distributed.json'}, distributed.md")
     return 0

@@ -25,7 +25,7 @@ from protocol import CreditedFeedback, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
-from services.learner.config import LearnerConfig
+from services.learner.config import with_settings
 from services.learner.convergence import Convergence, Episode
 from services.learner.sarsa import Learner
 from services.sim.maps import load_map
@@ -67,6 +67,7 @@ class RunSpec:
     delay: float | None = None  # the teacher's mean reaction delay; None: the profile's
     delay_learning: bool = True  # the arbiter learns the teacher's delay (else TAMER's window)
     profile: TeacherProfile = field(default_factory=TeacherProfile)
+    learner: tuple[str, ...] = ()  # KEY=VALUE changes to LearnerConfig (`--set`)
 
 
 @dataclass
@@ -98,7 +99,7 @@ def run(spec: RunSpec) -> RunResult:
         noise=setting.noise if spec.noise is None else spec.noise,
         delay=spec.profile.delay if spec.delay is None else spec.delay,
     )
-    learner_config = LearnerConfig()
+    learner_config = with_settings(list(spec.learner))
     learner = Learner(learner_config, seed=spec.seed)
     progress = Convergence(learner_config)
     book = dictate(m, setting.traces, seed=10_000 + spec.seed) if setting.traces else None
@@ -175,7 +176,9 @@ def deliver(
 
 def look(reading: Reading, now: float) -> Look:
     pose = reading.pose
-    return Look(now, reading.episode, pose.x, pose.y, reading.collided, reading.outcome)
+    return Look(
+        now, reading.episode, pose.x, pose.y, reading.collided, reading.outcome, pose.theta
+    )
 
 
 def utterance(speech: Speech) -> Utterance:

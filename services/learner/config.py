@@ -27,6 +27,7 @@ class LearnerConfig:
     # So the state also says which of the laser's right, front and left thirds has something
     # nearer than this (metres): what decides whether moving on or turning hits it. None: off.
     near_range: float | None = 0.6
+    near_sectors: int = 3  # the laser's sectors with a near bit each, right to left
     init_from_neighbour: bool = True  # a new state starts with its nearest state's Q-values
     # Also learn values per goal cell alone and add them to the state's (two tilings): what is
     # learnt about heading for the goal then holds in every state of that cell at once. Off:

@@ -54,8 +54,9 @@ class StateSpace:
     def near_bits(self, p: Percept) -> int:
         if self.config.near_range is None:
             return 0
-        thirds = np.array_split(np.asarray(p.laser, dtype=float), 3)
-        return sum(1 << i for i, third in enumerate(thirds) if third.min() < self.config.near_range)
+        sectors = np.array_split(np.asarray(p.laser, dtype=float), self.config.near_sectors)
+        near = self.config.near_range
+        return sum(1 << i for i, sector in enumerate(sectors) if sector.min() < near)
 
     def goal_bins(self, p: Percept) -> tuple[int, int]:
         if not self.config.goal_features:

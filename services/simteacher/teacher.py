@@ -44,8 +44,9 @@ BERTHS = (0.45, 0.35, PASSAGE_RADIUS)
 RETURN_CELLS = 20  # nearer a wall than the berth: head for a cell with it at most this near
 FACING = math.radians(20)  # dictating: "forward" when the path is within this of the heading
 NEAREST_FREE_CELLS = 10  # a pose too near a wall takes the distance of a free cell this near
+PAUSE = 0.2  # seconds between two utterances in a row
 OPPOSITE = {"good": "bad", "bad": "good", "excellent": "terrible", "terrible": "excellent"}
-OPPOSITE["goal"] = "terrible"
+OPPOSITE.update(goal="terrible", left="right", right="left", forward="back")
 
 
 @dataclass(frozen=True)
@@ -89,13 +90,16 @@ class TeacherProfile:
     noise: float = 0.0  # probability an utterance comes out wrong
     confusion: Confusion = field(default_factory=Confusion)
     positive_bias: float = 0.0  # share of the scolding left unsaid
+    # After a bump or a regress it judged, the chance the teacher also says which way to go:
+    # the command along the shortest path ("left", "right" or "forward").
+    steer: float = 0.0
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
     recognition: float = 0.3  # seconds from the end of speech to the utterance
 
     def __post_init__(self) -> None:
-        for name in ("noise", "positive_bias"):
+        for name in ("noise", "positive_bias", "steer"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} {getattr(self, name)} is not within [0, 1]")
         if self.interval <= 0 or self.delay < 0 or self.jitter < 0:
@@ -114,6 +118,7 @@ class Look:
     y: float
     collided: bool
     outcome: str  # running, goal, collision, timeout
+    heading: float = 0.0  # radians (for steering)
 
 
 @dataclass(frozen=True)
@@ -228,7 +233,11 @@ class SimulatedTeacher:
             self._last_look, self._last_distance = look, distance
         if meaning is None or not self._speaks(look.episode, meaning):
             return []
-        return [self._say(meaning, look.time)]
+        said = [self._say(meaning, look.time + self._reaction())]
+        if p.steer and meaning in ("bad", "terrible") and self.rng.random() < p.steer:
+            command = self.command(look.x, look.y, look.heading)
+            said.append(self._say(command, said[0].end + PAUSE))
+        return said
 
     def judge(self, progress: float) -> str | None:
         """The qualifier for `progress` metres towards the goal (negative: away from it)."""
@@ -247,9 +256,12 @@ class SimulatedTeacher:
         negative = (self.vocabulary.meanings[meaning].reward or 0.0) < 0
         return not (negative and self.rng.random() < p.positive_bias)
 
-    def _say(self, meaning: str, seen_at: float) -> Speech:
+    def _reaction(self) -> float:
+        """Seconds from seeing to starting to speak."""
+        return max(0.0, self.rng.gauss(self.profile.delay, self.profile.jitter))
+
+    def _say(self, meaning: str, onset: float) -> Speech:
         p = self.profile
-        onset = seen_at + max(0.0, self.rng.gauss(p.delay, p.jitter))
         heard_at = onset + p.speaking + p.recognition
         said, heard, confidence, error = self.phrase(meaning), None, 0.95, None
         if self.rng.random() < p.noise:

@@ -1,0 +1,192 @@
+"""`voxshape experiment distributed`: one task and setting run twice for the same seeds, once
+in-process (services/experiment/session.py) and once with every service as its own process
+over zenoh: a router, the simulator on the lockstep clock, the learner, and for the feedback
+settings the arbiter, the mock speech service and the simulated teacher. Same seeds, same
+learning results expected (within noise: the bus delivers a teacher's words at wall-clock
+moments, not at the in-process run's exact steps), and the wall time of both.
+
+Processes are started and stopped here, by pid, on a free loopback port.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+from protocol import EpisodeEvent, robot_key
+from services.experiment.session import ROBOT, SETTINGS, TEACHER, RunSpec, run
+from services.learner.config import LearnerConfig
+from services.learner.convergence import Convergence, Episode
+from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
+from services.sim.task import SimConfig
+
+VOXSHAPE = [sys.executable, "-m", "services"]
+STOP_WAIT_S = 10.0
+JOIN_WAIT_S = 60.0
+ACTION_WAIT_S = 30.0  # lockstep: the simulator waits this long for the learner
+PERIOD = SimConfig().control_period
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """How one run learnt: the figures compared between the two ways of running it."""
+
+    converged: bool
+    episodes: int
+    learning_time_s: float
+    durations_s: list[float]
+    wall_time_s: float
+
+
+def in_process(spec: RunSpec) -> Outcome:
+    start = time.monotonic()
+    result = run(spec)
+    return Outcome(
+        result.converged,
+        result.episodes,
+        result.learning_time_s,
+        result.durations_s[: result.episodes],
+        round(time.monotonic() - start, 1),
+    )
+
+
+def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
+    """The same run with every service as its own process; the simulator's episode events
+    tell when it converged (the rule of services/learner/convergence.py)."""
+    setting = SETTINGS[spec.setting]
+    session = f"equivalence-{os.getpid()}"
+    router = f"tcp/127.0.0.1:{free_loopback_port()}"
+
+    def bus(node: str) -> list[str]:
+        return ["--session", session, "--node", node, "--mode", "client", "--connect", router]
+
+    seed = ["--seed", str(spec.seed)]
+    # The simulator starts last, once the others are present: in lockstep it waits for an
+    # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
+    sim = ["sim", *bus("sim"), "--task", spec.task, "--clock", "lockstep", "--robot", ROBOT]
+    sim += [*seed, "--action-timeout", str(ACTION_WAIT_S)]
+    commands = [["router", "--session", session, "--node", "router", "--listen", router]]
+    if setting.feedback:
+        teacher = ["--teacher", TEACHER, "--task", spec.task, "--noise", str(setting.noise)]
+        commands += [
+            ["arbiter", *bus("arbiter")],
+            ["speech", *bus("speech"), "--engine", "mock"],
+            ["sim-teacher", *bus("sim-teacher"), "--robot", ROBOT, *teacher, *seed],
+        ]
+        if setting.traces:
+            commands[-1] += ["--traces", str(setting.traces)]
+    with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
+        checkpoint = str(Path(folder) / "learner.npz")
+        learner = ["learner", *bus("learner"), "--robot", ROBOT, "--fresh", *seed]
+        commands.append([*learner, "--checkpoint", checkpoint])
+        children: list[subprocess.Popen] = []
+        start = time.monotonic()
+        try:
+            children.append(_start(commands[0], folder))
+            time.sleep(1.0)  # the router listens before the others connect
+            config = replace(bus_config("equivalence"), session=session, mode="client")
+            with Node("equivalence", replace(config, connect=(router,))) as node:
+                node.input("episode", robot_key(session, ROBOT, "episode"))
+                node.watch_presence()
+                children += [_start(c, folder) for c in commands[1:]]
+                _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
+                time.sleep(0.5)  # their subscriptions reach the router with their tokens
+                children.append(_start(sim, folder))
+                progress = _watch(node, spec.max_episodes, start + timeout_s, children)
+        finally:
+            for child in reversed(children):
+                _stop(child)
+    return Outcome(
+        progress.converged,
+        progress.n_episodes,
+        round(progress.learning_time, 1),
+        [e.sim_seconds for e in progress.episodes[: progress.n_episodes]],
+        round(time.monotonic() - start, 1),
+    )
+
+
+def _watch(
+    node: Node, max_episodes: int, deadline: float, children: list[subprocess.Popen]
+) -> Convergence:
+    progress = Convergence(LearnerConfig())
+    while len(progress.episodes) < max_episodes and not progress.converged:
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"no convergence nor {max_episodes} episodes in time")
+        if dead := [c for c in children if c.poll() is not None]:
+            raise RuntimeError(f"a service died: {' '.join(map(str, dead[0].args[2:4]))}")
+        event = node.poll(0.5)
+        if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
+            e = event.message
+            if e.kind != "start":
+                progress.add(Episode(e.kind, e.episode_steps, e.episode_steps * PERIOD))
+    return progress
+
+
+def _await(node: Node, names: set[str], deadline: float) -> None:
+    missing = set(names)
+    while missing and time.monotonic() < deadline:
+        event = node.poll(0.2)
+        if isinstance(event, Presence) and event.alive:
+            missing.discard(event.node)
+    if missing:
+        raise TimeoutError(f"{', '.join(sorted(missing))} did not join the session")
+
+
+def _start(command: list[str], folder: str) -> subprocess.Popen:
+    log = open(Path(folder) / f"{command[0]}.log", "w")  # noqa: SIM115 (closed with the folder)
+    return subprocess.Popen([*VOXSHAPE, *command], stdout=log, stderr=log, cwd=folder)
+
+
+def _stop(child: subprocess.Popen) -> None:
+    if child.poll() is None:
+        os.kill(child.pid, signal.SIGTERM)
+        try:
+            child.wait(STOP_WAIT_S)
+        except subprocess.TimeoutExpired:
+            os.kill(child.pid, signal.SIGKILL)
+            child.wait(STOP_WAIT_S)
+
+
+def compare(spec: RunSpec, seeds: list[int]) -> dict:
+    """Both ways for each seed: their outcomes, and whether the learning matched exactly."""
+    runs = []
+    for seed in seeds:
+        one = replace(spec, seed=seed)
+        local, bus = in_process(one), over_zenoh(one)
+        same = local.durations_s == bus.durations_s
+        runs.append(
+            {"seed": seed, "in_process": asdict(local), "over_zenoh": asdict(bus), "same": same}
+        )
+    return {
+        "task": spec.task,
+        "setting": spec.setting,
+        "max_episodes": spec.max_episodes,
+        "runs": runs,
+    }
+
+
+def report(comparison: dict) -> str:
+    """A Markdown table of a comparison."""
+    lines = [
+        f"Task {comparison['task']}, setting `{comparison['setting']}`: in-process vs every "
+        "service its own process over zenoh (lockstep)",
+        "",
+        "| seed | episodes (in-process / zenoh) | learning time min | converged | same episodes "
+        "| wall s (in-process / zenoh) |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in comparison["runs"]:
+        a, b = r["in_process"], r["over_zenoh"]
+        lines.append(
+            f"| {r['seed']} | {a['episodes']} / {b['episodes']} "
+            f"| {a['learning_time_s'] / 60:.1f} / {b['learning_time_s'] / 60:.1f} "
+            f"| {a['converged']} / {b['converged']} | {'yes' if r['same'] else 'no'} "
+            f"| {a['wall_time_s']:.0f} / {b['wall_time_s']:.0f} |"
+        )
+    return "\n".join(lines)
