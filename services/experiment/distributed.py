@@ -23,7 +23,9 @@ from protocol import EpisodeEvent, robot_key
 from services.experiment.session import ROBOT, SETTINGS, TEACHER, RunSpec, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, Episode
+from services.learner.train import convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
+from services.sim.maps import load_map
 from services.sim.task import SimConfig
 
 VOXSHAPE = [sys.executable, "-m", "services"]
@@ -98,7 +100,8 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
                 _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
                 time.sleep(0.5)  # their subscriptions reach the router with their tokens
                 children.append(_start(sim, folder))
-                progress = _watch(node, spec.max_episodes, start + timeout_s, children)
+                progress = convergence_on(load_map(spec.task), LearnerConfig())
+                _watch(node, progress, spec.max_episodes, start + timeout_s, children)
         finally:
             for child in reversed(children):
                 _stop(child)
@@ -112,9 +115,12 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
 
 
 def _watch(
-    node: Node, max_episodes: int, deadline: float, children: list[subprocess.Popen]
-) -> Convergence:
-    progress = Convergence(LearnerConfig())
+    node: Node,
+    progress: Convergence,
+    max_episodes: int,
+    deadline: float,
+    children: list[subprocess.Popen],
+) -> None:
     while len(progress.episodes) < max_episodes and not progress.converged:
         if time.monotonic() > deadline:
             raise TimeoutError(f"no convergence nor {max_episodes} episodes in time")
@@ -125,7 +131,6 @@ def _watch(
             e = event.message
             if e.kind != "start":
                 progress.add(Episode(e.kind, e.episode_steps, e.episode_steps * PERIOD))
-    return progress
 
 
 def _await(node: Node, names: set[str], deadline: float) -> None:

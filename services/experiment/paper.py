@@ -28,6 +28,8 @@ from pathlib import Path
 from tqdm import tqdm
 
 from services.experiment.session import SETTINGS, RunResult, RunSpec, run
+from services.learner.config import LearnerConfig
+from services.learner.convergence import Convergence
 
 TASKS = ("1", "2", "3", "4")
 LABELS = {"rl": "RL", "rl+f": "RL + F", "rl+t+f": "RL + T + F", "rl+t+f-perfect": "RL + T + F (PF)"}
@@ -162,8 +164,9 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores.",
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
-        "Learning time is the robot's simulated time until convergence (3 goal episodes in "
-        "a row, each within 25% of the fewest steps). **Censored runs**: a run that did not "
+        "Learning time is the robot's simulated time until convergence ("
+        + Convergence(LearnerConfig()).rule()
+        + ", the shortest time of each task's map). **Censored runs**: a run that did not "
         "converge within the episode limit counts with its time so far, so its cell's mean "
         f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored"
         + (

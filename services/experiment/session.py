@@ -26,8 +26,9 @@ from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.learner.config import with_settings
-from services.learner.convergence import Convergence, Episode
+from services.learner.convergence import Episode
 from services.learner.sarsa import Learner
+from services.learner.train import convergence_on
 from services.sim.maps import load_map
 from services.sim.stepper import observation
 from services.sim.task import Reading, Simulation
@@ -101,7 +102,7 @@ def run(spec: RunSpec) -> RunResult:
     )
     learner_config = with_settings(list(spec.learner))
     learner = Learner(learner_config, seed=spec.seed)
-    progress = Convergence(learner_config)
+    progress = convergence_on(m, learner_config)
     book = dictate(m, setting.traces, seed=10_000 + spec.seed) if setting.traces else None
     teacher = SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
     arbiter = Arbiter(
@@ -176,9 +177,7 @@ def deliver(
 
 def look(reading: Reading, now: float) -> Look:
     pose = reading.pose
-    return Look(
-        now, reading.episode, pose.x, pose.y, reading.collided, reading.outcome, pose.theta
-    )
+    return Look(now, reading.episode, pose.x, pose.y, reading.collided, reading.outcome, pose.theta)
 
 
 def utterance(speech: Speech) -> Utterance:

@@ -83,10 +83,16 @@ class LearnerConfig:
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
-    converge_margin: float = 0.25  # ... each within (1 + margin) x the shortest seen
+    converge_margin: float = 0.25  # ... the slowest within (1 + margin) x the fastest ...
+    converge_slack: float = 2.5  # ... and within this many times the map's shortest time
 
     # -- initial traces ---------------------------------------------------------------------
     replay_every: int = 10  # replay the teacher's traces again every this many episodes (0: once)
+
+    @property
+    def top_speed(self) -> float:
+        """m/s of the fastest action."""
+        return max(abs(v) for v, _ in self.velocities.values())
 
     def epsilon(self, episode: int) -> float:
         done = min(1.0, episode / max(1, self.epsilon_episodes))

@@ -1,7 +1,10 @@
 """When has the robot learnt the task, and how long did it take? Defined here only.
 
-Converged: the last K episodes (config.converge_episodes) all reached the goal, each in at most
-(1 + config.converge_margin) times the fewest steps of any goal episode so far.
+Converged: the last K episodes (config.converge_episodes) all reached the goal, steadily (the
+slowest of them within (1 + config.converge_margin) times the fastest) and, when the map's
+shortest time is given, each within config.converge_slack times that: three equally slow
+wanderings into the goal are not a learnt task. (Measured against the K episodes themselves,
+not the fastest ever: one lucky start would otherwise hold a steady policy back for good.)
 Learning time: the robot's simulated seconds over all episodes up to and including the one
 that converged (the paper timed its robot, not the computer). Also counted: episodes, and
 the teacher's interventions (feedback and commands).
@@ -9,6 +12,7 @@ the teacher's interventions (feedback and commands).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from services.learner.config import LearnerConfig
@@ -25,6 +29,7 @@ class Episode:
 @dataclass
 class Convergence:
     config: LearnerConfig
+    shortest_s: float | None = None  # the map's shortest time to the goal (Map.shortest_time)
     episodes: list[Episode] = field(default_factory=list)
     converged_at: int | None = None  # index of the episode that converged
 
@@ -40,8 +45,23 @@ class Convergence:
         last = self.episodes[-k:]
         if len(last) < k or any(e.outcome != "goal" for e in last):
             return False
-        best = min(e.steps for e in self.episodes if e.outcome == "goal")
-        return all(e.steps <= (1 + margin) * best for e in last)
+        steps = [e.steps for e in last]
+        bound = (
+            math.inf if self.shortest_s is None else self.config.converge_slack * self.shortest_s
+        )
+        return max(steps) <= (1 + margin) * min(steps) and all(e.sim_seconds <= bound for e in last)
+
+    def rule(self) -> str:
+        """The rule in words, for reports."""
+        c = self.config
+        text = (
+            f"{c.converge_episodes} goal episodes in a row, the slowest within "
+            f"{c.converge_margin:.0%} of the fastest"
+        )
+        if self.shortest_s is not None:
+            text += f", each within {c.converge_slack:g}x the map's shortest time"
+            text += f" ({self.shortest_s:.1f} s)"
+        return text
 
     @property
     def converged(self) -> bool:

@@ -12,7 +12,7 @@ from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, Episode
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
-from services.sim.maps import load_map
+from services.sim.maps import Map, load_map
 from services.sim.task import SimConfig, Simulation
 
 
@@ -42,7 +42,7 @@ def train(
     config = config or LearnerConfig()
     sim = Simulation(load_map(task), ("robot",), sim_config, seed=seed)
     learner = Learner(config, seed=seed)
-    progress = Convergence(config)
+    progress = convergence_on(load_map(task), config)
     steps = 0
     try:
         for episode in range(max_episodes):
@@ -77,3 +77,8 @@ def train(
         len(learner.states),
         progress.episodes,
     )
+
+
+def convergence_on(m: Map, config: LearnerConfig) -> Convergence:
+    """The convergence rule for a map: its shortest time bounds the converged episodes."""
+    return Convergence(config, m.shortest_time(config.top_speed))

@@ -128,6 +128,12 @@ class Map:
     def grid(self) -> FreeSpace:
         return FreeSpace(self)
 
+    def shortest_time(self, speed: float) -> float:
+        """Seconds the shortest way from the start to the goal takes at `speed` (m/s): a
+        lower bound on any episode that reaches the goal."""
+        distance = self.grid.distances_to_goal(PASSAGE_RADIUS)
+        return float(distance[self.grid.cell(self.start.x, self.start.y)]) / speed
+
 
 class FreeSpace:
     """The map on a grid: clearance per cell and geodesic distances around obstacles."""
