@@ -1,11 +1,35 @@
 # One image for every voxshape service; compose.yaml chooses the command.
 FROM python:3.11-slim
-RUN useradd --create-home --uid 1000 voxshape
+
+ENV PYTHONUNBUFFERED=1 \
+    PYTHONDONTWRITEBYTECODE=1 \
+    PIP_NO_CACHE_DIR=1 \
+    PIP_DISABLE_PIP_VERSION_CHECK=1 \
+    # compose mounts the root file system read-only: caches and settings go to /tmp (a tmpfs)
+    XDG_CACHE_HOME=/tmp/.cache \
+    XDG_CONFIG_HOME=/tmp/.config \
+    XDG_DATA_HOME=/tmp/.local/share \
+    MPLCONFIGDIR=/tmp/matplotlib
+
+# openssl: `voxshape certs` inside the container, when wanted.
+RUN apt-get update \
+    && apt-get install -y --no-install-recommends openssl \
+    && rm -rf /var/lib/apt/lists/* \
+    && useradd --create-home --uid 1000 voxshape
+
 WORKDIR /app
+# The project, installed once (not editable); deploy/ holds the access file the router reads.
 COPY pyproject.toml README.md ./
 COPY protocol ./protocol
 COPY services ./services
-RUN pip install --no-cache-dir . && mkdir -p /app/runs && chown voxshape /app/runs
+COPY deploy ./deploy
+RUN pip install . \
+    && rm -rf build *.egg-info \
+    && mkdir -p /app/runs /secrets /models/vosk \
+    && chown voxshape:voxshape /app/runs
+
 USER voxshape
-ENV PYTHONUNBUFFERED=1
+# Each compose service states its own healthcheck (a router port or its presence on the bus).
+HEALTHCHECK --interval=30s --timeout=10s --start-period=30s --retries=3 \
+    CMD ["voxshape", "--help"]
 CMD ["voxshape", "--help"]

@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import IO
 
 from services.runtime import BusError, Node, Presence, Tick, bus_config
-from services.topology import LOCAL_VARIABLES, ServiceSpec, find_compose_file, load_topology
+from services.topology import ServiceSpec, find_compose_file, load_topology, local_variables
 
 STOP_GRACE_S = 10.0
 
@@ -72,6 +72,8 @@ class Session:
 
     def _is_up(self, name: str) -> bool:
         spec = next(s for s in self.specs if s.name == name)
+        if not spec.on_bus:  # nothing to wait for but its process
+            return spec.name in self.procs
         return spec.node in self.present
 
     def _spawn(self, spec: ServiceSpec) -> None:
@@ -181,7 +183,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def open_session(args: argparse.Namespace) -> Session:
-    variables = {**LOCAL_VARIABLES, **os.environ}
+    variables = local_variables()
     if args.port is not None:
         variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = (
             f"tcp/127.0.0.1:{args.port}"

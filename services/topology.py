@@ -2,7 +2,8 @@
 
 `voxshape up` runs the very commands compose.yaml gives each service. Only the variables
 differ: compose reads them from the shell, the launcher from the shell over LOCAL_VARIABLES,
-which put the router on loopback.
+which put the router on loopback, and LOCAL_FOLDERS, which give local services the folders
+(secrets, vosk model) that containers find mounted.
 """
 
 from __future__ import annotations
@@ -18,8 +19,26 @@ import yaml
 LOCAL_VARIABLES = {
     "VOXSHAPE_ROUTER": "tcp/127.0.0.1:7447",  # where services connect
     "VOXSHAPE_ROUTER_LISTEN": "tcp/127.0.0.1:7447",  # where the router listens
-    "VOXSHAPE_PEER_LISTEN": "tcp/127.0.0.1:0",  # where peers listen for each other
+    "VOXSHAPE_VIEWER_BIND": "127.0.0.1",  # the logger's live recording: this host only
+    "VOXSHAPE_WEB_BIND": "127.0.0.1",  # the viewer profile's web viewer: this host only
 }
+# Folders a container finds mounted at a fixed place; a local service gets the folder itself
+# (none by default: the local session is open, and speech needs no vosk model).
+LOCAL_FOLDERS = {
+    "VOXSHAPE_SERVICE_SECRETS": "VOXSHAPE_SECRETS",
+    "VOXSHAPE_SERVICE_VOSK_MODEL": "VOXSHAPE_VOSK_MODEL",
+}
+# A service labelled `voxshape.bus: "false"` announces no presence (the web viewer).
+NOT_ON_BUS_LABEL = "voxshape.bus"
+
+
+def local_variables(environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """The variables `voxshape up` interpolates compose.yaml with: LOCAL_VARIABLES and the
+    local folders, overlaid by the environment."""
+    folders = {inside: environ.get(host, "") for inside, host in LOCAL_FOLDERS.items()}
+    return {**LOCAL_VARIABLES, **folders, **environ}
+
+
 _VARIABLE = re.compile(r"\$(?:\$|\{(\w+)(?:(:?[-?])([^}]*))?\}|(\w+))")
 
 
@@ -34,6 +53,7 @@ class ServiceSpec:
     environment: dict[str, str]
     depends_on: tuple[str, ...]
     profiles: tuple[str, ...]
+    on_bus: bool = True  # announces its presence (its node id) once it runs
 
     @property
     def node(self) -> str:
@@ -77,7 +97,7 @@ def load_topology(
     """The services of compose.yaml that run without a profile or with one of `profiles`,
     dependencies first. Variables default to LOCAL_VARIABLES overlaid by the environment."""
     if variables is None:
-        variables = {**LOCAL_VARIABLES, **os.environ}
+        variables = local_variables()
     try:
         document = yaml.safe_load(path.read_text())
     except (OSError, yaml.YAMLError) as e:
@@ -104,6 +124,7 @@ def load_topology(
             },
             depends_on=tuple(depends),
             profiles=tuple(body.get("profiles") or ()),
+            on_bus=str((body.get("labels") or {}).get(NOT_ON_BUS_LABEL, "true")) != "false",
         )
     chosen = {n: s for n, s in specs.items() if not s.profiles or set(s.profiles) & set(profiles)}
     return _dependencies_first(chosen, path)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import signal
 import subprocess
 import time
@@ -12,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-from protocol import MESSAGE_TYPES
 from services.topology import TopologyError, interpolate, load_topology
 from tests.conftest import ROOT, VOXSHAPE, free_port
 
@@ -122,11 +120,11 @@ def test_up_gives_up_on_a_service_that_never_announces_itself(spawn, session_id,
     depends_on: [router]
 """,
     )
-    up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose), "--ready-timeout", "2")
+    up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose), "--ready-timeout", "5")
     out, _ = up.communicate(timeout=60)
     assert up.returncode == 1, out
     # On a loaded machine slower services may be missing too: mute must be among them.
-    missing = re.search(r"waited 2 s for all services; not present: (.*)", out)
+    missing = re.search(r"waited 5 s for all services; not present: (.*)", out)
     assert missing and "mute" in missing.group(1).split(", "), out
 
 
@@ -140,67 +138,13 @@ def test_up_rejects_a_broken_compose_file(tmp_path):
     assert "service 'a': `command` must be a list of strings" in result.stderr
 
 
-def test_demo_starts_what_exists_and_says_what_is_missing(session_id, tmp_path):
-    env = {**os.environ, "VOXSHAPE_SESSION": session_id}
-    result = subprocess.run(
-        [VOXSHAPE, "demo", "--port", str(free_port()), "--rounds", "5"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-        env=env,
-        cwd=tmp_path,  # it writes under ./runs
-    )
-    assert result.returncode == 0, result.stdout + result.stderr
-    n = len(MESSAGE_TYPES)
-    assert f"bus check: {n}/{n} message types crossed the router ({5 * n} messages)" in (
-        result.stdout
-    )
-    assert "not built yet, so nobody teaches the robot by voice" in result.stdout
-    assert "speech service" not in result.stdout  # it exists now: started, not missing
-    assert "learner: SARSA" not in result.stdout  # it exists now: started, not missing
-    assert "simulator: PyBullet" not in result.stdout  # it exists now: started, not missing
-    line = next(line for line in result.stdout.splitlines() if "observations of robot r1" in line)
-    picture = tmp_path / line.rsplit("picture: ", 1)[1]
-    assert picture.is_file() and picture.stat().st_size > 10_000
-    print(next(line for line in result.stdout.splitlines() if "bus check" in line))
-
-
 def test_cli_lists_its_subcommands():
     out = subprocess.run([VOXSHAPE, "--help"], capture_output=True, text=True, timeout=30).stdout
     for command in ("demo", "up", "router", "status", "listen", "vocabulary"):
         assert re.search(rf"^\s+{command}\s", out, re.MULTILINE), command
 
 
-# -- compose.yaml -----------------------------------------------------------------------------
-
-
-@pytest.mark.skipif(
-    shutil.which("docker-compose") is None,
-    reason="Debian's docker-compose is missing: `make test` installs it",
-)
-def test_docker_compose_accepts_the_file():
-    result = subprocess.run(
-        ["docker-compose", "-f", str(COMPOSE), "config", "--quiet"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
-    assert result.returncode == 0, result.stderr
-
-
-def test_local_session_runs_the_compose_commands_on_loopback():
-    local = load_topology(
-        COMPOSE, {"VOXSHAPE_ROUTER": "tcp/127.0.0.1:9", "VOXSHAPE_ROUTER_LISTEN": "tcp/127.0.0.1:9"}
-    )
-    docker = load_topology(COMPOSE, {})
-    assert [s.command for s in local] == [s.command for s in docker]
-    assert all(c[0] == "voxshape" for s in local for c in [s.command])
-    router = next(s for s in local if s.name == "router")
-    assert router.environment["VOXSHAPE_LISTEN"] == "tcp/127.0.0.1:9"
-    assert next(s for s in docker if s.name == "router").environment["VOXSHAPE_LISTEN"] == (
-        "tcp/0.0.0.0:7447"
-    )
+# -- compose.yaml (the file itself: tests/test_compose.py) ------------------------------------
 
 
 @pytest.mark.parametrize(

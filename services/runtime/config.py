@@ -17,7 +17,14 @@ the host. Remote teachers and robots use `--mode client --connect tcp/HOST:7447`
 | VOXSHAPE_TLS_ROOT_CA        | --tls-root-ca     | (none)                                  |
 | VOXSHAPE_TLS_CERT / _KEY    | --tls-cert/-key   | (none; needed for TLS listen and mTLS)  |
 | VOXSHAPE_TLS_MTLS           | --mtls            | false                                   |
+| VOXSHAPE_SECRETS            | --secrets         | (none; from `voxshape certs DIR`)       |
 Lists are comma-separated.
+
+VOXSHAPE_PASSWORD_FILE holds the password, or is a credentials file of `user:password` lines
+(the line of VOXSHAPE_USER is taken). VOXSHAPE_SECRETS fills in whatever was not given: the
+user is the role (`sim`, `learner`, `logger`...), its password is its line of DIR/credentials,
+the CA is DIR/ca.pem, this node's certificate DIR/<user>.pem and .key (a router's:
+DIR/router.pem and .key, and DIR/credentials is the users it accepts: see services/router.py).
 """
 
 from __future__ import annotations
@@ -60,6 +67,9 @@ class BusConfig:
     tls_cert: Path | None = None
     tls_key: Path | None = None
     mtls: bool = False
+    secrets: Path | None = None
+    # zenoh settings a role adds, as (path, JSON5), e.g. the router's access control.
+    extra: tuple[tuple[str, str], ...] = ()
 
     @classmethod
     def for_role(cls, role: str) -> BusConfig:
@@ -133,7 +143,10 @@ class BusConfig:
             tls["enable_mtls"] = True
         if tls:
             conf["transport"]["link"] = {"tls": tls}
-        return zenoh.Config.from_json5(json.dumps(conf))
+        config = zenoh.Config.from_json5(json.dumps(conf))
+        for path, value in self.extra:
+            config.insert_json5(path, value)
+        return config
 
 
 def free_loopback_port() -> int:
@@ -157,6 +170,9 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--tls-cert", type=Path, help="this node's certificate (TLS listen, mTLS)")
     g.add_argument("--tls-key", type=Path, help="this node's private key")
     g.add_argument("--mtls", action="store_true", default=None, help="mutual TLS")
+    g.add_argument(
+        "--secrets", type=Path, help="folder of credentials and certificates (voxshape certs)"
+    )
 
 
 def _endpoints(value: str) -> tuple[str, ...]:
@@ -182,6 +198,7 @@ def bus_config(
         ("tls_cert", Path),
         ("tls_key", Path),
         ("mtls", lambda v: v.strip().lower() in ("1", "true", "yes", "on")),
+        ("secrets", Path),
     ):
         variable = f"VOXSHAPE_{name.upper()}"
         flag = getattr(args, name, None) if args is not None else None
@@ -196,8 +213,49 @@ def bus_config(
             ) from None
     if "password" not in settings and env.get("VOXSHAPE_PASSWORD_FILE"):
         path = Path(env["VOXSHAPE_PASSWORD_FILE"])
-        try:
-            settings["password"] = path.read_text().strip()
-        except OSError as e:
-            raise ConfigError(f"VOXSHAPE_PASSWORD_FILE {str(path)!r}: {e.strerror}") from None
+        settings["password"] = _password(path, settings.get("user"), "VOXSHAPE_PASSWORD_FILE")
+    if settings.get("secrets") is not None:
+        _fill_from_secrets(role, settings)
     return replace(config, **settings).validated()
+
+
+def _password(path: Path, user: str | None, what: str) -> str:
+    """The password in `path`: the line `user:password` of this user, else the one line."""
+    try:
+        lines = [line.strip() for line in path.read_text().splitlines() if line.strip()]
+    except OSError as e:
+        raise ConfigError(f"{what} {str(path)!r}: {e.strerror}") from None
+    for line in lines:
+        name, colon, password = line.partition(":")
+        if colon and name == user:
+            return password
+    if len(lines) == 1:
+        return lines[0]
+    raise ConfigError(
+        f"{what} {str(path)!r} has no line {user or '<user>'}:<password>: "
+        "set VOXSHAPE_USER, or add the user with `voxshape certs`"
+    )
+
+
+def _fill_from_secrets(role: str, settings: dict) -> None:
+    """What a folder made by `voxshape certs` provides, where not given explicitly."""
+    folder = Path(settings["secrets"])
+    if not folder.is_dir():
+        raise ConfigError(
+            f"VOXSHAPE_SECRETS {str(folder)!r} is not a folder: make one with `voxshape certs "
+            f"{folder}`"
+        )
+    if role == "router":
+        identity = "router"
+    else:
+        settings.setdefault("user", role)
+        identity = settings["user"]
+        if "password" not in settings:
+            settings["password"] = _password(
+                folder / "credentials", identity, "VOXSHAPE_SECRETS credentials file"
+            )
+    if "tls_root_ca" not in settings and (folder / "ca.pem").is_file():
+        settings["tls_root_ca"] = folder / "ca.pem"
+    cert, key = folder / f"{identity}.pem", folder / f"{identity}.key"
+    if "tls_cert" not in settings and cert.is_file() and key.is_file():
+        settings["tls_cert"], settings["tls_key"] = cert, key

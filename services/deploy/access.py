@@ -1,0 +1,316 @@
+"""Who may do what on a secured session's bus: users, their roles, and zenoh's access control.
+
+Pure: no zenoh import. `voxshape router` turns an access file (deploy/access.toml) and a
+credentials file (`user:password` lines, zenoh's own dictionary format) into the router's
+`transport.auth.usrpwd` and `access_control` settings. Deny by default: a user may do only
+what its role grants, in the router's session only. Every key expression comes from
+protocol/keys.py.
+
+An access file:
+
+    [users]
+    logger = { role = "admin" }
+    sim = { role = "simulator", robots = ["r1"] }   # "*" for every robot
+    ana = { role = "teacher" }                      # a teacher's user name is its teacher id
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from protocol import ProtocolError, check_id, presence_key, robot_key, session_keys, teacher_key
+
+ANY = "*"
+ACCESS_FILE = Path("deploy") / "access.toml"
+
+
+class AccessError(ValueError):
+    """An access or credentials file that cannot work; the message names the file, the entry
+    and the fix."""
+
+
+@dataclass(frozen=True)
+class Role:
+    """What a role may do. Topics are (scope, topic); an owner of "self" is the user's own
+    teacher id, "robots" the user's robots, "*" any robot or teacher of the session."""
+
+    summary: str
+    publish: tuple[tuple[str, str, str], ...] = ()
+    subscribe: tuple[tuple[str, str, str], ...] = ()
+    announce: tuple[str, ...] = ()  # presence roles it may hold a token as
+    everything: bool = False  # every message on every key of the session
+    takes_robots: bool = False
+
+
+def _each(scope: str, owner: str, *topics: str) -> tuple[tuple[str, str, str], ...]:
+    return tuple((scope, owner, topic) for topic in topics)
+
+
+ROLES: dict[str, Role] = {
+    "admin": Role("everything in the session (logger, launcher)", everything=True),
+    "teacher": Role(
+        "speak or type as itself; see its robots, its feedback and its notices",
+        publish=_each("teacher", "self", "audio", "utterance", "said", "clock"),
+        subscribe=(
+            *_each("teacher", "self", "utterance", "notice", "clock-reply"),
+            *_each("robot", ANY, "obs", "episode", "feedback", "teaching"),
+        ),
+        announce=("teacher", "simteacher"),
+    ),
+    "simulator": Role(
+        "its robots' observations and episodes; their actions",
+        publish=_each("robot", "robots", "obs", "episode"),
+        subscribe=_each("robot", "robots", "action"),
+        announce=("sim",),
+        takes_robots=True,
+    ),
+    "learner": Role(
+        "its robots' actions and learning summaries; their observations and feedback",
+        publish=_each("robot", "robots", "action", "learning"),
+        subscribe=_each("robot", "robots", "obs", "episode", "feedback"),
+        announce=("learner",),
+        takes_robots=True,
+    ),
+    "arbiter": Role(
+        "credited feedback, teaching stats, notices, clock replies; observations, utterances",
+        publish=(
+            *_each("robot", ANY, "feedback", "teaching"),
+            *_each("teacher", ANY, "notice", "clock-reply"),
+        ),
+        subscribe=(
+            *_each("robot", ANY, "obs", "episode"),
+            *_each("teacher", ANY, "utterance", "clock"),
+        ),
+        announce=("arbiter",),
+    ),
+    "speech": Role(
+        "utterances of every teacher; their audio and said text",
+        publish=_each("teacher", ANY, "utterance"),
+        subscribe=_each("teacher", ANY, "audio", "said"),
+        announce=("speech",),
+    ),
+}
+# Every role may look at who is present (and `voxshape status` under its own user, as compose
+# healthchecks do).
+STATUS_ROLE = "status"
+
+
+@dataclass(frozen=True)
+class User:
+    name: str
+    role: str
+    robots: tuple[str, ...] = ()
+
+
+def find_access_file(start: Path | None = None) -> Path:
+    """deploy/access.toml in the current directory or the checkout this package runs from."""
+    for folder in (start or Path.cwd(), Path(__file__).resolve().parents[2]):
+        if (folder / ACCESS_FILE).is_file():
+            return folder / ACCESS_FILE
+    raise AccessError(f"no {ACCESS_FILE} here or in the voxshape checkout: pass --access FILE")
+
+
+def load_access(path: Path) -> dict[str, User]:
+    """The users of an access file, checked: known roles, valid ids, robots where needed."""
+    try:
+        document = tomllib.loads(Path(path).read_text())
+    except OSError as e:
+        raise AccessError(f"access file {str(path)!r}: {e.strerror}") from None
+    except tomllib.TOMLDecodeError as e:
+        raise AccessError(f"access file {path}: not valid TOML: {e}") from None
+    unknown = set(document) - {"users"}
+    if unknown:
+        raise AccessError(f"access file {path}: unknown section(s) {sorted(unknown)}; only [users]")
+    entries = document.get("users")
+    if not isinstance(entries, dict) or not entries:
+        raise AccessError(f'access file {path}: no [users]; e.g. ana = {{ role = "teacher" }}')
+    return {name: _user(path, name, entry) for name, entry in entries.items()}
+
+
+def _user(path: Path, name: str, entry: object) -> User:
+    where = f"access file {path}: user {name!r}"
+    try:
+        check_id(name, "user")
+    except ProtocolError as e:
+        raise AccessError(f"{where}: {e}") from None
+    if not isinstance(entry, dict):
+        raise AccessError(f'{where}: expected a table like {{ role = "teacher" }}')
+    unknown = set(entry) - {"role", "robots"}
+    if unknown:
+        raise AccessError(f"{where}: unknown key(s) {sorted(unknown)}; known: role, robots")
+    role = entry.get("role")
+    if role not in ROLES:
+        raise AccessError(f"{where}: role {role!r} is not one of {', '.join(ROLES)}")
+    robots = entry.get("robots", [])
+    if not ROLES[role].takes_robots:
+        if robots:
+            raise AccessError(f"{where}: a {role} has no robots of its own; remove `robots`")
+    elif not (isinstance(robots, list) and robots):
+        raise AccessError(f'{where}: a {role} needs its robots, e.g. robots = ["r1"] or ["*"]')
+    for robot in robots:
+        try:
+            robot == ANY or check_id(robot, "robot")
+        except ProtocolError as e:
+            raise AccessError(f"{where}: {e}") from None
+    return User(name, role, tuple(robots))
+
+
+def load_credentials(path: Path) -> dict[str, str]:
+    """`user:password` lines (zenoh's dictionary format); blank lines and # comments skipped."""
+    try:
+        text = Path(path).read_text()
+    except OSError as e:
+        raise AccessError(
+            f"credentials file {str(path)!r}: {e.strerror}; `voxshape certs DIR` makes one"
+        ) from None
+    credentials: dict[str, str] = {}
+    for number, line in enumerate(text.splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        user, colon, password = line.partition(":")
+        where = f"credentials file {path} line {number}"
+        if not colon or not password:
+            raise AccessError(f"{where}: expected user:password")
+        try:
+            check_id(user, "user")
+        except ProtocolError as e:
+            raise AccessError(f"{where}: {e}") from None
+        if user in credentials:
+            raise AccessError(f"{where}: user {user!r} appears twice")
+        credentials[user] = password
+    if not credentials:
+        raise AccessError(f"credentials file {path}: no user:password line")
+    return credentials
+
+
+def password_of(path: Path, user: str) -> str | None:
+    """The password of `user` in a credentials file, None if the user is not in it."""
+    return load_credentials(path).get(user)
+
+
+def _key(session: str, user: User, scope: str, owner: str, topic: str) -> list[str]:
+    owners = {"self": [user.name], "robots": list(user.robots)}.get(owner, [owner])
+    make = robot_key if scope == "robot" else teacher_key
+    return [make(session, o, topic) for o in owners]
+
+
+def _rule(rule_id: str, messages: list[str], keys: list[str], flow: str) -> dict:
+    assert keys, f"rule {rule_id} has no key expression"
+    return {
+        "id": rule_id,
+        "permission": "allow",
+        "messages": messages,
+        "key_exprs": sorted(set(keys)),
+        "flows": [flow],
+    }
+
+
+def access_control(session: str, users: dict[str, User]) -> dict:
+    """zenoh's `access_control` settings for a router of `session`: deny by default, each user
+    (matched by the name it authenticated with) allowed what its role grants."""
+    everything = session_keys(session)
+    presence = presence_key(session)
+    shared = [
+        # Who is present: look (tokens of others come as egress tokens), and be told of
+        # subscribers so that publishers know someone listens (matching status).
+        _rule(
+            "look-at-presence",
+            ["liveliness_query", "declare_liveliness_subscriber"],
+            [presence],
+            "ingress",
+        ),
+        _rule("see-presence", ["liveliness_token"], [presence], "egress"),
+        _rule(
+            "learn-of-subscribers",
+            ["declare_subscriber", "declare_liveliness_subscriber"],
+            [everything],
+            "egress",
+        ),
+    ]
+    rules, subjects, policies = list(shared), [], []
+    for name, user in users.items():
+        role = ROLES[user.role]
+        own = []
+        if role.everything:
+            own.append(_rule(f"{name}:all-in", ALL_MESSAGES, [everything], "ingress"))
+            own.append(_rule(f"{name}:all-out", ALL_MESSAGES, [everything], "egress"))
+        else:
+            published = [k for t in role.publish for k in _key(session, user, *t)]
+            subscribed = [k for t in role.subscribe for k in _key(session, user, *t)]
+            tokens = [presence_key(session, r, "*") for r in (*role.announce, STATUS_ROLE)]
+            own.append(_rule(f"{name}:publish", ["put"], published, "ingress"))
+            own.append(_rule(f"{name}:subscribe", ["declare_subscriber"], subscribed, "ingress"))
+            own.append(_rule(f"{name}:receive", ["put"], subscribed, "egress"))
+            own.append(_rule(f"{name}:announce", ["liveliness_token"], tokens, "ingress"))
+            own += _kept_and_recovering(name, published, subscribed)
+        rules += own
+        subjects.append({"id": f"user:{name}", "usernames": [name]})
+        policies.append(
+            {
+                "id": name,
+                "rules": [r["id"] for r in own] + [r["id"] for r in shared],
+                "subjects": [f"user:{name}"],
+            }
+        )
+    return {
+        "enabled": True,
+        "default_permission": "deny",
+        "rules": rules,
+        "subjects": subjects,
+        "policies": policies,
+    }
+
+
+def _adv(keys: list[str]) -> list[str]:
+    # "@adv" is a verbatim chunk: `**` never matches it, so it is spelt out.
+    return [f"{k}/@adv/**" for k in keys]
+
+
+def _kept_and_recovering(name: str, published: list[str], subscribed: list[str]) -> list[dict]:
+    """zenoh's advanced publishers and subscribers (services/runtime/node.py: kept outputs,
+    recovering inputs) talk under `<key>/@adv/...`: the publisher announces itself, sends
+    heartbeats and answers the subscribers' queries for what they missed with the messages
+    themselves (replies on `<key>`). Only a user who may publish `<key>` may answer for it."""
+    token = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
+    return [
+        _rule(f"{name}:keep", ["put", "declare_queryable", *token], _adv(published), "ingress"),
+        _rule(f"{name}:answer", ["reply"], published + _adv(published), "ingress"),
+        _rule(f"{name}:asked", ["query", "liveliness_token"], _adv(published), "egress"),
+        _rule(
+            f"{name}:recover",
+            ["query", "declare_subscriber", *token],
+            _adv(subscribed),
+            "ingress",
+        ),
+        _rule(
+            f"{name}:recovered",
+            ["reply", "put", "liveliness_token"],
+            subscribed + _adv(subscribed),
+            "egress",
+        ),
+    ]
+
+
+ALL_MESSAGES = [
+    "put",
+    "delete",
+    "declare_subscriber",
+    "query",
+    "declare_queryable",
+    "reply",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+]
+
+
+def check_consistent(users: dict[str, User], credentials: dict[str, str]) -> list[str]:
+    """Warnings: users who cannot log in (no password) or may do nothing (no role)."""
+    warnings = []
+    for name in sorted(set(users) - set(credentials)):
+        warnings.append(f"user {name!r} has a role but no password: it cannot log in")
+    for name in sorted(set(credentials) - set(users)):
+        warnings.append(f"user {name!r} has a password but no role: it may do nothing")
+    return warnings

@@ -1,0 +1,132 @@
+"""compose.yaml: docker-compose accepts it, its hardening is there, and every one of its
+services, run locally with its exact command as a client of a secured router (the access file
+of deploy/), joins the bus and announces its presence."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+
+from services.deploy.access import find_access_file, load_access
+from services.deploy.certs import make_all
+from services.topology import load_topology, local_variables
+from tests.conftest import ROOT, VOXSHAPE, free_port
+from tests.test_launcher import read_until
+
+COMPOSE = ROOT / "compose.yaml"
+PROFILES = ("simteacher", "viewer")
+
+
+@pytest.mark.skipif(
+    shutil.which("docker-compose") is None,
+    reason="Debian's docker-compose is missing: `make test` installs it (deploy/apt-packages.txt)",
+)
+@pytest.mark.parametrize("profiles", [(), PROFILES], ids=["default", "all-profiles"])
+def test_docker_compose_accepts_the_file(profiles):
+    flags = [f for p in profiles for f in ("--profile", p)]
+    result = subprocess.run(
+        ["docker-compose", "-f", str(COMPOSE), *flags, "config"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+    assert result.returncode == 0, result.stderr
+    services = yaml.safe_load(result.stdout)["services"]
+    # docker-compose 1.29 lists the services of every profile in `config`
+    assert {"router", "logger", "sim", "learner", "arbiter", "speech", *PROFILES} == set(services)
+
+
+def test_every_container_is_hardened():
+    services = yaml.safe_load(COMPOSE.read_text())["services"]
+    for name, body in services.items():
+        assert body["read_only"] is True, name
+        assert body["cap_drop"] == ["ALL"], name
+        assert "no-new-privileges:true" in body["security_opt"], name
+        assert not str(body["user"]).startswith("0"), name
+        published = [str(p) for p in body.get("ports", [])]
+        assert all(p.startswith("127.0.0.1:") or p == "7448:7448" for p in published), name
+        assert "healthcheck" in body or name == "viewer", name
+    assert any("/secrets:ro" in v for v in services["router"]["volumes"])
+
+
+def test_local_session_runs_the_compose_commands_on_loopback():
+    local = load_topology(COMPOSE, local_variables({}), PROFILES)
+    docker = load_topology(COMPOSE, {}, PROFILES)
+    for here, there in zip(local, docker, strict=True):
+        assert here.name == there.name
+        if here.name != "viewer":  # its bind address is in its command
+            assert here.command == there.command
+    by_name = {s.name: s for s in local}
+    assert by_name["router"].environment["VOXSHAPE_LISTEN"] == "tcp/127.0.0.1:7447"
+    docker_router = next(s for s in docker if s.name == "router")
+    assert docker_router.environment["VOXSHAPE_LISTEN"] == "tcp/0.0.0.0:7447,tls/0.0.0.0:7448"
+    # Containers are secured; the local session is open unless VOXSHAPE_SECRETS is set.
+    assert docker_router.environment["VOXSHAPE_SECRETS"] == "/secrets"
+    assert by_name["router"].environment["VOXSHAPE_SECRETS"] == ""
+    secured = load_topology(COMPOSE, local_variables({"VOXSHAPE_SECRETS": "/s"}))
+    assert {s.environment["VOXSHAPE_SECRETS"] for s in secured} == {"/s"}
+    for spec in local:
+        if spec.name not in ("router", "viewer"):
+            assert spec.environment["VOXSHAPE_MODE"] == "client", spec.name  # never around it
+    assert [s.name for s in local if not s.on_bus] == ["viewer"]
+
+
+@pytest.fixture(scope="module")
+def secrets(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("secrets")
+    make_all(folder, load_access(find_access_file(ROOT)))
+    return folder
+
+
+def test_every_service_joins_a_secured_router_and_announces_itself(
+    spawn, session_id, secrets, tmp_path
+):
+    """`voxshape up` runs compose's commands; here with the simulated teacher's profile and
+    the secrets: each service logs in as its own user with the role deploy/access.toml gives."""
+    port = free_port()
+    env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_SECRETS": str(secrets)}
+    env.pop("VOXSHAPE_USER", None)
+    up = spawn(
+        [VOXSHAPE, "up", "--port", str(port), "--profile", "simteacher", "--ready-timeout", "60"],
+        env=env,
+        text=True,
+        stderr=subprocess.STDOUT,
+        cwd=tmp_path,
+    )
+    lines = read_until(up, r"ready in|error", timeout=120)
+    assert "ready in" in lines[-1], "\n".join(lines)
+    assert any("router     | " in line and "secured:" in line for line in lines), lines
+    status = subprocess.run(
+        [VOXSHAPE, "status", "--json", "--connect", f"tcp/127.0.0.1:{port}", "--user", "launcher"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=env,
+    )
+    assert status.returncode == 0, status.stderr
+    present = {p["node"] for p in json.loads(status.stdout)["present"]}
+    expected = {s.node for s in load_topology(COMPOSE, local_variables({}), ("simteacher",))}
+    assert expected <= present, (expected, present)
+    # Without a password nobody gets in.
+    stranger = subprocess.run(
+        [VOXSHAPE, "status", "--connect", f"tcp/127.0.0.1:{port}", "--connect-timeout", "2"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env={k: v for k, v in env.items() if k != "VOXSHAPE_SECRETS"},
+    )
+    assert stranger.returncode == 2 and "cannot reach" in stranger.stderr
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=60)
+    assert up.returncode == 0, rest
+    stats = json.loads((tmp_path / "runs" / session_id / "logger-stats.json").read_text())
+    # The robot ran through the access control: observations out, the learner's actions back.
+    assert stats.get("received.obs", 0) > 0 and stats.get("received.action", 0) > 0, stats
