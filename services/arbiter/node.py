@@ -7,6 +7,11 @@ Outputs: voxshape/<session>/robot/<robot>/feedback    credited rewards and comma
          voxshape/<session>/robot/<robot>/teaching    interventions per episode, teacher stats
          voxshape/<session>/teacher/<teacher>/notice  understood, or why not -> teacher client
          voxshape/<session>/teacher/<teacher>/clock-reply
+
+Nothing a teacher gives is lost to a restart: utterances are a recovering input (what kept
+teacher outputs published while the router restarted is fetched again; copies are dropped by
+id), and feedback is a kept output, so a learner that was down gets what it missed when it is
+back (it skips, by id, what it took before).
 """
 
 from __future__ import annotations
@@ -41,6 +46,8 @@ from services.runtime import Input, Node, Output, Tick, add_bus_arguments, bus_c
 from services.runtime.logs import worth_logging
 
 TICK = 0.1  # seconds: merge windows and statistics are checked this often
+FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
+UTTERANCE_RECOVERY_S = 5.0  # a (re)joining arbiter asks for this much; older is too late
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -144,7 +151,8 @@ class _Publisher:
                 raise TypeError(f"the arbiter does not publish {type(message).__name__}")
         output = self._outputs.get(key)
         if output is None:
-            output = self._outputs[key] = self.node.output(name, key)
+            keep = FEEDBACK_KEPT if name == "feedback" else 0
+            output = self._outputs[key] = self.node.output(name, key, keep=keep)
         output.put(message)
 
 
@@ -155,7 +163,11 @@ def run(args: argparse.Namespace) -> int:
     with Node("arbiter", bus_config("arbiter", args)) as node:
         publish = _Publisher(node)
         node.input("obs", robot_key(node.session_id, "*", "obs"))
-        node.input("utterance", teacher_key(node.session_id, "*", "utterance"))
+        node.input(
+            "utterance",
+            teacher_key(node.session_id, "*", "utterance"),
+            recover=UTTERANCE_RECOVERY_S,
+        )
         node.input("clock", teacher_key(node.session_id, "*", "clock"))
         node.log.info(
             "arbitrating",

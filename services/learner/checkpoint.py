@@ -4,6 +4,12 @@ Written atomically: the new checkpoint goes to a temporary file that is flushed 
 current one becomes `<name>.prev.npz`, and the temporary file is renamed into place. A crash
 at any moment leaves a complete checkpoint behind. On load, a corrupt file is reported and
 the previous one used, so at most one checkpoint interval of learning is lost.
+
+With the tables go the learner's progress on the bus (`Progress`): the last step it learnt
+from, the ids of the credited feedback it took (so feedback that a kept output delivers again
+after a restart is taken once: exactly the feedback whose effect the tables hold is skipped),
+and the recent visits late feedback is credited to. Checkpoints without them (older ones) load
+with none.
 """
 
 from __future__ import annotations
@@ -13,13 +19,16 @@ import json
 import logging
 import os
 import zipfile
+from collections import OrderedDict
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from services.learner.actions import N_ACTIONS
 from services.learner.config import LearnerConfig
-from services.learner.sarsa import Learner
+from services.learner.sarsa import Learner, _Visit
 
 VERSION = 2
 # Settings that decide what a state or an action is: a table learnt with others is useless.
@@ -32,7 +41,31 @@ REPRESENTATION = (
     "clear_range",
     "goal_prior",
 )
+ARRAYS = ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
+OPTIONAL_ARRAYS = ("visits", "visit_weights")  # the recent visits (not in older checkpoints)
+MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.learner")
+
+
+@dataclass
+class Progress:
+    """Where a learner on the bus stands, saved with its tables."""
+
+    step: int | None = None  # the observation step it learnt from last
+    taken: OrderedDict[str, None] = field(default_factory=OrderedDict)  # feedback ids
+
+    def take(self, feedback_id: str) -> bool:
+        """False if that feedback was taken before; remembers it either way."""
+        if feedback_id in self.taken:
+            return False
+        self.taken[feedback_id] = None
+        if len(self.taken) > MAX_TAKEN:
+            self.taken.popitem(last=False)
+        return True
+
+    @classmethod
+    def of(cls, step: int | None, taken: Iterable[str]) -> Progress:
+        return cls(step, OrderedDict.fromkeys(list(taken)[-MAX_TAKEN:]))
 
 
 class CheckpointError(RuntimeError):
@@ -43,16 +76,20 @@ def previous(path: Path) -> Path:
     return path.with_name(path.name.removesuffix(".npz") + ".prev.npz")
 
 
-def save(learner: Learner, path: Path) -> None:
+def save(learner: Learner, path: Path, progress: Progress | None = None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     config = dataclasses.asdict(learner.config)
+    progress = progress or Progress()
     meta = {
         "version": VERSION,
         "episode": learner.episode,
         "counters": dict(learner.counters),
         "config": config,
         "rng": learner.rng.bit_generator.state,
+        "step": progress.step,
+        "feedback_taken": list(progress.taken),
     }
+    visits = list(learner.recent)
     keys = sorted(learner.states.keys, key=learner.states.keys.get)
     prototypes = (
         np.array(learner.states.prototypes) if learner.states.prototypes else np.zeros((0, 0))
@@ -67,6 +104,10 @@ def save(learner: Learner, path: Path) -> None:
             prototypes=prototypes,
             keys=np.array(keys, dtype=np.int64).reshape(len(keys), 4),
             meta=np.array(json.dumps(meta)),
+            visits=np.array(
+                [(v.first, v.last, v.episode, v.state) for v in visits], dtype=np.int64
+            ).reshape(len(visits), 4),
+            visit_weights=np.array([v.weights for v in visits]).reshape(len(visits), N_ACTIONS),
         )
         f.flush()
         os.fsync(f.fileno())
@@ -77,11 +118,14 @@ def save(learner: Learner, path: Path) -> None:
 
 def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
     """The learner saved at `path`; raises CheckpointError saying what is wrong."""
+    return _load(path, config, seed)[0]
+
+
+def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner, Progress]:
     try:
         with np.load(path, allow_pickle=False) as data:
-            arrays = {
-                name: data[name] for name in ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
-            }
+            arrays = {name: data[name] for name in ARRAYS}
+            arrays |= {name: data[name] for name in OPTIONAL_ARRAYS if name in data.files}
     except FileNotFoundError:
         raise CheckpointError(f"{path}: no such checkpoint") from None
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
@@ -118,16 +162,31 @@ def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]
-    return learner
+    visits, weights = arrays.get("visits"), arrays.get("visit_weights")
+    if visits is not None and weights is not None and weights.shape == (len(visits), N_ACTIONS):
+        learner.recent.extend(
+            _Visit(int(first), int(last), int(episode), int(state), w.copy())
+            for (first, last, episode, state), w in zip(visits, weights, strict=True)
+            if 0 <= state < len(q)
+        )
+    return learner, Progress.of(meta.get("step"), meta.get("feedback_taken", []))
 
 
 def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner | None:
     """The checkpoint at `path`, else the previous one if `path` is corrupt, else None if
     there is none; a corrupt checkpoint with no good previous one raises CheckpointError."""
+    resumed = resume(path, config, seed)
+    return resumed[0] if resumed else None
+
+
+def resume(
+    path: Path, config: LearnerConfig, seed: int | None = None
+) -> tuple[Learner, Progress] | None:
+    """`load_latest` with the progress saved beside the tables."""
     if not path.exists() and not previous(path).exists():
         return None
     try:
-        return load(path, config, seed)
+        return _load(path, config, seed)
     except CheckpointError as error:
         if not previous(path).exists():
             raise
@@ -135,4 +194,4 @@ def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> L
             "checkpoint unusable, using the previous one",
             extra={"voxshape_fields": {"error": str(error), "previous": str(previous(path))}},
         )
-        return load(previous(path), config, seed)
+        return _load(previous(path), config, seed)

@@ -5,6 +5,10 @@ Inputs:  voxshape/<session>/robot/<robot>/obs        the simulator's observation
 Outputs: voxshape/<session>/robot/<robot>/action     one per observation that is not terminal
          voxshape/<session>/robot/<robot>/learning   a summary per step (for the logger)
 Checkpoints every `--checkpoint-every` seconds and on shutdown; restored on start.
+
+Feedback is a recovering input of the arbiter's kept output: what was published while this
+learner was down (killed, restarting) is delivered when it is back, and feedback taken before
+(its id is in the checkpoint) is skipped, so each piece is taken exactly once.
 """
 
 from __future__ import annotations
@@ -20,6 +24,11 @@ from services.learner.config import add_settings_argument, with_settings
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError, Input, Node, add_bus_arguments, bus_config, fields
+
+# Seconds of the arbiter's kept feedback a (re)starting learner asks for: older feedback is
+# about steps long out of its window, and what it took before is skipped by id.
+FEEDBACK_RECOVERY_S = 60.0
+MAX_PENDING = 100_000  # messages looked through for feedback when stopping
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,16 +56,21 @@ def run(args: argparse.Namespace) -> int:
     path = args.checkpoint or Path("runs") / bus.session / f"learner-{robot}.npz"
     config = with_settings(args.set)
     try:
-        learner = None if args.fresh else checkpoint.load_latest(path, config, args.seed)
+        resumed = None if args.fresh else checkpoint.resume(path, config, args.seed)
     except checkpoint.CheckpointError as e:
         raise ConfigError(f"{e}. To start over, run with --fresh (it overwrites it).") from None
-    learner = learner or Learner(config, args.seed)
+    learner, progress = resumed or (Learner(config, args.seed), checkpoint.Progress())
     book = TraceBook()
     with Node("learner", bus) as node:
         node.log.info(
             "learning",
             extra=fields(
-                robot=robot, checkpoint=path, states=len(learner.states), episodes=learner.episode
+                robot=robot,
+                checkpoint=path,
+                states=len(learner.states),
+                episodes=learner.episode,
+                resumed_at_step=progress.step if progress.step is not None else "-",
+                feedback_taken=len(progress.taken),
             ),
         )
         initial = TraceBook.load(args.traces) if args.traces else None
@@ -64,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
             replayed = initial.replay(learner)
             node.log.info("learnt from initial traces", extra=fields(steps=replayed))
         node.input("obs", robot_key(node.session_id, robot, "obs"))
-        node.input("feedback", robot_key(node.session_id, robot, "feedback"))
+        node.input(
+            "feedback", robot_key(node.session_id, robot, "feedback"), recover=FEEDBACK_RECOVERY_S
+        )
         act = node.output("action", robot_key(node.session_id, robot, "action"))
         summary = node.output(
             "learning", robot_key(node.session_id, robot, "learning"), must_arrive=False
@@ -76,6 +92,7 @@ def run(args: argparse.Namespace) -> int:
                 if obs.episode_step == 0 and learner.s is not None:
                     learner.interrupt()  # missed the end of the last episode
                 decision = learner.step(obs)
+                progress.step = obs.step
                 book.record(obs, decision)
                 if decision is None and initial:
                     initial.replay_if_due(learner)
@@ -93,18 +110,30 @@ def run(args: argparse.Namespace) -> int:
                     )
                 summary.put(_summary(learner, obs))
             elif isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
-                _apply(learner, event.message, node)
+                _take(learner, progress, event.message, node)
             if time.monotonic() - last_save >= args.checkpoint_every:
-                checkpoint.save(learner, path)
+                checkpoint.save(learner, path, progress)
                 last_save = time.monotonic()
-        checkpoint.save(learner, path)
+        for _ in range(MAX_PENDING):  # feedback that arrived before the stop is taken too
+            event = node.poll(0)
+            if event is None:
+                break
+            if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
+                _take(learner, progress, event.message, node)
+        checkpoint.save(learner, path, progress)
         if book.episodes:
             book.save(path.with_name(f"traces-{robot}.npz"))
         node.counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
     return 0
 
 
-def _apply(learner: Learner, feedback: CreditedFeedback, node: Node) -> None:
+def _take(
+    learner: Learner, progress: checkpoint.Progress, feedback: CreditedFeedback, node: Node
+) -> None:
+    """Feedback taken once: a copy delivered again (after a restart) is skipped."""
+    if not progress.take(feedback.id):
+        node.counters["learner.feedback_taken_before"] += 1
+        return
     for step in learner.take(feedback):
         node.log.warning(
             "feedback for a step outside the window dropped",

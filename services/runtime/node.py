@@ -9,7 +9,11 @@
                 case Tick(): obs.put(...)
 
 Inputs are decoded strictly with the type their key carries; a malformed message is counted
-and logged, never delivered and never fatal. The node holds a liveliness token at
+and logged, never delivered and never fatal. What must survive a restart of its subscriber or
+of the router goes out on a kept output (`output(..., keep=N)`: zenoh's advanced publisher,
+which keeps its last N messages) and comes in on a recovering input (`input(..., recover=S)`:
+an advanced subscriber that fetches what it missed, and on joining the last S seconds); the
+messages' ids tell a copy from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
 SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
 """
@@ -28,10 +32,21 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 
 import zenoh
+from zenoh.ext import (
+    CacheConfig,
+    HistoryConfig,
+    Miss,
+    MissDetectionConfig,
+    RecoveryConfig,
+    declare_advanced_publisher,
+    declare_advanced_subscriber,
+)
 
 from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
 from services.runtime.config import BusConfig
 from services.runtime.logs import fields, worth_logging
+
+HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
 
 
 class BusError(RuntimeError):
@@ -95,8 +110,10 @@ def open_session(config: BusConfig) -> zenoh.Session:
 class Output:
     """A declared publisher of one key; `put` stamps, validates, encodes and sends."""
 
-    def __init__(self, node: Node, name: str, key: str, publisher: zenoh.Publisher) -> None:
-        self.name, self.key = name, key
+    def __init__(
+        self, node: Node, name: str, key: str, publisher: zenoh.Publisher, kept: bool = False
+    ) -> None:
+        self.name, self.key, self.kept = name, key, kept
         self._node, self._publisher = node, publisher
 
     def put(self, message: Message) -> None:
@@ -107,6 +124,8 @@ class Output:
     def has_subscribers(self) -> bool:
         """Whether a subscriber matches this key now, as far as zenoh knows (through a
         router: once the router has told this session of the subscription)."""
+        if self.kept:
+            raise TypeError(f"output {self.name!r} is kept: zenoh cannot tell its subscribers")
         return self._publisher.matching_status.matching
 
 
@@ -140,19 +159,41 @@ class Node:
         )
 
     # -- declarations -------------------------------------------------------------------
-    def output(self, name: str, key: str, *, must_arrive: bool = True) -> Output:
+    def output(self, name: str, key: str, *, must_arrive: bool = True, keep: int = 0) -> Output:
         """A publisher. `must_arrive` (default) blocks instead of dropping under congestion.
+        `keep` > 0 keeps the last `keep` messages for recovering inputs that missed them (a
+        subscriber restarted, the router restarted).
 
         Express: each message leaves at once rather than waiting to be batched. Every
         voxshape message is small and latency-bound; `voxshape bench sim` measured no
         difference in lockstep speed either way (the round trip is Python-bound)."""
         congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
-        publisher = self.session.declare_publisher(key, congestion_control=congestion, express=True)
+        if keep > 0:
+            publisher = declare_advanced_publisher(
+                self.session,
+                key,
+                congestion_control=congestion,
+                express=True,
+                cache=CacheConfig(max_samples=keep),
+                sample_miss_detection=MissDetectionConfig(
+                    heartbeat=None, sporadic_heartbeat=HEARTBEAT_S
+                ),
+                publisher_detection=True,
+            )
+        else:
+            publisher = self.session.declare_publisher(
+                key, congestion_control=congestion, express=True
+            )
         self._declared.append(publisher)
-        return Output(self, name, key, publisher)
+        return Output(self, name, key, publisher, kept=keep > 0)
 
-    def input(self, name: str, key: str) -> None:
-        """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...)."""
+    def input(self, name: str, key: str, *, recover: float = 0.0) -> None:
+        """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...).
+
+        `recover` > 0: what kept outputs published while this input could not hear them is
+        fetched from them (their sequence numbers show the gaps), and on joining, what they
+        published in the last `recover` seconds; messages that were lost for good anyway are
+        counted as `missed.<input>`. Copies can arrive: tell them apart by message id."""
 
         def on_sample(sample: zenoh.Sample) -> None:
             key_text = str(sample.key_expr)
@@ -168,7 +209,23 @@ class Node:
             self.counters[f"received.{name}"] += 1
             self._queue.put(Input(name, key_text, message))
 
-        self._declared.append(self.session.declare_subscriber(key, on_sample))
+        if recover <= 0:
+            self._declared.append(self.session.declare_subscriber(key, on_sample))
+            return
+
+        def on_miss(miss: Miss) -> None:
+            self.counters[f"missed.{name}"] += miss.nb
+            self.log.warning("messages lost for good", extra=fields(input=name, count=miss.nb))
+
+        subscriber = declare_advanced_subscriber(
+            self.session,
+            key,
+            on_sample,
+            history=HistoryConfig(detect_late_publishers=True, max_age=recover),
+            recovery=RecoveryConfig(periodic_queries=None, heartbeat=True),
+            subscriber_detection=True,
+        )
+        self._declared.extend([subscriber, subscriber.sample_miss_listener(on_miss)])
 
     def watch_presence(self, role: str = "*", node: str = "*") -> None:
         """Presence events for nodes of the session, including those already present."""

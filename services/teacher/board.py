@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 from protocol import CreditedFeedback, EpisodeEvent, Observation, TeacherNotice, Utterance
 from protocol.vocabulary import Vocabulary
@@ -113,3 +114,49 @@ class Board:
         """The arbiter's verdict on one utterance: understood, or why it was ignored."""
         data = {"robot": n.robot, "utterance": n.utterance, "kind": n.kind, "meaning": n.meaning}
         return [Shown("notice", f"arbiter: {n.text}", data)]
+
+
+SpeechUse = Literal["audio", "through_speech", "typed"]
+
+
+class SpeechWatch:
+    """Which speech services are present, and what their going and coming back means to this
+    teacher (`use`: how its words travel). Says nothing until one is lost: a teacher who
+    streams audio was already told at start if none was there."""
+
+    def __init__(self, use: SpeechUse) -> None:
+        self.use = use
+        self.present: set[str] = set()
+        self.lost = False
+
+    @property
+    def available(self) -> bool:
+        return bool(self.present)
+
+    def change(self, node: str, alive: bool) -> list[Shown]:
+        was = self.available
+        (self.present.add if alive else self.present.discard)(node)
+        data = {"node": node, "available": self.available, "use": self.use}
+        if was and not self.available:
+            self.lost = True
+            return [
+                Shown("speech", _SPEECH_GONE[self.use], {"message": _SPEECH_GONE[self.use], **data})
+            ]
+        if self.lost and not was and self.available:
+            text = f"speech service {node} is back: " + _SPEECH_BACK[self.use]
+            return [Shown("speech", text, {"message": text, **data})]
+        return []
+
+
+_SPEECH_GONE = {
+    "audio": "the speech service is gone: what you say is NOT heard until it is back "
+    "(`voxshape speech`); typed words still work: run `voxshape teach` without --wav/--mic",
+    "through_speech": "the speech service is gone: your typed words now go straight to the "
+    "arbiter (not through speech) until it is back",
+    "typed": "the speech service is gone (your typed words are not affected)",
+}
+_SPEECH_BACK = {
+    "audio": "what you say is heard again",
+    "through_speech": "typed words go through speech again",
+    "typed": "spoken words are heard again",
+}

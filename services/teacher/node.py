@@ -3,6 +3,7 @@
 Outputs: voxshape/<session>/teacher/<teacher>/audio      microphone or WAV chunks
          voxshape/<session>/teacher/<teacher>/utterance  typed words (engine "typed")
          voxshape/<session>/teacher/<teacher>/said       typed words, with --through-speech
+                                                         (straight out while no speech service)
 Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
          voxshape/<session>/teacher/<teacher>/notice     what the arbiter made of it
          voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
@@ -12,6 +13,9 @@ Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
     voxshape teach --wav good.wav --wav left.wav   stream recordings in real time (--fast)
     voxshape teach --mic                        speak
     voxshape teach --connect tls/lab.example:7447 --tls-root-ca ca.pem --user ana ...
+
+Typed words are a kept output: those typed while the router restarts reach the arbiter when
+it is back. The teacher is told when the speech service goes and comes back.
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ import queue
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Protocol
@@ -36,6 +40,7 @@ from protocol import (
     EpisodeEvent,
     Message,
     Observation,
+    Said,
     TeacherNotice,
     Utterance,
     Vocabulary,
@@ -57,7 +62,7 @@ from services.runtime import (
 )
 from services.runtime.clock import ClockSyncError, sync_clock
 from services.speech.audio import AudioError, samples_to_pcm
-from services.teacher.board import Board, Shown
+from services.teacher.board import Board, Shown, SpeechWatch
 from services.teacher.sources import (
     Scheduled,
     TeachError,
@@ -72,6 +77,7 @@ from services.teacher.sources import (
 
 TICK_S = 0.02
 CLOCK_SYNC_EVERY_S = 60.0  # clocks drift: the exchange with the arbiter is repeated
+UTTERANCES_KEPT = 256  # typed utterances kept for an arbiter that missed them
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -162,14 +168,26 @@ def run(args: argparse.Namespace) -> int:
         stack.enter_context(_ClockSync(node, teacher, screen))
         for topic in ("obs", "episode", "feedback"):
             node.input(topic, robot_key(session, robot, topic))
+        speech = SpeechWatch(
+            "audio"
+            if args.wav or args.mic
+            else "through_speech"
+            if args.through_speech
+            else "typed"
+        )
+        node.watch_presence(role="speech")
+        outputs: dict[type, Output] = {}
         if args.wav or args.mic:
-            out = node.output("audio", teacher_key(session, teacher, "audio"))
-        elif args.through_speech:
-            out = node.output("said", teacher_key(session, teacher, "said"))
+            outputs[AudioChunk] = node.output("audio", teacher_key(session, teacher, "audio"))
         else:
-            out = node.output("utterance", teacher_key(session, teacher, "utterance"))
+            outputs[Utterance] = node.output(
+                "utterance", teacher_key(session, teacher, "utterance"), keep=UTTERANCES_KEPT
+            )
+        if args.through_speech:
+            outputs[Said] = node.output("said", teacher_key(session, teacher, "said"))
         if args.wav or args.mic or args.through_speech:
-            _wait_for_speech(node, out, board, screen, args.wait_speech)
+            speech_input = outputs[AudioChunk if speech.use == "audio" else Said]
+            _wait_for_speech(node, speech_input, speech, board, screen, args.wait_speech)
         if args.wav:
             start = time.time()
             sender: Sender = _Scheduled(wav_stream(recordings, teacher, robot, start, args.fast))
@@ -183,23 +201,25 @@ def run(args: argparse.Namespace) -> int:
             sender = _Microphone(mic_chunks, teacher, robot)
             screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
         else:
-            sender = _Typed(teacher, robot, args.language, args.through_speech, screen, vocabulary)
-        _loop(node, out, sender, board, screen, args.linger)
+
+            def via_speech() -> bool:
+                return args.through_speech and speech.available
+
+            sender = _Typed(teacher, robot, args.language, via_speech, screen, vocabulary)
+        _loop(node, outputs, sender, speech, board, screen, args.linger)
     return 0
 
 
-def _wait_for_speech(node: Node, out: Output, board: Board, screen: Screen, seconds: float) -> None:
+def _wait_for_speech(
+    node: Node, out: Output, speech: SpeechWatch, board: Board, screen: Screen, seconds: float
+) -> None:
     """Until a speech node is present and something subscribes to what this teacher sends
     (presence alone comes a moment before the subscription; a logger subscribes to all)."""
-    node.watch_presence(role="speech")
     deadline = time.monotonic() + seconds
-    present: set[str] = set()
-    while not (present and out.has_subscribers()) and time.monotonic() < deadline:
+    while not (speech.available and out.has_subscribers()) and time.monotonic() < deadline:
         event = node.poll(0.05)
-        if isinstance(event, Presence):
-            (present.add if event.alive else present.discard)(event.node)
-        _show_event(event, board, screen)
-    if not (present and out.has_subscribers()):
+        _show_event(event, speech, board, screen)
+    if not (speech.available and out.has_subscribers()):
         screen.note(
             "warning",
             f"no speech service listens in session {node.session_id!r} yet: what you say may be "
@@ -207,7 +227,9 @@ def _wait_for_speech(node: Node, out: Output, board: Board, screen: Screen, seco
         )
 
 
-def _show_event(event: object, board: Board, screen: Screen) -> None:
+def _show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen) -> None:
+    if isinstance(event, Presence) and event.role == "speech":
+        screen.show(speech.change(event.node, event.alive))
     if not isinstance(event, Input):
         return
     message = event.message
@@ -265,13 +287,19 @@ class _ClockSync:
 
 
 def _loop(
-    node: Node, out: Output, sender: Sender, board: Board, screen: Screen, linger: float
+    node: Node,
+    outputs: dict[type, Output],
+    sender: Sender,
+    speech: SpeechWatch,
+    board: Board,
+    screen: Screen,
+    linger: float,
 ) -> None:
     lingering_until = None
     for event in node.events(tick=TICK_S):
-        _show_event(event, board, screen)
+        _show_event(event, speech, board, screen)
         for message in sender.due():
-            out.put(message)
+            outputs[type(message)].put(message)
         if sender.done:
             if lingering_until is None:
                 lingering_until = time.monotonic() + linger
@@ -341,13 +369,15 @@ class _Typed:
         teacher: str,
         robot: str,
         language: str,
-        through_speech: bool,
+        via_speech: Callable[[], bool],
         screen: Screen,
         vocabulary: Vocabulary,
     ) -> None:
+        """`via_speech()`: whether a line goes to the speech service now (else straight out as
+        an utterance)."""
         self._lines: queue.SimpleQueue = queue.SimpleQueue()
         self._args = (teacher, robot, language)
-        self._through_speech = through_speech
+        self._via_speech = via_speech
         self._screen = screen
         self._vocabulary = vocabulary
         self.done = False
@@ -389,4 +419,4 @@ class _Typed:
                     text=text,
                 )
             teacher, robot, language = self._args
-            out.append(typed(text, teacher, robot, language, time.time(), self._through_speech))
+            out.append(typed(text, teacher, robot, language, time.time(), self._via_speech()))
