@@ -10,6 +10,7 @@ from types import ModuleType
 from protocol import ProtocolError, VocabularyError
 from services import demo, launcher, router, tools
 from services.arbiter import node as arbiter_node
+from services.deploy import certs as deploy_certs
 from services.experiment import commands as experiment_commands
 from services.learner import commands as learner_commands
 from services.learner import node as learner_node
@@ -19,10 +20,11 @@ from services.logger import replay as logger_replay
 from services.logger import report as logger_report
 from services.logger import view as logger_view
 from services.logger.run import RunError
-from services.runtime import BusError, ConfigError, add_bus_arguments, configure_logging
+from services.runtime import BusError, ConfigError, configure_logging
 from services.sim import commands as sim_commands
 from services.sim import node as sim_node
 from services.sim.maps import MapError
+from services.simteacher import node as simteacher_node
 from services.speech import node as speech_node
 from services.teacher import node as teacher_node
 from services.topology import TopologyError
@@ -42,7 +44,11 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
         "start the local session: every service of compose.yaml as its own process",
         *_module(launcher),
     ),
-    "router": ("run the zenoh router of a session", add_bus_arguments, router.run),
+    "router": ("run the zenoh router of a session", *_module(router)),
+    "certs": (
+        "make a development CA, TLS certificates and passwords for a secured session",
+        *_module(deploy_certs),
+    ),
     "sim": ("run the simulator: PyBullet world, robots, episodes", *_module(sim_node)),
     "learner": (
         "run the learner: SARSA(lambda) with dynamic reward shaping",
@@ -91,6 +97,10 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
     "arbiter": (
         "run the feedback arbiter: utterances in, credited rewards and commands out",
         *_module(arbiter_node),
+    ),
+    "sim-teacher": (
+        "run the simulated teacher: watches a robot, speaks through the speech service",
+        *_module(simteacher_node),
     ),
     "experiment": (
         "run the paper's experiments in-process (simulated teacher): tables and figure",

@@ -1,129 +1,299 @@
 """`voxshape demo`: the main job on the embedded default (a local session, no docker).
 
-The full demo trains a robot by voice. Until all its services exist, it starts the ones that
-do, proves the bus carries every message type through the session router, and says exactly
-which services are still missing. Nothing is faked.
+Starts the session of compose.yaml (router, logger, simulator, learner, speech, arbiter), each
+service its own process, plus a simulated teacher that speaks: synthesized audio through
+pocketsphinx when espeak-ng and sox are installed, else text through the mock speech engine.
+It trains task 1 until the learner converges (services/learner/convergence.py), showing each
+episode, then stops the session and writes the logger's recording, the report's pictures
+(services/logger/report.py) and a table of the episodes under runs/<session>/.
+
+The simulator runs paced at `--rtf` times real time: the arbiter credits what teachers say by
+the wall-clock display time of the steps, so the robot must not outrun that (a lockstep
+simulator here runs ~500 steps/s, and 0.1 s of a teacher's timing would cover 50 steps).
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
+import os
+import shutil
 import time
-from dataclasses import replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from protocol import MESSAGE_TYPES, Observation, robot_key
-from protocol.examples import example_messages
+from protocol import EpisodeEvent, TeachingStats, robot_key
 from services import launcher
-from services.runtime import BusError, Input, Node, bus_config
-from services.sim.maps import Pose, load_map
-from services.sim.render import render_map
+from services.learner.config import LearnerConfig
+from services.learner.convergence import Convergence, Episode
+from services.learner.train import convergence_on
+from services.logger.report import write_report
+from services.logger.run import RunDir, RunError
+from services.runtime import BusError, Input, Tick
+from services.sim.maps import load_map
+from services.topology import ServiceSpec
 
-# Every service of the main job: compose service command -> what it is.
-MAIN_JOB = {
-    "router": "zenoh router of the session",
-    "sim": "simulator: PyBullet world and robot (issue 3)",
-    "learner": "learner: SARSA(lambda) with dynamic reward shaping (issue 4)",
-    "speech": "speech service: vosk / pocketsphinx / mock (issue 5)",
-    "arbiter": "feedback arbiter: clocks, delay credit, teachers (issue 6)",
-    "logger": "logger: rerun recording and event log (issue 7)",
-    "sim-teacher": "simulated teacher (issue 8)",
-}
+ROBOT, TEACHER = "r1", "simteacher"
+TASK = "1"
+FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within the arbiter's
+# settle time (3 s); an episode is shown without them after this
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     launcher.add_arguments(parser)
-    parser.add_argument("--rounds", type=int, default=20, help="bus check rounds per type")
-
-
-def bus_check(session: launcher.Session, rounds: int) -> tuple[int, list[float]]:
-    """Sends each example message `rounds` times from a second client through the router and
-    waits for it on the launcher's node; returns (types that arrived, round-trip seconds)."""
-    assert session.bus is not None
-    receiver = session.bus
-    examples = example_messages(receiver.session_id, robot="demo", teacher="demo")
-    for key, _ in examples:
-        receiver.input(key.rsplit("/", 1)[-1], key)
-    probe_config = replace(bus_config("demo"), mode="client", connect=(session.router,))
-    arrived: set[str] = set()
-    trips: list[float] = []
-    with Node("demo-probe", probe_config, quiet=True) as probe:
-        outputs = [
-            (probe.output(key.rsplit("/", 1)[-1], key), message) for key, message in examples
-        ]
-        time.sleep(0.2)  # let the subscriptions reach the router
-        for _ in range(rounds):
-            for output, message in outputs:
-                t0 = time.perf_counter()
-                output.put(message)
-                while (event := receiver.poll(2.0)) is not None:
-                    if isinstance(event, Input) and event.message.id == message.id:
-                        trips.append(time.perf_counter() - t0)
-                        arrived.add(event.message.TYPE)
-                        break
-    return len(arrived), trips
-
-
-def watch_simulator(session: launcher.Session, seconds: float = 1.0) -> Observation | None:
-    """Listens to the simulator's robots for a moment; draws the last pose and scan seen."""
-    assert session.bus is not None
-    session.bus.input("obs", robot_key(session.bus.session_id, "*", "obs"))
-    seen: list[Observation] = []
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        event = session.bus.poll(0.1)
-        if isinstance(event, Input) and isinstance(event.message, Observation):
-            seen.append(event.message)
-    if not seen:
-        session.say(f"simulator: no observation within {seconds:g} s")
-        return None
-    last = seen[-1]
-    out = Path("runs") / session.bus.session_id
-    out.mkdir(parents=True, exist_ok=True)
-    picture = out / "demo-sim.png"
-    sim = next(spec for spec in session.specs if spec.command[1:2] == ("sim",))
-    task = load_map(sim.environment.get("VOXSHAPE_TASK", "1"))
-    pose = Pose(last.x, last.y, last.theta)
-    render_map(task, pose=pose, scan=np.array(last.laser), path=picture)
-    session.say(
-        f"simulator: {len(seen)} observations of robot {last.robot} in {seconds:g} s "
-        f"(step {last.step}, at x={last.x:.2f} y={last.y:.2f}); picture: {picture}"
+    parser.add_argument(
+        "--max-episodes", type=int, default=60, help="give up if not converged by then"
     )
-    return last
+    parser.add_argument(
+        "--rtf", type=float, default=10.0, help="simulated seconds per wall second (paced)"
+    )
+    parser.add_argument(
+        "--speech",
+        choices=("auto", "audio", "mock"),
+        default="auto",
+        help="audio: synthesized speech through pocketsphinx; mock: text through the mock "
+        "engine; auto: audio when espeak-ng and sox are installed",
+    )
+    parser.add_argument("--seed", type=int, default=1, help="the simulated teacher's")
+    parser.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=120.0,
+        help="seconds without an episode ending before giving up",
+    )
+
+
+@dataclass
+class Shown:
+    """An ended episode as displayed."""
+
+    number: int
+    outcome: str
+    steps: int
+    seconds: float
+    ended_at: float  # monotonic
+    interventions: int | None = None  # None until final (or given up waiting)
+
+
+@dataclass
+class Progress:
+    """Episodes of one robot and the arbiter's interventions per episode, to convergence
+    (pure: messages in, lines out)."""
+
+    robot: str
+    max_episodes: int
+    convergence: Convergence = field(
+        default_factory=lambda: convergence_on(load_map(TASK), LearnerConfig())
+    )
+    episodes: list[Shown] = field(default_factory=list)
+    interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
+    _shown: int = 0
+
+    def on_episode(self, event: EpisodeEvent, now: float) -> None:
+        if event.robot != self.robot or event.kind == "start" or self.done:
+            return
+        seconds = event.episode_steps * 0.1
+        self.episodes.append(Shown(event.episode, event.kind, event.episode_steps, seconds, now))
+        self.convergence.add(Episode(event.kind, event.episode_steps, seconds))
+
+    def on_teaching(self, stats: TeachingStats) -> None:
+        if stats.robot == self.robot:
+            self.interventions[stats.episode] = (stats.interventions, stats.final)
+
+    @property
+    def done(self) -> bool:
+        return self.convergence.converged or len(self.episodes) >= self.max_episodes
+
+    def due_lines(self, now: float, flush: bool = False) -> list[str]:
+        """Lines of the ended episodes whose interventions are final (or waited for enough)."""
+        lines = []
+        while self._shown < len(self.episodes):
+            e = self.episodes[self._shown]
+            count, final = self.interventions.get(e.number, (0, False))
+            if not (final or flush or now - e.ended_at >= FINAL_WAIT_S):
+                break
+            e.interventions = count
+            lines.append(self.line(e))
+            self._shown += 1
+        return lines
+
+    def line(self, e: Shown) -> str:
+        c = self.convergence
+        converged = c.converged and e.number == self.episodes[c.n_episodes - 1].number
+        return (
+            f"episode {e.number:>3}  {e.outcome:<9} {e.steps:>5} steps "
+            f"({e.seconds:6.1f} s of robot time)  interventions {e.interventions:>3}"
+            + ("  <- converged" if converged else "")
+        )
+
+    @property
+    def all_shown(self) -> bool:
+        return self._shown >= len(self.episodes)
+
+    def table(self) -> str:
+        c = self.convergence
+        rows = [
+            f"| {e.number} | {e.outcome} | {e.steps} | {e.seconds:.1f} | "
+            f"{'-' if e.interventions is None else e.interventions} |"
+            for e in self.episodes
+        ]
+        verdict = (
+            f"converged after {c.n_episodes} episodes, {c.learning_time / 60:.1f} robot minutes, "
+            f"{sum(e.interventions or 0 for e in self.episodes[: c.n_episodes])} interventions"
+            if c.converged
+            else f"not converged within {len(self.episodes)} episodes"
+        )
+        return "\n".join(
+            [
+                f"# Demo: robot {self.robot}, task {TASK}, taught by a simulated teacher",
+                "",
+                f"{verdict} (convergence: {c.rule()}).",
+                "",
+                "| episode | outcome | steps | robot seconds | interventions |",
+                "|---|---|---|---|---|",
+                *rows,
+                "",
+            ]
+        )
+
+
+def speech_mode(choice: str) -> str:
+    if choice != "auto":
+        return choice
+    return "audio" if shutil.which("espeak-ng") and shutil.which("sox") else "mock"
+
+
+def prepare_environment(args: argparse.Namespace, mode: str) -> str:
+    """The variables compose.yaml and the services read (the shell's own win); the session."""
+    session = os.environ.get("VOXSHAPE_SESSION") or time.strftime("demo-%Y%m%d-%H%M%S")
+    defaults = {
+        "VOXSHAPE_SESSION": session,
+        "VOXSHAPE_TASK": TASK,
+        "VOXSHAPE_ROBOTS": ROBOT,
+        "VOXSHAPE_ROBOT": ROBOT,
+        "VOXSHAPE_CLOCK": "paced",
+        "VOXSHAPE_RTF": f"{args.rtf:g}",
+        "VOXSHAPE_SPEECH_ENGINE": "pocketsphinx" if mode == "audio" else "mock",
+        "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
+    }
+    for name, value in defaults.items():
+        os.environ.setdefault(name, value)
+    return os.environ["VOXSHAPE_SESSION"]
+
+
+def teacher_spec(session: launcher.Session, mode: str, seed: int) -> ServiceSpec:
+    """The simulated teacher as one more service of the session (on the learner's bus
+    settings), started last."""
+    bus = next(s for s in session.specs if s.name == "learner").environment
+    command = ["voxshape", "sim-teacher", "--seed", str(seed)]
+    if mode == "audio":
+        command.append("--audio")
+    environment = {
+        **bus,
+        "VOXSHAPE_NODE": TEACHER,
+        "VOXSHAPE_TEACHER": TEACHER,
+        "VOXSHAPE_ROBOT": ROBOT,
+        "VOXSHAPE_TASK": os.environ["VOXSHAPE_TASK"],
+    }
+    return ServiceSpec("sim-teacher", tuple(command), environment, ("router", "speech"), ())
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.max_episodes < 3 or args.rtf <= 0:
+        print("voxshape demo: error: --max-episodes must be >= 3 and --rtf > 0")
+        return 2
+    mode = speech_mode(args.speech)
+    session_id = prepare_environment(args, mode)
     session = launcher.open_session(args)
-    have = {spec.command[1] for spec in session.specs if len(spec.command) > 1}
-    missing = [what for command, what in MAIN_JOB.items() if command not in have]
-    session.say("voxshape demo: the main job trains a robot by voice in a local session.")
+    if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
+        session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
+        return 2
+    session.specs.append(teacher_spec(session, mode, args.seed))
+    speaks = (
+        "synthesized speech (espeak-ng) heard by pocketsphinx"
+        if mode == "audio"
+        else "text heard by the mock speech engine"
+    )
+    session.say(
+        f"voxshape demo: session {session_id!r}, task 1, robot {ROBOT} at {args.rtf:g}x real "
+        f"time, taught by a simulated teacher speaking {speaks}"
+    )
+    progress = Progress(ROBOT, args.max_episodes)
     code = 0
+    t0 = time.monotonic()
     try:
         took = session.start()
-        session.say(f"session up in {took:.1f} s with: {', '.join(s.name for s in session.specs)}")
-        n_types, trips = bus_check(session, args.rounds)
-        ms = sorted(t * 1000 for t in trips)
-        session.say(
-            f"bus check: {n_types}/{len(MESSAGE_TYPES)} message types crossed the router "
-            f"({len(trips)} messages), round trip p50 {statistics.median(ms):.2f} ms, "
-            f"max {ms[-1]:.2f} ms"
-            if ms
-            else "bus check: no message arrived"
-        )
-        if n_types != len(MESSAGE_TYPES):
-            code = 1
-        if "sim" in have and watch_simulator(session) is None:
-            code = 1
-    except (launcher.ServiceDied, launcher.LaunchAborted, BusError) as e:
+        session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
+        train(session, progress, args.stall_timeout)
+    except (launcher.ServiceDied, launcher.LaunchAborted, BusError, TimeoutError) as e:
         session.say(f"error: {e}")
         code = 1
+    except KeyboardInterrupt:
+        session.say("interrupted")
+        code = 130
     finally:
         session.stop()
-    if missing:
-        session.say("not built yet, so nobody teaches the robot by voice in this demo:")
-        for what in missing:
-            session.say(f"  - {what}")
-    return code
+    for line in progress.due_lines(time.monotonic(), flush=True):
+        session.say(line)
+    minutes = (time.monotonic() - t0) / 60
+    if code == 0 and not progress.convergence.converged:
+        session.say(
+            f"gave up: not converged within {args.max_episodes} episodes (--max-episodes; "
+            "learning is random, another --seed or more episodes may do)"
+        )
+        code = 1
+    elif code == 0:
+        c = progress.convergence
+        session.say(
+            f"converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} robot minutes, "
+            f"{minutes:.1f} wall minutes in all)"
+        )
+    return outputs(session, session_id, progress) or code
+
+
+def train(session: launcher.Session, progress: Progress, stall_timeout: float) -> None:
+    """Shows episodes as they end until convergence or the episode bound."""
+    bus = session.bus
+    assert bus is not None
+    bus.input("episode", robot_key(bus.session_id, ROBOT, "episode"))
+    bus.input("teaching", robot_key(bus.session_id, ROBOT, "teaching"))
+    last_end = time.monotonic()
+    done_at: float | None = None
+    for event in bus.events(tick=0.5):
+        now = time.monotonic()
+        if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
+            if event.message.kind != "start" and not progress.done:
+                last_end = now
+            progress.on_episode(event.message, now)
+        elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
+            progress.on_teaching(event.message)
+        elif isinstance(event, Tick):
+            for name, proc in session.procs.items():
+                if proc.poll() is not None:
+                    raise launcher.ServiceDied(name, proc.returncode)
+        for line in progress.due_lines(now):
+            session.say(line)
+        if progress.done:
+            done_at = done_at or now
+            if progress.all_shown or now - done_at > FINAL_WAIT_S:
+                return
+        elif now - last_end > stall_timeout:
+            raise TimeoutError(f"no episode ended for {stall_timeout:g} s: is the robot stuck?")
+    raise KeyboardInterrupt
+
+
+def outputs(session: launcher.Session, session_id: str, progress: Progress) -> int:
+    """Writes the report and the episode table; says where everything is."""
+    run_dir = Path("runs") / session_id
+    try:
+        written = write_report(RunDir.existing(run_dir))
+    except RunError as e:
+        session.say(f"error: no report: {e}")
+        return 1
+    table = run_dir / "demo.md"
+    table.write_text(progress.table(), encoding="utf-8")
+    recording = run_dir / "recording.rrd"
+    session.say(f"written under {run_dir}/:")
+    for path in [recording, table, *written]:
+        session.say(f"  {path}{'' if path.exists() else '  (missing!)'}")
+    session.say(f"look at it: voxshape view {run_dir}   (or open {written[-1]})")
+    return 0 if recording.exists() else 1

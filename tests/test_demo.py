@@ -1,0 +1,98 @@
+"""`voxshape demo`, the main job: it runs for real (every service its own process, taught by
+the simulated teacher through the mock speech engine) to convergence and leaves its
+recording, pictures and table; and its progress display, episodes shown with their final
+interventions, to convergence or the episode bound."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+
+import pytest
+
+from protocol import EpisodeEvent, TeachingStats
+from services.demo import FINAL_WAIT_S, Progress
+from services.runtime import free_loopback_port
+from tests.conftest import VOXSHAPE
+
+DEMO_TIMEOUT_S = 600  # measured: 28 episodes in 97 s at 20x (task 1, 2 loaded cores)
+
+
+@pytest.mark.timeout(DEMO_TIMEOUT_S + 30)
+def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(session_id, tmp_path):
+    port = str(free_loopback_port())
+    argv = [VOXSHAPE, "demo", "--speech", "mock", "--rtf", "20", "--max-episodes", "100"]
+    result = subprocess.run(
+        [*argv, "--port", port],
+        capture_output=True,
+        text=True,
+        timeout=DEMO_TIMEOUT_S,
+        env={**os.environ, "VOXSHAPE_SESSION": session_id},
+        cwd=tmp_path,  # it writes under ./runs
+    )
+    out = result.stdout + result.stderr
+    assert result.returncode == 0, out
+    converged = re.search(r"converged after (\d+) episodes", out)
+    assert converged, out
+    print(converged.group(0))
+    (run_dir,) = (tmp_path / "runs").iterdir()
+    table = (run_dir / "demo.md").read_text()
+    assert converged.group(0) in table
+    interventions = [int(n) for n in re.findall(r"\| (\d+) \|\s*$", table, re.MULTILINE)]
+    assert sum(interventions) > 0, table  # the teacher was heard
+    assert (run_dir / "recording.rrd").stat().st_size > 10_000
+    assert list(run_dir.glob("report/learning-*.png")), sorted(run_dir.rglob("*"))
+    assert f"voxshape view runs/{run_dir.name}" in out
+
+
+def ended(episode: int, steps: int, kind: str = "goal") -> EpisodeEvent:
+    return EpisodeEvent(
+        robot="r1",
+        episode=episode,
+        step=1000 * episode + steps,
+        kind=kind,
+        episode_steps=steps,
+        sim_time=steps * 0.1,
+        wall_time=1.0,
+        env_return=-float(steps),
+    )
+
+
+def stats(episode: int, interventions: int, final: bool) -> TeachingStats:
+    return TeachingStats(
+        robot="r1", episode=episode, final=final, interventions=interventions, teachers=()
+    )
+
+
+def test_an_episode_is_shown_once_its_interventions_are_final_or_waited_for():
+    progress = Progress("r1", max_episodes=10)
+    progress.on_episode(ended(0, 900, "timeout"), now=0.0)
+    progress.on_teaching(stats(0, 4, final=False))
+    assert progress.due_lines(now=1.0) == []
+    progress.on_teaching(stats(0, 7, final=True))
+    (line,) = progress.due_lines(now=1.0)
+    assert "episode   0" in line and "timeout" in line and "interventions   7" in line
+    progress.on_episode(ended(1, 300), now=2.0)  # no final statistics: shown after a while
+    assert progress.due_lines(now=2.5) == []
+    assert "interventions   0" in progress.due_lines(now=2.0 + FINAL_WAIT_S)[0]
+
+
+def test_it_is_done_at_convergence_and_marks_the_episode():
+    progress = Progress("r1", max_episodes=10)
+    for n, steps in enumerate([2000, 400, 150, 160, 170]):
+        progress.on_episode(ended(n, steps), now=0.0)
+    assert progress.done and progress.convergence.n_episodes == 5
+    lines = progress.due_lines(now=0.0, flush=True)
+    assert lines[-1].endswith("<- converged") and len(lines) == 5
+    assert "converged after 5 episodes" in progress.table()
+
+
+def test_it_gives_up_at_the_episode_bound_and_ignores_other_robots():
+    progress = Progress("r1", max_episodes=3)
+    progress.on_episode(EpisodeEvent(**{**ended(0, 10).__dict__, "robot": "r2"}), now=0.0)
+    assert progress.episodes == []
+    for n in range(3):
+        progress.on_episode(ended(n, 3000, "timeout"), now=0.0)
+    assert progress.done and not progress.convergence.converged
+    assert "not converged within 3 episodes" in progress.table()
