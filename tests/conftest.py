@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from services.runtime import BusConfig, Input, Node, bus_config
+from services.runtime import BusConfig, Input, Node, Presence, bus_config
 from services.runtime import free_loopback_port as free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,6 +103,20 @@ def collect(node: Node, n: int, kind: type | tuple[type, ...], timeout: float = 
             got.append(event.message)
     assert len(got) == n, f"got {len(got)} of {n} {kind} within {timeout} s"
     return got
+
+
+def wait_present(node: Node, names: set[str] | str, timeout: float = 30.0) -> None:
+    """Until every named node has announced itself (the node watches presence), then a moment
+    for their subscriptions to reach the router with their tokens."""
+    names = {names} if isinstance(names, str) else names
+    present: set[str] = set()
+    deadline = time.monotonic() + timeout
+    while not names <= present and time.monotonic() < deadline:
+        event = node.poll(0.1)
+        if isinstance(event, Presence) and event.alive:
+            present.add(event.node)
+    assert names <= present, f"not present after {timeout} s: {sorted(names - present)}"
+    time.sleep(0.5)
 
 
 def quiet(node: Node, seconds: float) -> list:

@@ -20,21 +20,12 @@ from protocol import (
     to_wire,
 )
 from services.arbiter.scripted import observation, utterance
-from services.runtime import Node, Presence
+from services.runtime import Node
 from services.runtime.clock import ClockSyncError, sync_clock
-from tests.conftest import VOXSHAPE, bus_args, collect
+from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
 
 PERIOD = 0.05  # the fake simulator's step period
 SKEW = 5.0  # the teacher's clock is this far ahead
-
-
-def wait_present(node: Node, who: str, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        event = node.poll(0.1)
-        if isinstance(event, Presence) and event.node == who and event.alive:
-            return
-    pytest.fail(f"{who} did not join within {timeout} s")
 
 
 def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
@@ -51,7 +42,6 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         obs = node.output("obs", robot_key(session_id, "r1", "obs"))
         said = node.output("utterance", teacher_key(session_id, "ana", "utterance"))
         wait_present(node, "arbiter")
-        time.sleep(0.3)  # its subscriptions reach the router with its token
 
         teacher_clock = lambda: time.time() + SKEW  # noqa: E731
         estimate = sync_clock(node, "ana", clock=teacher_clock)

@@ -10,8 +10,8 @@ from collections.abc import Callable
 import pytest
 
 from protocol import CreditedFeedback, TeachingStats, robot_key
-from services.runtime import Input, Node, Presence
-from tests.conftest import VOXSHAPE, bus_args
+from services.runtime import Input, Node
+from tests.conftest import VOXSHAPE, bus_args, wait_present
 
 RTF = 20  # paced: the arbiter credits by wall-clock display time (see services/demo.py)
 SEED = 5
@@ -45,17 +45,6 @@ def start_services(stack: Stack, robots: tuple[str, ...], teachers: dict[str, st
 def start_sim(stack: Stack, robots: tuple[str, ...]) -> None:
     robot_flags = [flag for robot in robots for flag in ("--robot", robot)]
     stack.start("sim", "sim", "--rtf", str(RTF), "--seed", str(SEED), *robot_flags)
-
-
-def wait_present(node: Node, names: set[str], timeout: float = 30.0) -> None:
-    present: set[str] = set()
-    deadline = time.monotonic() + timeout
-    while not names <= present and time.monotonic() < deadline:
-        event = node.poll(0.1)
-        if isinstance(event, Presence) and event.alive:
-            present.add(event.node)
-    assert names <= present, f"not present after {timeout} s: {sorted(names - present)}"
-    time.sleep(0.5)  # their subscriptions reach the router with their tokens
 
 
 @pytest.fixture

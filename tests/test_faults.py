@@ -44,8 +44,8 @@ from protocol import (
     to_wire,
 )
 from services.arbiter.scripted import utterance
-from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
-from tests.conftest import VOXSHAPE, bus_args, collect, wait_for_port
+from services.runtime import Input, Node, bus_config, free_loopback_port
+from tests.conftest import VOXSHAPE, bus_args, collect, wait_for_port, wait_present
 from tests.strategies import messages
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
@@ -99,17 +99,6 @@ def log_entries(stderr: str, message: str) -> list[dict]:
         if entry.get("message") == message:
             out.append(entry)
     return out
-
-
-def wait_present(node: Node, who: set[str], timeout: float = 30.0) -> None:
-    seen: set[str] = set()
-    deadline = time.monotonic() + timeout
-    while not who <= seen and time.monotonic() < deadline:
-        event = node.poll(0.1)
-        if isinstance(event, Presence) and event.alive:
-            seen.add(event.node)
-    assert who <= seen, f"{who - seen} did not join within {timeout} s"
-    time.sleep(0.3)  # their subscriptions reach the router with their tokens
 
 
 def checkpoint_meta(path: Path) -> dict:

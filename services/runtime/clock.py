@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import queue
+import threading
 import time
 from collections.abc import Callable
 from typing import NamedTuple
@@ -123,3 +124,55 @@ def _exchange(
         if reply.probe == probe.id:
             return estimate_from(reply, t3)
     return None
+
+
+class ClockSync:
+    """Keeps the arbiter told of a teacher's clock offset: an exchange at start and every
+    `every` seconds (clocks drift), in a thread, so teaching goes on while an exchange waits
+    for an arbiter that is not there yet. `synced` gets each estimate; `problem` is told once
+    that no arbiter answers (exchanges go on every `retry` seconds) and when the exchange
+    stops for good (the session closing)."""
+
+    def __init__(
+        self,
+        node: Node,
+        teacher: str,
+        synced: Callable[[ClockEstimate], None],
+        problem: Callable[[str], None],
+        clock: Callable[[], float] = time.time,
+        every: float = 60.0,
+        retry: float = 1.0,
+    ) -> None:
+        self.node, self.teacher, self.clock = node, teacher, clock
+        self.synced, self.problem = synced, problem
+        self.every, self.retry = every, retry
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="clock-sync", daemon=True)
+
+    def __enter__(self) -> ClockSync:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5.0)
+
+    def _run(self) -> None:
+        warned = False
+        while not self.stop.is_set():
+            try:
+                estimate = sync_clock(
+                    self.node, self.teacher, n=4, clock=self.clock, reply_wait=0.3
+                )
+            except ClockSyncError as e:
+                if not warned:
+                    self.problem(str(e))
+                    warned = True
+                self.stop.wait(self.retry)
+                continue
+            except Exception as e:  # the session closing at shutdown, a bus error
+                if not self.stop.is_set():
+                    self.problem(f"clock exchange stopped: {e!r}")
+                return
+            self.synced(estimate)
+            self.stop.wait(self.every)

@@ -32,12 +32,10 @@ import os
 import random
 import shutil
 import subprocess
-import threading
 import time
 import wave
 from bisect import bisect_left
 from collections import Counter, deque
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,7 +60,7 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.runtime.clock import ClockSyncError, sync_clock
+from services.runtime.clock import ClockSync
 from services.sim.maps import TASKS, load_map
 from services.sim.task import SimConfig
 from services.simteacher.teacher import (
@@ -75,7 +73,6 @@ from services.simteacher.teacher import (
 )
 from services.teacher.sources import wav_stream
 
-CLOCK_SYNC_EVERY_S = 60.0
 COMMAND_EVERY_S = 0.5  # robot seconds between dictated commands (a command steers 5 steps)
 DISPLAY_MEMORY = 4096  # steps whose display time is remembered
 LEAD_S, TRAIL_S = 0.3, 0.5  # synthesized speech: silence before (onset at its end) and after
@@ -323,45 +320,6 @@ def audio_messages(spoken: Spoken, teacher: str, robot: str, voice: Voice) -> li
     return [c.message for c in chunks]
 
 
-class _ClockSync:
-    """Tells the arbiter this teacher's clock offset, at start and every minute, in a thread."""
-
-    def __init__(self, node: Node, teacher: str, clock: Callable[[], float]) -> None:
-        self.stop = threading.Event()
-        self.thread = threading.Thread(
-            target=self._run, args=(node, teacher, clock), name="clock-sync", daemon=True
-        )
-
-    def __enter__(self) -> _ClockSync:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop.set()
-        self.thread.join(timeout=5.0)
-
-    def _run(self, node: Node, teacher: str, clock: Callable[[], float]) -> None:
-        warned = False
-        while not self.stop.is_set():
-            try:
-                estimate = sync_clock(node, teacher, n=4, clock=clock, reply_wait=0.3)
-                node.log.info(
-                    "clock synced",
-                    extra=fields(offset=f"{estimate.offset:+.4f}", rtt=f"{estimate.rtt:.4f}"),
-                )
-            except ClockSyncError as e:
-                if not warned:
-                    node.log.warning(f"{e}; trying again", extra=fields(teacher=teacher))
-                    warned = True
-                self.stop.wait(1.0)
-                continue
-            except Exception as e:  # the session closing at shutdown: stop quietly
-                if not self.stop.is_set():
-                    node.log.warning("clock exchange stopped", extra=fields(error=repr(e)))
-                return
-            self.stop.wait(CLOCK_SYNC_EVERY_S)
-
-
 def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     teacher_id = check_id(args.teacher, "teacher")
@@ -400,7 +358,15 @@ def run(args: argparse.Namespace) -> int:
                 delay=args.delay,
             ),
         )
-        with _ClockSync(node, teacher_id, clock):
+        with ClockSync(
+            node,
+            teacher_id,
+            synced=lambda e: node.log.info(
+                "clock synced", extra=fields(offset=f"{e.offset:+.4f}", rtt=f"{e.rtt:.4f}")
+            ),
+            problem=lambda text: node.log.warning(text, extra=fields(teacher=teacher_id)),
+            clock=clock,
+        ):
             for event in node.events(tick=1.0):
                 if not isinstance(event, Input):
                     continue

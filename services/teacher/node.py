@@ -60,7 +60,7 @@ from services.runtime import (
     add_bus_arguments,
     bus_config,
 )
-from services.runtime.clock import ClockSyncError, sync_clock
+from services.runtime.clock import ClockSync
 from services.speech.audio import AudioError, samples_to_pcm
 from services.teacher.board import Board, Shown, SpeechWatch
 from services.teacher.sources import (
@@ -76,7 +76,6 @@ from services.teacher.sources import (
 )
 
 TICK_S = 0.02
-CLOCK_SYNC_EVERY_S = 60.0  # clocks drift: the exchange with the arbiter is repeated
 UTTERANCES_KEPT = 256  # typed utterances kept for an arbiter that missed them
 
 
@@ -165,7 +164,22 @@ def run(args: argparse.Namespace) -> int:
         session = node.session_id
         node.input("utterance", teacher_key(session, teacher, "utterance"))
         node.input("notice", teacher_key(session, teacher, "notice"))
-        stack.enter_context(_ClockSync(node, teacher, screen))
+        stack.enter_context(
+            ClockSync(
+                node,
+                teacher,
+                synced=lambda e: screen.note(
+                    "clock",
+                    f"clock: the arbiter's is {e.offset:+.3f} s from this one "
+                    f"(+-{e.rtt / 2 * 1000:.1f} ms)",
+                    offset=e.offset,
+                    rtt=e.rtt,
+                ),
+                problem=lambda text: screen.note(
+                    "warning", f"{text}; your timing is taken as is until one answers"
+                ),
+            )
+        )
         for topic in ("obs", "episode", "feedback"):
             node.input(topic, robot_key(session, robot, topic))
         speech = SpeechWatch(
@@ -243,47 +257,6 @@ def _show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen
         screen.show(board.feedback(message))
     elif isinstance(message, TeacherNotice):
         screen.show(board.notice(message))
-
-
-class _ClockSync:
-    """Tells the arbiter this teacher's clock offset, at start and every minute, in a thread
-    (an exchange takes up to a few seconds when no arbiter answers; teaching goes on)."""
-
-    def __init__(self, node: Node, teacher: str, screen: Screen) -> None:
-        self.stop = threading.Event()
-        self.thread = threading.Thread(
-            target=self._run, args=(node, teacher, screen), name="clock-sync", daemon=True
-        )
-
-    def __enter__(self) -> _ClockSync:
-        self.thread.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop.set()
-        self.thread.join(timeout=5.0)
-
-    def _run(self, node: Node, teacher: str, screen: Screen) -> None:
-        warned = False
-        while not self.stop.is_set():
-            try:
-                estimate = sync_clock(node, teacher, n=4, reply_wait=0.3)
-                screen.note(
-                    "clock",
-                    f"clock: the arbiter's is {estimate.offset:+.3f} s from this one "
-                    f"(+-{estimate.rtt / 2 * 1000:.1f} ms)",
-                    offset=estimate.offset,
-                    rtt=estimate.rtt,
-                )
-            except ClockSyncError as e:
-                if not warned:  # no arbiter yet: say so once, keep trying
-                    screen.note("warning", f"{e}; your timing is taken as is until one answers")
-                    warned = True
-            except Exception as e:  # a closed session at shutdown, a bus error: stop quietly
-                if not self.stop.is_set():
-                    screen.note("warning", f"clock exchange stopped: {e}")
-                return
-            self.stop.wait(CLOCK_SYNC_EVERY_S)
 
 
 def _loop(
