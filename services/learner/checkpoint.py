@@ -28,7 +28,7 @@ import numpy as np
 
 from services.learner.actions import N_ACTIONS
 from services.learner.config import LearnerConfig
-from services.learner.sarsa import Learner, _Visit
+from services.learner.sarsa import Learner, Visit
 
 VERSION = 2
 # Settings that decide what a state or an action is: a table learnt with others is useless.
@@ -165,7 +165,7 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     visits, weights = arrays.get("visits"), arrays.get("visit_weights")
     if visits is not None and weights is not None and weights.shape == (len(visits), N_ACTIONS):
         learner.recent.extend(
-            _Visit(int(first), int(last), int(episode), int(state), w.copy())
+            Visit(int(first), int(last), int(episode), int(state), w.copy())
             for (first, last, episode, state), w in zip(visits, weights, strict=True)
             if 0 <= state < len(q)
         )

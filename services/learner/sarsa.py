@@ -51,7 +51,7 @@ class LearnerPercept(Percept, Protocol):
 
 
 @dataclass
-class _Visit:
+class Visit:
     """A decision of the recent past (steps first..last), kept for late feedback."""
 
     first: int
@@ -77,7 +77,7 @@ class Learner:
         self.episode = 0  # episodes finished
         self.s: int | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
-        self.recent: deque[_Visit] = deque(maxlen=c.feedback_window)
+        self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
         self.commands: deque[int] = deque()  # teacher's actions still to take
         self.counters: Counter[str] = Counter()
         self.td_error = 0.0
@@ -131,7 +131,7 @@ class Learner:
         if ended:
             self._end_episode()
             return None
-        self.recent.append(_Visit(p.step, p.step, self.episode, s_next, a_next.weights))
+        self.recent.append(Visit(p.step, p.step, self.episode, s_next, a_next.weights))
         self.s, self.a = s_next, a_next
         self.counters["decisions"] += 1
         return a_next
