@@ -98,6 +98,32 @@ def test_a_teachers_own_window_is_used():
     assert credits(fb) == {60: 1.0}
 
 
+def test_a_robot_time_teachers_window_is_robot_seconds_at_any_pace():
+    """A simulated teacher on a simulator at 20x real time reacts after as many steps as a
+    person at real time: its 0.2-0.8 s window covers the same steps as at 10 Hz. A person's
+    window stays in their own seconds: 40-160 steps back at that pace."""
+    fast = PERIOD / 20
+    config = ArbiterConfig(robot_time=frozenset({"sim"}), learning=DelayLearning(enabled=False))
+    a = Arbiter(config, VOCABULARY)
+    for k in range(400):
+        a.on_observation(observation("r1", k, T0 + k * fast), T0 + k * fast)
+    onset = T0 + (300 + 5.5) * fast  # 0.55 robot seconds after step 300 was displayed
+    (simulated,) = feedback(a.on_utterance(utterance("sim", "r1", "good", onset), T0 + 399 * fast))
+    expected = {297: 1 / 12, **dict.fromkeys(range(298, 303), 1 / 6), 303: 1 / 12}
+    assert credits(simulated) == pytest.approx(expected, abs=1e-4)  # 5 ms steps: rounding
+    (person,) = feedback(a.on_utterance(utterance("ana", "r1", "good", onset), T0 + 399 * fast))
+    assert min(credits(person)) == 145 and max(credits(person)) == 265
+
+
+def test_a_robot_time_teachers_delay_is_learnt_in_robot_seconds():
+    fast = PERIOD / 20
+    config = ArbiterConfig(rate=50.0, burst=50.0, robot_time=frozenset({"ana"}))
+    teacher = ScriptedTeacher("ana", delay=1.2 * fast / PERIOD)  # 1.2 robot s: 60 ms at 20x
+    result = rehearse(teacher, steps=3000, period=fast, config=config)
+    assert result.learned_after is not None and result.learned_after < 20
+    assert result.within_one_step() == 1.0, result.median_error()
+
+
 def test_terminal_steps_are_never_credited():
     a = Arbiter(ArbiterConfig(learning=DelayLearning(enabled=False)), VOCABULARY)
     for k in range(20):

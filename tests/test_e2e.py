@@ -13,7 +13,8 @@ from protocol import CreditedFeedback, TeachingStats, robot_key
 from services.runtime import Input, Node
 from tests.conftest import VOXSHAPE, bus_args, wait_present
 
-RTF = 20  # paced: the arbiter credits by wall-clock display time (see services/demo.py)
+RTF = 20  # paced: the arbiter credits by wall-clock display time (see services/demo.py); the
+# simulated teachers' delays are robot seconds, and the arbiter is told so (--robot-time)
 SEED = 5
 
 
@@ -32,7 +33,8 @@ class Stack:
 def start_services(stack: Stack, robots: tuple[str, ...], teachers: dict[str, str]) -> None:
     """Arbiter, mock speech, a learner per robot, the simulated teachers (teacher -> robot);
     the simulator last, once everyone is present."""
-    stack.start("arbiter", "arbiter")
+    robot_time = [flag for teacher in teachers for flag in ("--robot-time", teacher)]
+    stack.start("arbiter", "arbiter", *robot_time)
     stack.start("speech", "speech", "--engine", "mock", "--seed", "1")
     for robot in robots:
         stack.start(f"learner-{robot}", "learner", "--robot", robot, "--seed", str(SEED))
@@ -62,6 +64,7 @@ def test_two_teachers_on_one_robot_are_merged(stack, client_config, session_id):
         start_sim(stack, ("r1",))
         understood: dict[str, int] = {}
         credited: set[str] = set()
+        widths: list[int] = []
         deadline = time.monotonic() + 60.0
         while time.monotonic() < deadline and not (
             min(understood.get("ana", 0), understood.get("bob", 0)) > 0
@@ -72,8 +75,12 @@ def test_two_teachers_on_one_robot_are_merged(stack, client_config, session_id):
                 understood.update({t.teacher: t.understood for t in event.message.teachers})
             elif isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
                 credited.update(event.message.teachers)
+                steps = [c.step for c in event.message.credits]
+                widths.append(max(steps) - min(steps) + 1)
         assert understood.get("ana", 0) > 0 and understood.get("bob", 0) > 0, understood
         assert {"ana", "bob"} <= credited, credited
+        # a 0.6 robot-second window covers about 6 steps at 20x too (in wall seconds: ~120)
+        assert max(widths) <= 20, widths
 
 
 def test_two_robots_in_one_session_are_taught_apart(stack, client_config, session_id):

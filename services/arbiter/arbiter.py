@@ -117,7 +117,9 @@ class Arbiter:
             robot = self._robots[obs.robot] = _Robot(
                 StepTimeline(self.config.history_seconds, self.config.max_history_steps)
             )
-        if not robot.timeline.add(obs.step, obs.wall_time, obs.episode, obs.outcome == "running"):
+        if not robot.timeline.add(
+            obs.step, obs.wall_time, obs.episode, obs.outcome == "running", obs.sim_time
+        ):
             self.counters["timeline_restarted"] += 1
             robot.events.clear()
             robot.clock.reset()
@@ -278,11 +280,12 @@ class Arbiter:
         """A qualifier or the goal, credited to the steps the teacher saw (None: too late):
         the feedback to send now (merge policy, bound g) and the episode it is about."""
         onset = self._onset_on_sim_clock(utterance, robot, now)
+        scale = self.config.time_scale(utterance.teacher, robot.timeline.pace)
         polarity = 1 if reward > 0 else -1 if reward < 0 else 0
         if self.config.learning.enabled and polarity:
-            self._learn_delay(teacher, utterance.robot, robot, polarity, onset)
+            self._learn_delay(teacher, utterance.robot, robot, polarity, onset, scale)
         window = teacher.delay.window()
-        spread = robot.timeline.spread(onset - window.hi, onset - window.lo)
+        spread = robot.timeline.spread(onset - window.hi * scale, onset - window.lo * scale)
         if spread is None:
             return None
         if spread.clamped:
@@ -311,13 +314,20 @@ class Arbiter:
         return onset
 
     def _learn_delay(
-        self, teacher: _Teacher, robot_id: str, robot: _Robot, polarity: int, onset: float
+        self,
+        teacher: _Teacher,
+        robot_id: str,
+        robot: _Robot,
+        polarity: int,
+        onset: float,
+        scale: float,
     ) -> None:
         """Offers a judgement as a candidate reaction to each salient event of its sign seen
-        shortly before its onset (within a step after it too: clocks are never exact)."""
-        within = self.config.learning.pair_within
-        for event in robot.events.seen_within(polarity, onset - within, onset + 0.05):
-            if teacher.delay.add((robot_id, event.step), onset - event.reference):
+        shortly before its onset (within a step after it too: clocks are never exact); delays
+        in the teacher's seconds (`scale` wall seconds each)."""
+        within = self.config.learning.pair_within * scale
+        for event in robot.events.seen_within(polarity, onset - within, onset + 0.05 * scale):
+            if teacher.delay.add((robot_id, event.step), (onset - event.reference) / scale):
                 self.counters["delay_candidates"] += 1
 
     def _feedback(self, merged: Merged) -> CreditedFeedback:

@@ -66,6 +66,10 @@ class ArbiterConfig:
     min_confidence: float = 0.5  # utterances below are ignored; the teacher is asked to repeat
     delay: DelayWindow = field(default_factory=DelayWindow)
     teacher_delay: dict[str, DelayWindow] = field(default_factory=dict)
+    # Teachers whose delays are robot seconds, not their own: a simulated teacher watching a
+    # simulator that runs faster than real time reacts after as many steps as at real time
+    # (services/simteacher). People react in their own seconds whatever the robot's pace.
+    robot_time: frozenset[str] = frozenset()
     learning: DelayLearning = field(default_factory=DelayLearning)
     reward_bound: float = 100.0  # g(r, f): |f| at most this (the learner's feedback_bound)
     merge: MergePolicy = "sum"
@@ -110,6 +114,11 @@ class ArbiterConfig:
         """The configured (not learnt) delay window of a teacher."""
         return self.teacher_delay.get(teacher, self.delay)
 
+    def time_scale(self, teacher: str, pace: float) -> float:
+        """Wall seconds per second of the teacher's delays, at the robot's `pace` (wall
+        seconds per robot second)."""
+        return pace if teacher in self.robot_time else 1.0
+
     def weight_of(self, teacher: str) -> float:
         return self.teacher_weight.get(teacher, 1.0)
 
@@ -143,3 +152,13 @@ def parse_per_teacher(
         except (ProtocolError, ValueError) as e:
             raise ArbiterConfigError(f"{what} {item!r}: {e}") from None
     return parsed
+
+
+def parse_teachers(items: list[str] | None, what: str) -> frozenset[str]:
+    """Teacher ids; names the bad one."""
+    for teacher in items or []:
+        try:
+            check_id(teacher, "teacher")
+        except ProtocolError as e:
+            raise ArbiterConfigError(f"{what} {teacher!r}: {e}") from None
+    return frozenset(items or [])

@@ -58,11 +58,20 @@ class StepTimeline:
         self._running: list[bool] = []
         self._head = 0  # entries before it are forgotten (compacted now and then)
         self._periods: deque[float] = deque(maxlen=16)
+        self._paces: deque[float] = deque(maxlen=16)
+        self._last_sim_time: float | None = None
 
     def __len__(self) -> int:
         return len(self._steps) - self._head
 
-    def add(self, step: int, wall_time: float, episode: int, running: bool) -> bool:
+    def add(
+        self,
+        step: int,
+        wall_time: float,
+        episode: int,
+        running: bool,
+        sim_time: float | None = None,
+    ) -> bool:
         """Appends a step; False if it does not follow the latest (a restarted simulator, or a
         clock set back): the history is then started over from it."""
         in_order = not self or (step > self._steps[-1] and wall_time >= self._times[-1])
@@ -70,6 +79,10 @@ class StepTimeline:
             self.clear()
         elif self and self._running[-1]:
             self._periods.append(wall_time - self._times[-1])
+            last_sim = self._last_sim_time
+            if sim_time is not None and last_sim is not None and sim_time > last_sim:
+                self._paces.append((wall_time - self._times[-1]) / (sim_time - last_sim))
+        self._last_sim_time = sim_time
         self._steps.append(step)
         self._times.append(wall_time)
         self._episodes.append(episode)
@@ -82,6 +95,8 @@ class StepTimeline:
             column.clear()
         self._head = 0
         self._periods.clear()
+        self._paces.clear()
+        self._last_sim_time = None
 
     def _forget_old(self, now: float) -> None:
         n = len(self._steps)
@@ -106,6 +121,12 @@ class StepTimeline:
     def period(self) -> float:
         """The typical display time of a step (median of the recent ones; 0.1 s before any)."""
         return statistics.median(self._periods) if self._periods else 0.1
+
+    @property
+    def pace(self) -> float:
+        """Wall seconds per robot second (median of the recent steps; 1 before any): 0.05 on
+        a simulator running at 20x real time."""
+        return statistics.median(self._paces) if self._paces else 1.0
 
     def latest_running_step(self, before: float | None = None) -> tuple[int, int] | None:
         """(step, episode) of the latest step an action was chosen at (displayed before

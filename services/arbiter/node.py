@@ -40,6 +40,7 @@ from services.arbiter.config import (
     ArbiterConfig,
     DelayLearning,
     parse_per_teacher,
+    parse_teachers,
     parse_window,
 )
 from services.runtime import Input, Node, Output, Tick, add_bus_arguments, bus_config, fields
@@ -76,6 +77,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         metavar="TEACHER=LO:HI",
         help="one teacher's window (repeatable)",
+    )
+    parser.add_argument(
+        "--robot-time",
+        action="append",
+        metavar="TEACHER",
+        help="a teacher whose delays are robot seconds: a simulated teacher on a simulator "
+        "faster than real time (repeatable; people react in their own seconds)",
     )
     parser.add_argument(
         "--no-delay-learning",
@@ -118,6 +126,7 @@ def config_from(args: argparse.Namespace) -> ArbiterConfig:
         teacher_delay=parse_per_teacher(
             args.teacher_delay, parse_window, "--teacher-delay", "ana=0.5:1.2"
         ),
+        robot_time=parse_teachers(args.robot_time, "--robot-time"),
         learning=DelayLearning(enabled=not args.no_delay_learning),
         reward_bound=args.reward_bound,
         merge=args.merge,

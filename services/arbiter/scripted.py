@@ -151,7 +151,7 @@ def rehearse(
     if teacher.sync:
         estimate, _ = sync_in_process(arbiter, teacher, START - 1.0, rng)
         result.clock_error = estimate.offset - (-teacher.skew)
-    shown = [START + k * period + rng.uniform(-0.003, 0.003) for k in range(steps + 1)]
+    shown = [START + (k + rng.uniform(-0.03, 0.03)) * period for k in range(steps + 1)]
     bumps: set[int] = set()
     k = rng.randint(*bump_every)
     while k < steps:

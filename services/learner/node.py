@@ -24,6 +24,7 @@ from services.learner.config import add_settings_argument, with_settings
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError, Input, Node, add_bus_arguments, bus_config, fields
+from services.runtime.logs import worth_logging
 
 # Seconds of the arbiter's kept feedback a (re)starting learner asks for: older feedback is
 # about steps long out of its window, and what it took before is skipped by id.
@@ -134,10 +135,17 @@ def _take(
     if not progress.take(feedback.id):
         node.counters["learner.feedback_taken_before"] += 1
         return
-    for step in learner.take(feedback):
+    dropped = learner.take(feedback)
+    if dropped:
+        node.counters["learner.feedback_partly_dropped"] += 1
+    if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
         node.log.warning(
-            "feedback for a step outside the window dropped",
-            extra=fields(step=step, teachers=",".join(feedback.teachers)),
+            "feedback for steps outside the window dropped",
+            extra=fields(
+                steps=f"{min(dropped)}..{max(dropped)}",
+                of_credits=f"{len(dropped)}/{len(feedback.credits)}",
+                teachers=",".join(feedback.teachers),
+            ),
         )
 
 
