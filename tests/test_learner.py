@@ -29,6 +29,7 @@ class P:
     sonar: tuple = (1.0,) * 8
     goal_distance: float = 3.0
     goal_bearing: float = 0.0
+    theta: float = 0.0
     reward: float = -1.0
     outcome: str = "running"
     step: int = 0
@@ -149,13 +150,15 @@ def test_the_blend_weights_actions_by_q_and_credits_them_by_weight():
     q = np.array([0.0, 10.0, 0.0, 8.0, 0.0])  # stop forward back left right
     decision = actions.choose(q, epsilon=0.0, rng=rng)
     w = decision.weights
-    assert w[0] == 0.0  # stop is for teachers only
-    assert w[1] > w[3] > w[2] == w[4] > 0 and w.sum() == pytest.approx(1.0)
+    assert w[0] == w[2] == 0.0  # stop and back are for teachers only
+    assert w[1] > w[3] > w[4] > 0 and w.sum() == pytest.approx(1.0)
     assert w[3] / w[1] == pytest.approx(math.exp(-2.0 / (0.2 * 10.0)))
     assert decision.v == pytest.approx(w @ actions.velocity[:, 0])
     assert decision.omega == pytest.approx(w @ actions.velocity[:, 1]) and decision.omega > 0
     flat = actions.choose(np.zeros(5), epsilon=0.0, rng=rng)
     assert sorted(flat.weights) == [0, 0, 0, 0, 1]  # nothing learnt: one action, no mush
+    with_back = ActionSet(LearnerConfig(blend=True, policy_actions=("forward", "back", "left")))
+    assert with_back.choose(q, epsilon=0.0, rng=rng).weights[2] > 0
     discrete = ActionSet(LearnerConfig(blend=False)).choose(q, epsilon=0.0, rng=rng)
     assert discrete.discrete == 1 and discrete.weights.max() == 1.0
 
@@ -385,3 +388,14 @@ def test_traces_are_replayed_again_every_replay_every_episodes():
     never = Learner(replace(EXACT, replay_every=0), seed=2)
     never.episode = 4
     assert book.replay_if_due(never) == 0
+
+
+def test_goal_sectors_tell_the_sides_of_the_goal_apart():
+    """Facing the goal 3 m away from the west and from the east: the same bearing and
+    distance, on opposite sides of the goal."""
+    west, east = P(WALL_LEFT, theta=0.0), P(WALL_LEFT, theta=math.pi)
+    plain = StateSpace(LearnerConfig(goal_sectors=0))
+    assert plain.classify(west)[0] == plain.classify(east)[0]
+    sided = StateSpace(LearnerConfig(goal_sectors=8))
+    assert sided.classify(west)[0] != sided.classify(east)[0]
+    assert sided.goal_bins(west)[2] == 4 and sided.goal_bins(east)[2] == 0  # goal -> robot

@@ -70,6 +70,17 @@ def test_it_praises_progress_and_scolds_regress_over_its_interval():
     assert meanings(t.watch(look(3.3, m.goal_x, m.goal_y, outcome="goal"))) == ["goal"]
 
 
+def test_a_robot_making_no_progress_is_told_bad_at_every_look_until_it_moves_on():
+    t = teacher(replace(QUIET, stuck_after=3.0))
+    assert meanings(t.watch(look(0.0, 1.0, 1.0))) == []
+    said = [meanings(t.watch(look(float(s), 1.0, 1.02))) for s in range(1, 6)]  # pinned
+    assert said == [[], [], ["bad"], ["bad"], ["bad"]]  # from 3 s without progress on
+    assert meanings(t.watch(look(6.0, 1.3, 1.3))) == ["excellent"]  # going again
+    assert meanings(t.watch(look(7.0, 1.3, 1.31))) == []  # only 1 s since that progress
+    never = teacher(replace(QUIET, stuck_after=0.0))
+    assert all(not never.watch(look(float(s), 1.0, 1.0)) for s in range(10))
+
+
 def test_words_and_rewards_come_from_the_vocabulary():
     t = teacher()
     for meaning in ("goal", "excellent", "good", "bad", "terrible"):

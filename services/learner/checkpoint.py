@@ -29,6 +29,7 @@ import numpy as np
 from services.learner.actions import N_ACTIONS
 from services.learner.config import LearnerConfig
 from services.learner.sarsa import Learner, Visit
+from services.learner.states import KEY_FIELDS
 
 VERSION = 2
 # Settings that decide what a state or an action is: a table learnt with others is useless.
@@ -102,7 +103,7 @@ def save(learner: Learner, path: Path, progress: Progress | None = None) -> None
             H=learner.H,
             Q_goal=learner.Q_goal,
             prototypes=prototypes,
-            keys=np.array(keys, dtype=np.int64).reshape(len(keys), 4),
+            keys=np.array(keys, dtype=np.int64).reshape(len(keys), len(KEY_FIELDS)),
             meta=np.array(json.dumps(meta)),
             visits=np.array(
                 [(v.first, v.last, v.episode, v.state) for v in visits], dtype=np.int64

@@ -5,9 +5,10 @@ A reading is summarised as a sensor vector: the nearest laser range in each of
 prototype is computed; if the best is below the threshold, the reading becomes a new
 prototype. Pearson's correlation compares shapes, not distances, so sensors alone cannot
 tell where the goal is, nor how near the walls are: the state is (prototype, near, goal-bearing
-bin, goal-distance bin), where `near` has a bit for each of the laser's right, front and left
-thirds with something within `near_range` (0 when off), and the goal bins are 0 without
-`goal_features`.
+bin, goal-distance bin, goal sector), where `near` has a bit for each of the laser's right,
+front and left thirds with something within `near_range` (0 when off), the goal bins are 0
+without `goal_features`, and the goal sector (which side of the goal the robot is on, from
+odometry: `goal_sectors`) is 0 when off.
 """
 
 from __future__ import annotations
@@ -20,6 +21,12 @@ import numpy as np
 from services.learner.config import LearnerConfig
 
 CLEAR = -1  # the prototype of readings with nothing within clear_range
+KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
+
+
+def _bin(angle: float, n: int) -> int:
+    """The one of n equal sectors an angle falls in, the first centred on 0."""
+    return math.floor((angle + math.pi / n) / (2 * math.pi / n)) % n
 
 
 class Percept(Protocol):
@@ -29,13 +36,15 @@ class Percept(Protocol):
     sonar: np.ndarray | tuple[float, ...]
     goal_distance: float
     goal_bearing: float
+    theta: float  # heading, radians in the world frame (odometry)
 
 
 class StateSpace:
     def __init__(self, config: LearnerConfig) -> None:
         self.config = config
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
-        self.keys: dict[tuple[int, int, int, int], int] = {}  # (prototype, near, bearing, distance)
+        # (prototype, near, bearing, distance, sector)
+        self.keys: dict[tuple[int, int, int, int, int], int] = {}
         self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
         self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
@@ -58,13 +67,17 @@ class StateSpace:
         near = self.config.near_range
         return sum(1 << i for i, sector in enumerate(sectors) if sector.min() < near)
 
-    def goal_bins(self, p: Percept) -> tuple[int, int]:
-        if not self.config.goal_features:
-            return 0, 0
-        n = self.config.bearing_bins
-        bearing = math.floor((p.goal_bearing + math.pi / n) / (2 * math.pi / n)) % n
-        distance = int(np.searchsorted(self.config.distance_edges, p.goal_distance, "right"))
-        return bearing, distance
+    def goal_bins(self, p: Percept) -> tuple[int, int, int]:
+        """(bearing, distance, sector): where the goal is seen from the robot, how far, and on
+        which side of the goal the robot is (the world-frame direction from the goal to the
+        robot, from the heading and the bearing: 0 without `goal_sectors`)."""
+        c = self.config
+        if not c.goal_features:
+            return 0, 0, 0
+        bearing = _bin(p.goal_bearing, c.bearing_bins)
+        distance = int(np.searchsorted(c.distance_edges, p.goal_distance, "right"))
+        sector = _bin(p.theta + p.goal_bearing + math.pi, c.goal_sectors) if c.goal_sectors else 0
+        return bearing, distance, sector
 
     def classify(self, p: Percept) -> tuple[int, int | None]:
         """The state of a percept, and the state it was born from (None if not new)."""
@@ -92,7 +105,7 @@ class StateSpace:
         )
         return self.keys[key], parent
 
-    def _cell(self, key: tuple[int, int, int, int]) -> int:
+    def _cell(self, key: tuple[int, int, int, int, int]) -> int:
         return key[2] * (len(self.config.distance_edges) + 1) + key[3]
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
@@ -111,5 +124,8 @@ class StateSpace:
     def restore(self, prototypes: np.ndarray, keys: np.ndarray) -> None:
         self.prototypes = list(prototypes)
         self._matrix = np.array(self.prototypes) if self.prototypes else np.zeros((0, 0))
-        self.keys = {tuple(int(v) for v in k): i for i, k in enumerate(keys)}
+        width = len(KEY_FIELDS)  # keys saved before the goal sector had 4 fields: sector 0
+        self.keys = {
+            (*(int(v) for v in k), *(0,) * (width - len(k))): i for i, k in enumerate(keys)
+        }
         self.cells = [self._cell(k) for k in self.keys]

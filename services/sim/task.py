@@ -68,6 +68,11 @@ class Reading:
     outcome: Outcome
     collided: bool  # touched something during the last step
 
+    @property
+    def theta(self) -> float:
+        """The heading (what the learner reads, like Observation.theta)."""
+        return self.pose.theta
+
 
 @dataclass
 class _Robot:

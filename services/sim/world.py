@@ -36,6 +36,9 @@ SENSOR_HEIGHT = 0.2
 CYLINDER_SIDES = 32
 ALL_GROUPS = (1 << 30) - 1
 MAX_ROBOTS = 28  # one collision-group bit each, above the two PyBullet uses
+RECOIL = 0.1  # metres a bump backs the robot off: room to turn in place (a 0.45 x 0.38 m box
+# sweeps 0.29 m turning, 0.07 m more than its half-length)
+RECOIL_STEPS = 5  # checked for contact every 2 cm
 
 
 def _add_prism(
@@ -121,8 +124,8 @@ class World:
         return any(c[8] < 0.0 for c in contacts)  # c[8]: contact distance, < 0 = overlap
 
     def move(self, i: int, v: float, omega: float, dt: float) -> bool:
-        """Drives robot i at (v, omega) for dt seconds; True if it hit something (it then
-        stops at its last free pose)."""
+        """Drives robot i at (v, omega) for dt seconds; True if it hit something: it then
+        stops at its last free pose and its bumper reflex backs it off (`recoil`)."""
         h = dt / self.substeps
         for _ in range(self.substeps):
             before = self.poses[i]
@@ -135,8 +138,28 @@ class World:
             self.place(i, Pose(x, y, math.remainder(theta + omega * h, math.tau)))
             if self.in_contact(i):
                 self.place(i, before)
+                self.recoil(i, -1.0 if v >= 0 else 1.0)
                 return True
         return False
+
+    def recoil(self, i: int, direction: float) -> None:
+        """The bumper reflex: RECOIL metres straight back from a bump (forward after a bump
+        while reversing), as far as it is free. A box pressed squarely to a wall cannot turn
+        either way (a corner would enter the wall): without it the robot is pinned there."""
+        for _ in range(RECOIL_STEPS):
+            before = self.poses[i]
+            d = direction * RECOIL / RECOIL_STEPS
+            self.place(
+                i,
+                Pose(
+                    before.x + d * math.cos(before.theta),
+                    before.y + d * math.sin(before.theta),
+                    before.theta,
+                ),
+            )
+            if self.in_contact(i):
+                self.place(i, before)
+                return
 
     def close(self) -> None:
         if self.client is not None and pb.isConnected(self.client):

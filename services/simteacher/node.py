@@ -100,7 +100,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="share of its judgements it gets wrong (the opposite qualifier); recognition "
         "errors are the speech service's",
     )
-    parser.add_argument("--positive-bias", type=float, default=0.0, help="share of scolding unsaid")
+    parser.add_argument(
+        "--positive-bias",
+        type=float,
+        default=profile.positive_bias,
+        help="share of scolding unsaid",
+    )
+    parser.add_argument(
+        "--stuck-after",
+        type=float,
+        default=profile.stuck_after,
+        help="robot seconds without progress after which each look is 'bad' (0: never)",
+    )
     parser.add_argument(
         "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
     )
@@ -163,6 +174,7 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
             positive_bias=args.positive_bias,
             delay=args.delay,
             jitter=args.jitter,
+            stuck_after=args.stuck_after,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None

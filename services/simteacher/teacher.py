@@ -6,7 +6,9 @@ obstacles, never the straight line) and watches the robot:
 - every `interval` seconds of robot time it compares the distance now with the distance at
   its previous look: progress of at least `small_change` metres is "good", of at least
   `large_change` "excellent"; regress the same way is "bad" or "terrible"; a smaller change
-  (turning on the spot, or a standstill) gets no comment;
+  (turning on the spot, or a standstill) gets no comment, unless the robot has made no
+  progress for `stuck_after` seconds (pinned to a wall, or turning back and forth): then it is
+  "bad" at every look until it gets going again, as a person watching would say;
 - a bump (the first step of a run of collided steps) is "terrible", the goal is "goal";
 - it does not always speak: the chance it comments on what it saw follows the paper's
   teacher, permanent during the first episodes and sporadic later (`FeedbackSchedule`);
@@ -93,6 +95,8 @@ class TeacherProfile:
     # After a bump or a regress it judged, the chance the teacher also says which way to go:
     # the command along the shortest path ("left", "right" or "forward").
     steer: float = 0.0
+    # Seconds without progress (of small_change) after which each look is "bad"; 0: never.
+    stuck_after: float = 3.0
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -102,8 +106,8 @@ class TeacherProfile:
         for name in ("noise", "positive_bias", "steer"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} {getattr(self, name)} is not within [0, 1]")
-        if self.interval <= 0 or self.delay < 0 or self.jitter < 0:
-            raise ValueError("interval must be > 0, delay and jitter >= 0 seconds")
+        if self.interval <= 0 or min(self.delay, self.jitter, self.stuck_after) < 0:
+            raise ValueError("interval must be > 0; delay, jitter, stuck_after >= 0 seconds")
         if not 0 < self.small_change <= self.large_change:
             raise ValueError("need 0 < small_change <= large_change (metres)")
 
@@ -209,6 +213,7 @@ class SimulatedTeacher:
         self._last_look: Look | None = None
         self._last_distance = math.inf
         self._bumping = False
+        self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -222,6 +227,8 @@ class SimulatedTeacher:
         new_episode = previous is None or previous.episode != look.episode
         bump = look.collided and not self._bumping
         self._bumping = look.collided
+        if new_episode or distance <= self._progress[0] - p.small_change:
+            self._progress = (distance, look.time)
         meaning = None
         if look.outcome == "goal":
             meaning = "goal"
@@ -229,6 +236,9 @@ class SimulatedTeacher:
             meaning = "terrible"
         elif not new_episode and look.time - previous.time >= p.interval - 1e-9:
             meaning = self.judge(self._last_distance - distance)
+            stuck = p.stuck_after and look.time - self._progress[1] >= p.stuck_after
+            if meaning is None and stuck:
+                meaning = "bad"
         if new_episode or meaning is not None or look.time - previous.time >= p.interval - 1e-9:
             self._last_look, self._last_distance = look, distance
         if meaning is None or not self._speaks(look.episode, meaning):
