@@ -78,6 +78,17 @@ def test_unknown_setting_is_refused(capsys):
     assert "unknown setting magic" in capsys.readouterr().err
 
 
+def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
+    out = tmp_path / "paper"
+    argv = ["experiment", "paper", "--tasks", "1", "--settings", "rl", "--seeds", "1",
+            "--max-episodes", "1", "--out", str(out), "--no-progress"]  # fmt: skip
+    assert main([*argv, "--set", "goal_sectors=nine"]) == 2
+    assert "goal_sectors takes a int" in capsys.readouterr().err and not out.exists()
+    assert main([*argv, "--set", "goal_sectors=8"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["learner_settings"] == ["goal_sectors=8"]
+
+
 def test_experiment_sweep_end_to_end(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(

@@ -12,6 +12,7 @@ from services.experiment import distributed
 from services.experiment.paper import TASKS, experiment
 from services.experiment.session import SETTINGS, RunSpec
 from services.experiment.sweep import sweep
+from services.learner.config import SettingsError, add_settings_argument, with_settings
 
 
 def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -44,6 +45,7 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     parser.add_argument("--out", type=Path, default=Path(out))
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_settings_argument(parser)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -96,6 +98,12 @@ def run(args: argparse.Namespace) -> int:
     if args.seeds < 1 or args.max_episodes < 1:
         print("voxshape experiment: --seeds and --max-episodes must be >= 1", file=sys.stderr)
         return 2
+    if args.experiment != "distributed":
+        try:
+            with_settings(args.set)  # a bad --set is refused before any run starts
+        except SettingsError as e:
+            print(f"voxshape experiment: {e}", file=sys.stderr)
+            return 2
     if args.experiment == "sweep":
         return run_sweep(args)
     if args.experiment == "distributed":
@@ -110,6 +118,7 @@ def run(args: argparse.Namespace) -> int:
         command,
         workers=args.workers,
         progress=not args.no_progress,
+        learner=tuple(args.set),
     )
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
@@ -131,6 +140,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         args.frequency,
         workers=args.workers,
         progress=not args.no_progress,
+        learner=tuple(args.set),
     )
     print((args.out / "sweep.md").read_text())
     print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")

@@ -293,14 +293,16 @@ def experiment(
     workers: int | None = None,
     progress: bool = True,
     clock: Callable[[], float] | None = None,
+    learner: tuple[str, ...] = (),
 ) -> dict:
-    """Runs the experiment and writes results.json, report.md and figure2.png to `out`."""
+    """Runs the experiment and writes results.json, report.md and figure2.png to `out`;
+    `learner` changes the learner's configuration (`--set KEY=VALUE`) in every run."""
     import time
 
     clock = clock or time.monotonic
     began = clock()
     specs = [
-        RunSpec(task, setting, seed, max_episodes)
+        RunSpec(task, setting, seed, max_episodes, learner=learner)
         for task in tasks
         for setting in settings
         for seed in range(seeds)
@@ -313,6 +315,7 @@ def experiment(
     summary["command"] = command
     summary["wall_time_s"] = round(wall, 1)
     summary["max_episodes"] = max_episodes
+    summary["learner_settings"] = list(learner)
     (out / "results.json").write_text(json.dumps(summary, indent=1))
     (out / "report.md").write_text(report(summary, command, wall))
     figure2(results, out / "figure2.png")

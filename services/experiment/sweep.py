@@ -35,10 +35,14 @@ class Point:
         return f"{self.axis} {self.value:g}"
 
 
-def spec_of(point: Point, task: str, seed: int, max_episodes: int) -> RunSpec:
+def spec_of(
+    point: Point, task: str, seed: int, max_episodes: int, learner: tuple[str, ...] = ()
+) -> RunSpec:
     if point.axis == "rl":
-        return RunSpec(task, "rl", seed, max_episodes)
-    spec = RunSpec(task, FEEDBACK, seed, max_episodes, delay_learning=point.correction)
+        return RunSpec(task, "rl", seed, max_episodes, learner=learner)
+    spec = RunSpec(
+        task, FEEDBACK, seed, max_episodes, delay_learning=point.correction, learner=learner
+    )
     if point.axis == "noise":
         return replace(spec, noise=point.value)
     if point.axis == "delay":
@@ -137,12 +141,16 @@ def sweep(
     frequency: list[float],
     workers: int | None = None,
     progress: bool = True,
+    learner: tuple[str, ...] = (),
 ) -> list[dict]:
     """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`."""
     assert SETTINGS[FEEDBACK].feedback
     points = points_of(noise, delay, frequency)
     jobs = [
-        (p, spec_of(p, t, s, max_episodes)) for p in points for t in tasks for s in range(seeds)
+        (p, spec_of(p, t, s, max_episodes, learner))
+        for p in points
+        for t in tasks
+        for s in range(seeds)
     ]
     results: dict[Point, list[RunResult]] = {p: [] for p in points}
     out.mkdir(parents=True, exist_ok=True)
