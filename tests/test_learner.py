@@ -3,6 +3,7 @@ late feedback reaching exactly its steps, commands, traces and checkpoints."""
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, replace
 
@@ -284,6 +285,24 @@ def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
     with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
         checkpoint.load(path, replace(EXACT, laser_sectors=6))
     assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
+
+
+def test_goal_sectors_must_match_and_checkpoints_from_before_them_resume(tmp_path):
+    path = tmp_path / "learner.npz"
+    learner = Learner(EXACT, seed=0)
+    run_episode(learner, TraceBook())
+    checkpoint.save(learner, path)
+    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
+        checkpoint.load(path, replace(EXACT, goal_sectors=8))
+    with np.load(path) as saved:  # as written before the goal sector existed
+        arrays = dict(saved)
+    meta = json.loads(str(arrays["meta"]))
+    del meta["config"]["goal_sectors"]
+    arrays.update(meta=np.array(json.dumps(meta)), keys=arrays["keys"][:, :4])
+    old = tmp_path / "old.npz"
+    np.savez(old, **arrays)
+    back = checkpoint.load(old, EXACT)
+    assert back.states.keys == learner.states.keys and np.array_equal(back.Q, learner.Q)
 
 
 def test_goal_prior_shares_what_is_learnt_across_states_of_a_goal_cell():

@@ -41,6 +41,9 @@ REPRESENTATION = (
     "distance_edges",
     "clear_range",
     "goal_prior",
+    "near_range",
+    "near_sectors",
+    "goal_sectors",
 )
 ARRAYS = ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
 OPTIONAL_ARRAYS = ("visits", "visit_weights")  # the recent visits (not in older checkpoints)
@@ -141,8 +144,9 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
             f"build reads {VERSION}: start afresh with another file"
         )
     saved = meta["config"]
-    ours = dataclasses.asdict(config)
-    changed = [k for k in REPRESENTATION if json.loads(json.dumps(ours[k])) != saved.get(k)]
+    ours, defaults = (_as_saved(c) for c in (config, LearnerConfig()))
+    # A setting a checkpoint does not name was not there yet: it learnt with the default.
+    changed = [k for k in REPRESENTATION if ours[k] != saved.get(k, defaults[k])]
     if changed:
         raise CheckpointError(
             f"{path}: learnt with other state settings ({', '.join(changed)})"
@@ -196,3 +200,8 @@ def resume(
             extra={"voxshape_fields": {"error": str(error), "previous": str(previous(path))}},
         )
         return _load(previous(path), config, seed)
+
+
+def _as_saved(config: LearnerConfig) -> dict:
+    """A configuration as its checkpoint's JSON reads back (tuples as lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
