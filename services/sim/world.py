@@ -135,9 +135,7 @@ class World:
             else:
                 x = before.x + v / omega * (math.sin(theta + omega * h) - math.sin(theta))
                 y = before.y - v / omega * (math.cos(theta + omega * h) - math.cos(theta))
-            self.place(i, Pose(x, y, math.remainder(theta + omega * h, math.tau)))
-            if self.in_contact(i):
-                self.place(i, before)
+            if not self._try(i, Pose(x, y, math.remainder(theta + omega * h, math.tau))):
                 self.recoil(i, -1.0 if v >= 0 else 1.0)
                 return True
         return False
@@ -146,20 +144,22 @@ class World:
         """The bumper reflex: RECOIL metres straight back from a bump (forward after a bump
         while reversing), as far as it is free. A box pressed squarely to a wall cannot turn
         either way (a corner would enter the wall): without it the robot is pinned there."""
+        d = direction * RECOIL / RECOIL_STEPS
         for _ in range(RECOIL_STEPS):
-            before = self.poses[i]
-            d = direction * RECOIL / RECOIL_STEPS
-            self.place(
-                i,
-                Pose(
-                    before.x + d * math.cos(before.theta),
-                    before.y + d * math.sin(before.theta),
-                    before.theta,
-                ),
-            )
-            if self.in_contact(i):
-                self.place(i, before)
+            p = self.poses[i]
+            if not self._try(
+                i, Pose(p.x + d * math.cos(p.theta), p.y + d * math.sin(p.theta), p.theta)
+            ):
                 return
+
+    def _try(self, i: int, pose: Pose) -> bool:
+        """Places robot i at `pose` if it is free there; else leaves it where it was."""
+        before = self.poses[i]
+        self.place(i, pose)
+        if self.in_contact(i):
+            self.place(i, before)
+            return False
+        return True
 
     def close(self) -> None:
         if self.client is not None and pb.isConnected(self.client):
