@@ -89,6 +89,23 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     assert results["learner_settings"] == ["goal_sectors=8"]
 
 
+def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
+    out = tmp_path / "paper"
+    argv = ["experiment", "paper", "--tasks", "1", "--settings", "rl+f", "--seeds", "1",
+            "--max-episodes", "2", "--out", str(out), "--no-progress"]  # fmt: skip
+    assert main([*argv, "--teacher", "repeat_after=-1"]) == 2
+    assert "repeat_after >= 0" in capsys.readouterr().err and not out.exists()
+    assert main([*argv, "--teacher", "shedule=3"]) == 2
+    assert "KEY one of" in capsys.readouterr().err and not out.exists()
+    assert main([*argv, "--teacher", "repeat_after=3"]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["teacher_settings"] == ["repeat_after=3"]
+    patient = results["runs"][0]
+    chatty = run(RunSpec("1", "rl+f", 0, max_episodes=2))
+    per_second = [r["interventions"] / sum(r["durations_s"]) for r in (patient, chatty.to_json())]
+    assert 0 < per_second[0] < 0.8 * per_second[1]  # no praise a second on a steady way
+
+
 def test_experiment_sweep_end_to_end(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(

@@ -81,6 +81,18 @@ def test_a_robot_making_no_progress_is_told_bad_at_every_look_until_it_moves_on(
     assert all(not never.watch(look(float(s), 1.0, 1.0)) for s in range(10))
 
 
+def test_a_teacher_with_patience_does_not_repeat_a_judgement_while_nothing_changes():
+    t = teacher(replace(QUIET, repeat_after=3.0))
+    t.watch(look(0.0, 1.0, 1.0))
+    onwards = [
+        meanings(t.watch(look(float(s), 1.0 + 0.2 * s, 1.0 + 0.2 * s))) for s in (1, 2, 3, 4)
+    ]
+    assert onwards == [["good"], [], [], ["good"]]  # again once 3 s have passed
+    assert meanings(t.watch(look(5.0, 1.2, 1.2))) == ["terrible"]  # a change: said at once
+    assert meanings(t.watch(look(5.1, 1.2, 1.2, collided=True))) == ["terrible"]  # a bump: always
+    assert meanings(t.watch(look(5.2, t.map.goal_x, t.map.goal_y, outcome="goal"))) == ["goal"]
+
+
 def test_words_and_rewards_come_from_the_vocabulary():
     t = teacher()
     for meaning in ("goal", "excellent", "good", "bad", "terrible"):

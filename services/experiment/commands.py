@@ -12,7 +12,13 @@ from services.experiment import distributed
 from services.experiment.paper import TASKS, experiment
 from services.experiment.session import SETTINGS, RunSpec
 from services.experiment.sweep import sweep
-from services.learner.config import SettingsError, add_settings_argument, with_settings
+from services.learner.config import (
+    SettingsError,
+    add_settings_argument,
+    replaced,
+    with_settings,
+)
+from services.simteacher.teacher import TeacherProfile
 
 
 def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -46,6 +52,14 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_settings_argument(parser)
+    parser.add_argument(
+        "--teacher",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="a field of the simulated teacher's TeacherProfile "
+        "(services/simteacher/teacher.py), e.g. repeat_after=3; its noise is the setting's",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -100,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
         return 2
     if args.experiment != "distributed":
         try:
-            with_settings(args.set)  # a bad --set is refused before any run starts
+            with_settings(args.set)  # a bad --set or --teacher is refused before any run
+            replaced(TeacherProfile(), args.teacher, "--teacher")
         except SettingsError as e:
             print(f"voxshape experiment: {e}", file=sys.stderr)
             return 2
@@ -119,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         progress=not args.no_progress,
         learner=tuple(args.set),
+        teacher=tuple(args.teacher),
     )
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
@@ -141,6 +157,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         workers=args.workers,
         progress=not args.no_progress,
         learner=tuple(args.set),
+        teacher=tuple(args.teacher),
     )
     print((args.out / "sweep.md").read_text())
     print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")

@@ -294,15 +294,17 @@ def experiment(
     progress: bool = True,
     clock: Callable[[], float] | None = None,
     learner: tuple[str, ...] = (),
+    teacher: tuple[str, ...] = (),
 ) -> dict:
     """Runs the experiment and writes results.json, report.md and figure2.png to `out`;
-    `learner` changes the learner's configuration (`--set KEY=VALUE`) in every run."""
+    `learner` changes the learner's configuration (`--set KEY=VALUE`) in every run, and
+    `teacher` the simulated teacher's profile (`--teacher KEY=VALUE`)."""
     import time
 
     clock = clock or time.monotonic
     began = clock()
     specs = [
-        RunSpec(task, setting, seed, max_episodes, learner=learner)
+        RunSpec(task, setting, seed, max_episodes, learner=learner, teacher=teacher)
         for task in tasks
         for setting in settings
         for seed in range(seeds)
@@ -316,6 +318,7 @@ def experiment(
     summary["wall_time_s"] = round(wall, 1)
     summary["max_episodes"] = max_episodes
     summary["learner_settings"] = list(learner)
+    summary["teacher_settings"] = list(teacher)
     (out / "results.json").write_text(json.dumps(summary, indent=1))
     (out / "report.md").write_text(report(summary, command, wall))
     figure2(results, out / "figure2.png")

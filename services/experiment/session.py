@@ -25,7 +25,7 @@ from protocol import CreditedFeedback, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
-from services.learner.config import with_settings
+from services.learner.config import replaced, with_settings
 from services.learner.convergence import Episode
 from services.learner.sarsa import Learner
 from services.learner.train import convergence_on
@@ -69,6 +69,7 @@ class RunSpec:
     delay_learning: bool = True  # the arbiter learns the teacher's delay (else TAMER's window)
     profile: TeacherProfile = field(default_factory=TeacherProfile)
     learner: tuple[str, ...] = ()  # KEY=VALUE changes to LearnerConfig (`--set`)
+    teacher: tuple[str, ...] = ()  # KEY=VALUE changes to the profile (`--teacher`)
 
 
 @dataclass
@@ -95,10 +96,11 @@ def run(spec: RunSpec) -> RunResult:
     setting = SETTINGS[spec.setting]
     m = load_map(spec.task)
     vocabulary = load_vocabulary()
+    profile = replaced(spec.profile, list(spec.teacher), "--teacher")
     profile = replace(
-        spec.profile,
+        profile,
         noise=setting.noise if spec.noise is None else spec.noise,
-        delay=spec.profile.delay if spec.delay is None else spec.delay,
+        delay=profile.delay if spec.delay is None else spec.delay,
     )
     learner_config = with_settings(list(spec.learner))
     learner = Learner(learner_config, seed=spec.seed)

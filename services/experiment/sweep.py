@@ -36,12 +36,23 @@ class Point:
 
 
 def spec_of(
-    point: Point, task: str, seed: int, max_episodes: int, learner: tuple[str, ...] = ()
+    point: Point,
+    task: str,
+    seed: int,
+    max_episodes: int,
+    learner: tuple[str, ...] = (),
+    teacher: tuple[str, ...] = (),
 ) -> RunSpec:
     if point.axis == "rl":
         return RunSpec(task, "rl", seed, max_episodes, learner=learner)
     spec = RunSpec(
-        task, FEEDBACK, seed, max_episodes, delay_learning=point.correction, learner=learner
+        task,
+        FEEDBACK,
+        seed,
+        max_episodes,
+        delay_learning=point.correction,
+        learner=learner,
+        teacher=teacher,
     )
     if point.axis == "noise":
         return replace(spec, noise=point.value)
@@ -142,12 +153,13 @@ def sweep(
     workers: int | None = None,
     progress: bool = True,
     learner: tuple[str, ...] = (),
+    teacher: tuple[str, ...] = (),
 ) -> list[dict]:
     """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`."""
     assert SETTINGS[FEEDBACK].feedback
     points = points_of(noise, delay, frequency)
     jobs = [
-        (p, spec_of(p, t, s, max_episodes, learner))
+        (p, spec_of(p, t, s, max_episodes, learner, teacher))
         for p in points
         for t in tasks
         for s in range(seeds)
@@ -161,7 +173,15 @@ def sweep(
     rows = summarize_points(points, results, tasks)
     (out / "sweep.json").write_text(
         json.dumps(
-            {"tasks": tasks, "seeds": seeds, "max_episodes": max_episodes, "points": rows}, indent=1
+            {
+                "tasks": tasks,
+                "seeds": seeds,
+                "max_episodes": max_episodes,
+                "learner_settings": list(learner),
+                "teacher_settings": list(teacher),
+                "points": rows,
+            },
+            indent=1,
         )
     )
     note = (

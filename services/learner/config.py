@@ -7,7 +7,7 @@ import dataclasses
 import json
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, TypeVar
 
 
 @dataclass(frozen=True)
@@ -126,22 +126,32 @@ def add_settings_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def with_settings(settings: list[str], base: LearnerConfig | None = None) -> LearnerConfig:
-    """`base` with `KEY=VALUE` settings applied (values in JSON: 0.1, true, "replacing",
-    [1.0, 2.5]); raises SettingsError naming an unknown key or a value of the wrong type."""
-    config = base or LearnerConfig()
+    """`base` (by default LearnerConfig()) with `--set KEY=VALUE` settings applied."""
+    return replaced(base or LearnerConfig(), settings)
+
+
+Config = TypeVar("Config")
+
+
+def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config:
+    """The dataclass `config` with `KEY=VALUE` settings applied (values in JSON: 0.1, true,
+    "replacing", [1.0, 2.5]); raises SettingsError naming an unknown key, a value of the
+    wrong type or one the dataclass refuses (`flag` names the option in the message)."""
     fields = {f.name: f for f in dataclasses.fields(config)}
     changes = {}
     for setting in settings:
         key, sep, raw = setting.partition("=")
         if not sep or key not in fields:
             raise SettingsError(
-                f"--set {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
+                f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
             )
         try:
             value = json.loads(raw)
         except json.JSONDecodeError:
             value = raw  # a bare word: a string
         current = getattr(config, key)
+        if dataclasses.is_dataclass(current):
+            raise SettingsError(f"{flag} {setting!r}: {key} is not a single value")
         if isinstance(current, tuple) and isinstance(value, list):
             value = tuple(value)
         if isinstance(current, float) and type(value) is int:
@@ -153,8 +163,11 @@ def with_settings(settings: list[str], base: LearnerConfig | None = None) -> Lea
         )
         if not ok:
             raise SettingsError(
-                f"--set {setting!r}: {key} takes a {type(current).__name__}, "
+                f"{flag} {setting!r}: {key} takes a {type(current).__name__}, "
                 f"like {json.dumps(current)}"
             )
         changes[key] = value
-    return dataclasses.replace(config, **changes)
+    try:
+        return dataclasses.replace(config, **changes)
+    except ValueError as e:
+        raise SettingsError(f"{flag}: {e}") from None

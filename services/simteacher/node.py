@@ -113,6 +113,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="robot seconds without progress after which each look is 'bad' (0: never)",
     )
     parser.add_argument(
+        "--repeat-after",
+        type=float,
+        default=profile.repeat_after,
+        help="robot seconds before it says the same judgement again while nothing changes "
+        "(0: at every look)",
+    )
+    parser.add_argument(
         "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
     )
     parser.add_argument("--jitter", type=float, default=profile.jitter, help="its std dev")
@@ -175,6 +182,7 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
             delay=args.delay,
             jitter=args.jitter,
             stuck_after=args.stuck_after,
+            repeat_after=args.repeat_after,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None

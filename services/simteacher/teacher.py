@@ -97,6 +97,10 @@ class TeacherProfile:
     steer: float = 0.0
     # Seconds without progress (of small_change) after which each look is "bad"; 0: never.
     stuck_after: float = 3.0
+    # Seconds before the teacher says the same judgement again (praise, or scolding) while
+    # nothing changes: a person says "good" once as the robot sets off on the right way, not
+    # every second it keeps going. Bumps and the goal are always said. 0: says every one.
+    repeat_after: float = 0.0
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -106,8 +110,13 @@ class TeacherProfile:
         for name in ("noise", "positive_bias", "steer"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} {getattr(self, name)} is not within [0, 1]")
-        if self.interval <= 0 or min(self.delay, self.jitter, self.stuck_after) < 0:
-            raise ValueError("interval must be > 0; delay, jitter, stuck_after >= 0 seconds")
+        if (
+            self.interval <= 0
+            or min(self.delay, self.jitter, self.stuck_after, self.repeat_after) < 0
+        ):
+            raise ValueError(
+                "interval must be > 0; delay, jitter, stuck_after, repeat_after >= 0 seconds"
+            )
         if not 0 < self.small_change <= self.large_change:
             raise ValueError("need 0 < small_change <= large_change (metres)")
 
@@ -214,6 +223,7 @@ class SimulatedTeacher:
         self._last_distance = math.inf
         self._bumping = False
         self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
+        self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -241,8 +251,11 @@ class SimulatedTeacher:
                 meaning = "bad"
         if new_episode or meaning is not None or look.time - previous.time >= p.interval - 1e-9:
             self._last_look, self._last_distance = look, distance
-        if meaning is None or not self._speaks(look.episode, meaning):
+        if meaning is None or self._repeats(meaning, look.time, bump or meaning == "goal"):
             return []
+        if not self._speaks(look.episode, meaning):
+            return []
+        self._judged = (self._valence(meaning), look.time)
         said = [self._say(meaning, look.time + self._reaction())]
         if p.steer and meaning in ("bad", "terrible") and self.rng.random() < p.steer:
             command = self.command(look.x, look.y, look.heading)
@@ -258,6 +271,16 @@ class SimulatedTeacher:
         if progress > 0:
             return "excellent" if size >= p.large_change else "good"
         return "terrible" if size >= p.large_change else "bad"
+
+    def _valence(self, meaning: str) -> float:
+        return math.copysign(1.0, self.vocabulary.meanings[meaning].reward or 0.0)
+
+    def _repeats(self, meaning: str, now: float, event: bool) -> bool:
+        """The judgement is the one said less than `repeat_after` seconds ago."""
+        said, when = self._judged
+        return (
+            not event and self._valence(meaning) == said and now - when < self.profile.repeat_after
+        )
 
     def _speaks(self, episode: int, meaning: str) -> bool:
         p = self.profile
