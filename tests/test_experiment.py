@@ -8,9 +8,9 @@ import json
 import pytest
 
 from services.cli import main
-from services.experiment import distributed
+from services.experiment import distributed, sweep
 from services.experiment.paper import mean_ci
-from services.experiment.session import RunSpec, run
+from services.experiment.session import RunResult, RunSpec, run
 
 
 def test_mean_and_95_percent_interval():
@@ -123,6 +123,7 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     ]
     assert points[0]["speedup"] == 1.0
     assert all(p["speedup"] > 0 and p["runs"] == 1 for p in points)
+    assert all(p["speedup_ci95"][0] <= p["speedup"] * 1.0001 for p in points)
     # The arbiter learns the 1.5 s delay from the teacher's reactions to bumps and goals
     # within two episodes; without the correction it keeps TAMER's fixed window.
     assert points[-2]["delay_learned_fraction"] == 1.0
@@ -142,3 +143,15 @@ def test_the_distributed_run_learns_exactly_what_the_in_process_run_learns():
     spec = RunSpec("1", "rl", seed=0, max_episodes=2)
     local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
     assert bus.durations_s == local.durations_s and len(bus.durations_s) == 2
+
+
+def test_the_speedup_interval_holds_the_speedup_and_narrows_with_agreeing_seeds():
+    def runs(times: list[float]) -> list[RunResult]:
+        return [RunResult("1", "rl", i, True, 1, t, 0, 0, [t], False, (0, 0), {})
+                for i, t in enumerate(times)]  # fmt: skip
+
+    rl = runs([100.0, 140.0, 60.0, 100.0])
+    low, high = sweep.speedup_interval(rl, runs([10.0, 12.0, 8.0, 10.0]), ["1"])
+    assert low < 10.0 < high
+    low2, high2 = sweep.speedup_interval(rl, runs([2.0, 30.0, 1.0, 7.0]), ["1"])
+    assert high2 - low2 > 2 * (high - low)  # seeds that disagree: a wider interval

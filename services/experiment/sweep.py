@@ -4,13 +4,15 @@ correction) and how often the teacher speaks later on: the paper's open question
 
 Every point is `rl+f` on the chosen tasks and seeds with one thing changed from the paper's
 setting (20% noise, 0.5 s delay, delay correction on, sporadic feedback 20%); its speedup is
-the mean RL learning time over the tasks divided by its own (the paper's ratio). Writes
-sweep.json, sweep.md and sweep.png to the output directory.
+the mean RL learning time over the tasks divided by its own (the paper's ratio), with a 95%
+bootstrap interval (seeds resampled within each task). Writes sweep.json, sweep.md and
+sweep.png (speedup curves with those intervals) to the output directory.
 """
 
 from __future__ import annotations
 
 import json
+import random
 import statistics
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -71,15 +73,35 @@ def points_of(noise: list[float], delay: list[float], frequency: list[float]) ->
     ]
 
 
+def task_means(runs: list[RunResult], tasks: list[str]) -> float:
+    """The mean over the tasks of the mean learning time of each (the paper's average)."""
+    return statistics.fmean(
+        statistics.fmean(r.learning_time_s for r in runs if r.task == t) for t in tasks
+    )
+
+
+def speedup_interval(
+    rl: list[RunResult], runs: list[RunResult], tasks: list[str], draws: int = 2000
+) -> tuple[float, float]:
+    """A 95% bootstrap interval of the speedup: both sets of runs resampled within each task
+    (seeded, so a report is reproducible)."""
+    rng = random.Random(0)
+
+    def resampled(sample: list[RunResult]) -> list[RunResult]:
+        by_task = [[r for r in sample if r.task == t] for t in tasks]
+        return [r for group in by_task for r in rng.choices(group, k=len(group))]
+
+    ratios = sorted(
+        task_means(resampled(rl), tasks) / task_means(resampled(runs), tasks) for _ in range(draws)
+    )
+    return ratios[int(0.025 * draws)], ratios[int(0.975 * draws) - 1]
+
+
 def summarize_points(
     points: list[Point], results: dict[Point, list[RunResult]], tasks: list[str]
 ) -> list[dict]:
-    def task_means(runs: list[RunResult]) -> float:
-        return statistics.fmean(
-            statistics.fmean(r.learning_time_s for r in runs if r.task == t) for t in tasks
-        )
-
-    rl = task_means(results[points[0]])
+    rl_runs = results[points[0]]
+    rl = task_means(rl_runs, tasks)
     rows = []
     for point in points:
         runs = results[point]
@@ -90,8 +112,9 @@ def summarize_points(
                 "correction": point.correction,
                 "label": point.label,
                 "runs": len(runs),
-                "mean_learning_time_s": task_means(runs),
-                "speedup": rl / task_means(runs),
+                "mean_learning_time_s": task_means(runs, tasks),
+                "speedup": rl / task_means(runs, tasks),
+                "speedup_ci95": speedup_interval(rl_runs, runs, tasks),
                 "interventions": statistics.fmean(r.interventions for r in runs),
                 "converged_fraction": sum(r.converged for r in runs) / len(runs),
                 "delay_learned_fraction": sum(r.delay_learned for r in runs) / len(runs),
@@ -102,15 +125,17 @@ def summarize_points(
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| point | speedup over RL | learning time min (mean over tasks) | interventions "
-        "| converged | delay learnt |",
-        "|---|---|---|---|---|---|",
+        "| point | speedup over RL | 95% interval | learning time min (mean over tasks) "
+        "| interventions | converged | delay learnt |",
+        "|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         learnt = f"{row['delay_learned_fraction']:.2f}" if row["axis"] != "rl" else "-"
+        low, high = row["speedup_ci95"]
         lines.append(
             f"| {row['label'] if row['axis'] != 'rl' else 'RL (baseline)'} | "
-            f"{row['speedup']:.2f} | {row['mean_learning_time_s'] / 60:.1f} | "
+            f"{row['speedup']:.2f} | {low:.2f}-{high:.2f} | "
+            f"{row['mean_learning_time_s'] / 60:.1f} | "
             f"{row['interventions']:.0f} | {row['converged_fraction']:.2f} | {learnt} |"
         )
     return "\n".join(lines)
@@ -131,7 +156,9 @@ def figure(rows: list[dict], path: Path) -> None:
             if line:
                 label = None if axis != "delay" else f"correction {'on' if correction else 'off'}"
                 xs, ys = [r["value"] for r in line], [r["speedup"] for r in line]
-                plot.plot(xs, ys, marker="o", label=label)
+                low = [y - r["speedup_ci95"][0] for y, r in zip(ys, line, strict=True)]
+                high = [r["speedup_ci95"][1] - y for y, r in zip(ys, line, strict=True)]
+                plot.errorbar(xs, ys, yerr=[low, high], marker="o", capsize=3, label=label)
         plot.axhline(1.0, color="grey", linewidth=0.8)
         plot.set_xlabel(names[axis])
         plot.set_ylabel("speedup over RL")
