@@ -12,12 +12,11 @@ sweep.png (speedup curves with those intervals) to the output directory.
 from __future__ import annotations
 
 import json
-import random
 import statistics
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from services.experiment.paper import run_all
+from services.experiment.paper import run_all, speedup_interval, task_means
 from services.experiment.session import SETTINGS, RunResult, RunSpec
 from services.simteacher.teacher import TeacherProfile
 
@@ -71,30 +70,6 @@ def points_of(noise: list[float], delay: list[float], frequency: list[float]) ->
         *(Point("delay", v, correction) for v in delay for correction in (True, False)),
         *(Point("frequency", v) for v in frequency),
     ]
-
-
-def task_means(runs: list[RunResult], tasks: list[str]) -> float:
-    """The mean over the tasks of the mean learning time of each (the paper's average)."""
-    return statistics.fmean(
-        statistics.fmean(r.learning_time_s for r in runs if r.task == t) for t in tasks
-    )
-
-
-def speedup_interval(
-    rl: list[RunResult], runs: list[RunResult], tasks: list[str], draws: int = 2000
-) -> tuple[float, float]:
-    """A 95% bootstrap interval of the speedup: both sets of runs resampled within each task
-    (seeded, so a report is reproducible)."""
-    rng = random.Random(0)
-
-    def resampled(sample: list[RunResult]) -> list[RunResult]:
-        by_task = [[r for r in sample if r.task == t] for t in tasks]
-        return [r for group in by_task for r in rng.choices(group, k=len(group))]
-
-    ratios = sorted(
-        task_means(resampled(rl), tasks) / task_means(resampled(runs), tasks) for _ in range(draws)
-    )
-    return ratios[int(0.025 * draws)], ratios[int(0.975 * draws) - 1]
 
 
 def summarize_points(
