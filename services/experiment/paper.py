@@ -80,15 +80,19 @@ def task_means(runs: list[RunResult], tasks: list[str]) -> float:
     )
 
 
+def seed_of(run: RunResult) -> int:
+    return run.seed
+
+
 def speedup_interval(
     rl: list[RunResult], runs: list[RunResult], tasks: list[str], draws: int = 2000
 ) -> tuple[float, float]:
     """A 95% bootstrap interval of the speedup: both sets of runs resampled within each task
-    (seeded, so a report is reproducible)."""
+    (seeded, and the runs taken in seed order, so a report is reproducible)."""
     rng = random.Random(0)
 
     def resampled(sample: list[RunResult]) -> list[RunResult]:
-        by_task = [[r for r in sample if r.task == t] for t in tasks]
+        by_task = [sorted((r for r in sample if r.task == t), key=seed_of) for t in tasks]
         return [r for group in by_task for r in rng.choices(group, k=len(group))]
 
     ratios = sorted(
@@ -237,9 +241,8 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     if bound:
         lines += [
             "",
-            "RL did not always converge within the episode limit (plain SARSA(λ) does not "
-            "learn task 4 within 150 episodes): its mean is a lower bound, so the speedups "
-            "are lower bounds too.",
+            "RL did not always converge within the episode limit: its mean is a lower bound, "
+            "so the speedups are lower bounds too.",
         ]
     feedback = [s for s in settings if SETTINGS[s].feedback]
     lines += [
@@ -281,7 +284,8 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         "![episode duration against episode](figure2.png)",
         "",
         "Mean episode duration (robot minutes) of the runs still learning at each episode, "
-        "over all tasks and seeds, one line per setting.",
+        "over all tasks and seeds, one line per setting, as long as a quarter of its runs "
+        "(3 at least) are.",
         "",
     ]
     return "\n".join(lines)
@@ -301,7 +305,11 @@ def figure2(results: list[RunResult], path: Path) -> None:
         runs = [r.durations_s[: r.episodes] for r in results if r.setting == setting]
         if not runs:
             continue
-        longest = max(len(d) for d in runs)
+        # Up to the last episode that a quarter of the runs (3 at least) still learn: beyond,
+        # a line is the noise of a few slow runs.
+        enough = min(len(runs), max(3, len(runs) // 4))
+        longest = max(i for i in range(1, max(len(d) for d in runs) + 1)
+                      if sum(len(d) >= i for d in runs) >= enough)  # fmt: skip
         mean = [statistics.fmean(d[i] for d in runs if len(d) > i) / 60 for i in range(longest)]
         ax.plot(range(1, longest + 1), mean, marker=markers[setting], markersize=3,
                 label=LABELS[setting])  # fmt: skip
