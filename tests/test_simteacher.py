@@ -125,6 +125,25 @@ def test_feedback_is_permanent_at_first_and_sporadic_later():
     assert t.watch(look(6.0, 1.3, 1.3, episode=1)) == []
 
 
+def test_an_attentive_teacher_comments_on_everything_again_after_a_bad_episode():
+    late = FeedbackSchedule(permanent_episodes=1, fade_episodes=1, sporadic=0.0)
+    attentive = teacher(replace(QUIET, schedule=late, attentive=True))
+
+    def episode(n: int, t0: float, seconds: float, outcome: str) -> list[str]:
+        said = []
+        for s in range(int(seconds)):  # straight on towards the goal
+            said += meanings(attentive.watch(look(t0 + s, 1.0 + 0.2 * s, 1.0 + 0.2 * s, episode=n)))
+        at = 1.0 + 0.2 * (seconds - 1)  # where it was: the end is no regress
+        end = attentive.watch(look(t0 + seconds, at, at, episode=n, outcome=outcome))
+        return said + meanings(end)
+
+    assert "good" in episode(0, 0.0, 10, "goal")  # the first episode: permanent
+    assert episode(1, 100.0, 10, "goal") == []  # well done: silent (sporadic 0)
+    assert episode(2, 200.0, 10, "timeout") == []  # still silent while it goes wrong ...
+    assert "good" in episode(3, 300.0, 10, "goal")  # ... and attentive again after it
+    assert episode(4, 400.0, 10, "goal") == []
+
+
 def steps_toward_and_away(t: SimulatedTeacher, n: int) -> list:
     """n looks, alternately 0.2 m nearer and farther: n - 1 judgements (good, bad, ...)."""
     speeches = []

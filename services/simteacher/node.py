@@ -120,6 +120,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(0: at every look)",
     )
     parser.add_argument(
+        "--attentive",
+        action="store_true",
+        help="after an episode without the goal, or over twice the robot's best time, comment "
+        "on everything again (else the schedule decides)",
+    )
+    parser.add_argument(
         "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
     )
     parser.add_argument("--jitter", type=float, default=profile.jitter, help="its std dev")
@@ -183,6 +189,7 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
             jitter=args.jitter,
             stuck_after=args.stuck_after,
             repeat_after=args.repeat_after,
+            attentive=args.attentive,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None

@@ -12,6 +12,7 @@ obstacles, never the straight line) and watches the robot:
 - a bump (the first step of a run of collided steps) is "terrible", the goal is "goal";
 - it does not always speak: the chance it comments on what it saw follows the paper's
   teacher, permanent during the first episodes and sporadic later (`FeedbackSchedule`);
+  an `attentive` teacher comments on everything again after an episode that went badly;
 - it leans to praise with `positive_bias`: that share of its scolding is left unsaid;
 - it errs with probability `noise`, the kind of error drawn by the `Confusion` weights: a
   wrong qualifier (the opposite judgement of the same strength, its own slip) or a misheard
@@ -101,6 +102,10 @@ class TeacherProfile:
     # nothing changes: a person says "good" once as the robot sets off on the right way, not
     # every second it keeps going. Bumps and the goal are always said. 0: says every one.
     repeat_after: float = 0.0
+    # Attentive: after an episode the robot failed (no goal) or took more than twice its best
+    # time, the teacher comments on everything again (the schedule's `permanent`), whatever
+    # the episode: feedback fades as the robot gets it right, not by the calendar.
+    attentive: bool = False
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -224,6 +229,7 @@ class SimulatedTeacher:
         self._bumping = False
         self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
         self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
+        self._episode_start, self._best, self._struggling = 0.0, math.inf, True
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -239,6 +245,10 @@ class SimulatedTeacher:
         self._bumping = look.collided
         if new_episode or distance <= self._progress[0] - p.small_change:
             self._progress = (distance, look.time)
+        if new_episode:
+            self._episode_start = look.time
+        if look.outcome != "running":
+            self._judge_episode(look.outcome == "goal", look.time - self._episode_start)
         meaning = None
         if look.outcome == "goal":
             meaning = "goal"
@@ -282,9 +292,16 @@ class SimulatedTeacher:
             not event and self._valence(meaning) == said and now - when < self.profile.repeat_after
         )
 
+    def _judge_episode(self, reached: bool, seconds: float) -> None:
+        if reached:
+            self._best = min(self._best, seconds)
+        self._struggling = not reached or seconds > 2 * self._best
+
     def _speaks(self, episode: int, meaning: str) -> bool:
         p = self.profile
-        if self.rng.random() >= p.schedule.probability(episode):
+        attending = p.attentive and self._struggling
+        chance = p.schedule.permanent if attending else p.schedule.probability(episode)
+        if self.rng.random() >= chance:
             return False
         negative = (self.vocabulary.meanings[meaning].reward or 0.0) < 0
         return not (negative and self.rng.random() < p.positive_bias)
