@@ -132,6 +132,10 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     assert points[-1]["delay_learned_fraction"] == 0.0
     assert "speedup over RL" in (out / "sweep.md").read_text()
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+    runs = [json.loads(line)["spec"] for line in (out / "runs.jsonl").read_text().splitlines()]
+    ran = {(r["setting"], r["noise"], r["delay"], r["delay_learning"]) for r in runs}
+    assert ran == {("rl", None, None, True), ("rl+f", 0.0, None, True), ("rl+f", 0.5, None, True),
+                   ("rl+f", None, 1.5, True), ("rl+f", None, 1.5, False)}  # fmt: skip
 
 
 def test_sweep_needs_something_to_sweep(capsys):

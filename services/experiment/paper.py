@@ -9,7 +9,7 @@ per core). Writes to the output directory:
   bootstrap interval, and the mean interventions of each feedback setting;
 - report.md: Tables 2 and 3 in the paper's layout, ours beside the paper's numbers;
 - figure2.png: episode duration against episode, one line per setting (the paper's Figure 2);
-- runs.jsonl: each run as it finishes.
+- runs.jsonl: each run as it finishes, with the RunSpec it ran (setting, teacher, learner).
 
 A run that does not converge within max_episodes is censored: it counts with its time so far
 (a lower bound) and is flagged; a setting's cell with censored runs is marked.

@@ -86,6 +86,7 @@ class RunResult:
     delay_learned: bool  # the arbiter learnt the teacher's reaction delay
     delay_window_s: tuple[float, float]  # the arbiter's window at the end (seconds)
     counters: dict[str, int]
+    spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -158,6 +159,7 @@ def run(spec: RunSpec) -> RunResult:
         delay_learned=arbiter.delay_learned(TEACHER),
         delay_window_s=(round(window.lo, 3), round(window.hi, 3)),
         counters=counters,
+        spec=asdict(spec),
     )
 
 
