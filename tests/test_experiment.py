@@ -80,10 +80,15 @@ def test_unknown_setting_is_refused(capsys):
     assert "unknown setting magic" in capsys.readouterr().err
 
 
+def one_run_of_task_1(out, setting: str, episodes: int) -> list[str]:
+    """The arguments of `voxshape experiment paper` for one seed of task 1 in `setting`."""
+    return ["experiment", "paper", "--tasks", "1", "--settings", setting, "--seeds", "1",
+            "--max-episodes", str(episodes), "--out", str(out), "--no-progress"]  # fmt: skip
+
+
 def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
     out = tmp_path / "paper"
-    argv = ["experiment", "paper", "--tasks", "1", "--settings", "rl", "--seeds", "1",
-            "--max-episodes", "1", "--out", str(out), "--no-progress"]  # fmt: skip
+    argv = one_run_of_task_1(out, "rl", episodes=1)
     assert main([*argv, "--set", "goal_sectors=nine"]) == 2
     assert "goal_sectors takes a int" in capsys.readouterr().err and not out.exists()
     assert main([*argv, "--set", "goal_sectors=8"]) == 0
@@ -93,8 +98,7 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
 
 def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
     out = tmp_path / "paper"
-    argv = ["experiment", "paper", "--tasks", "1", "--settings", "rl+f", "--seeds", "1",
-            "--max-episodes", "2", "--out", str(out), "--no-progress"]  # fmt: skip
+    argv = one_run_of_task_1(out, "rl+f", episodes=2)
     assert main([*argv, "--teacher", "repeat_after=-1"]) == 2
     assert "repeat_after >= 0" in capsys.readouterr().err and not out.exists()
     assert main([*argv, "--teacher", "shedule=3"]) == 2

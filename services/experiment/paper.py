@@ -24,6 +24,7 @@ import random
 import statistics
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from operator import attrgetter
 from pathlib import Path
 
 from tqdm import tqdm
@@ -80,10 +81,6 @@ def task_means(runs: list[RunResult], tasks: list[str]) -> float:
     )
 
 
-def seed_of(run: RunResult) -> int:
-    return run.seed
-
-
 def speedup_interval(
     rl: list[RunResult], runs: list[RunResult], tasks: list[str], draws: int = 2000
 ) -> tuple[float, float]:
@@ -92,7 +89,9 @@ def speedup_interval(
     rng = random.Random(0)
 
     def resampled(sample: list[RunResult]) -> list[RunResult]:
-        by_task = [sorted((r for r in sample if r.task == t), key=seed_of) for t in tasks]
+        by_task = [
+            sorted((r for r in sample if r.task == t), key=attrgetter("seed")) for t in tasks
+        ]
         return [r for group in by_task for r in rng.choices(group, k=len(group))]
 
     ratios = sorted(

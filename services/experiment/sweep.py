@@ -80,6 +80,7 @@ def summarize_points(
     rows = []
     for point in points:
         runs = results[point]
+        learning_time = task_means(runs, tasks)
         rows.append(
             {
                 "axis": point.axis,
@@ -87,8 +88,8 @@ def summarize_points(
                 "correction": point.correction,
                 "label": point.label,
                 "runs": len(runs),
-                "mean_learning_time_s": task_means(runs, tasks),
-                "speedup": rl / task_means(runs, tasks),
+                "mean_learning_time_s": learning_time,
+                "speedup": rl / learning_time,
                 "speedup_ci95": speedup_interval(rl_runs, runs, tasks),
                 "interventions": statistics.fmean(r.interventions for r in runs),
                 "converged_fraction": sum(r.converged for r in runs) / len(runs),

@@ -303,7 +303,7 @@ class SimulatedTeacher:
         chance = p.schedule.permanent if attending else p.schedule.probability(episode)
         if self.rng.random() >= chance:
             return False
-        negative = (self.vocabulary.meanings[meaning].reward or 0.0) < 0
+        negative = self._valence(meaning) < 0
         return not (negative and self.rng.random() < p.positive_bias)
 
     def _reaction(self) -> float:
