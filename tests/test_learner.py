@@ -52,6 +52,8 @@ EXACT = LearnerConfig(
     goal_prior=False,
     pearson_threshold=0.9,
     near_range=None,
+    goal_sectors=0,
+    shaping="additive",  # the paper's Algorithm 1, computed by hand below
 )
 
 
@@ -251,6 +253,21 @@ def test_traces_are_recorded_saved_and_replayed(tmp_path):
     assert np.array_equal(direct.Q, student.Q)
 
 
+def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_path):
+    sided = replace(EXACT, goal_sectors=8)
+    book = TraceBook()
+    for step, theta in enumerate((0.0, math.pi / 2, math.pi)):
+        end = step == 2
+        p = P(WALL_LEFT, theta=theta, outcome="goal" if end else "running", step=step)
+        book.record(p, None if end else Learner(sided).actions.one_hot(LEFT, "teacher"))
+    book.save(tmp_path / "traces.npz")
+    loaded = TraceBook.load(tmp_path / "traces.npz")
+    assert [p.theta for p, _ in loaded.episodes[0]] == [0.0, math.pi / 2, math.pi]
+    student = Learner(sided, seed=0)
+    assert loaded.replay(student) == 3
+    assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
+
+
 def test_checkpoint_round_trip(tmp_path):
     learner = Learner(EXACT, seed=3)
     run_episode(learner, TraceBook())
@@ -303,6 +320,8 @@ def test_goal_sectors_must_match_and_checkpoints_from_before_them_resume(tmp_pat
     np.savez(old, **arrays)
     back = checkpoint.load(old, EXACT)
     assert back.states.keys == learner.states.keys and np.array_equal(back.Q, learner.Q)
+    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
+        checkpoint.load(old, replace(EXACT, goal_sectors=8))  # learnt without, not the default
 
 
 def test_goal_prior_shares_what_is_learnt_across_states_of_a_goal_cell():

@@ -45,6 +45,8 @@ REPRESENTATION = (
     "near_sectors",
     "goal_sectors",
 )
+# What a setting was in checkpoints saved before it was named (when it is not its default).
+UNNAMED = {"goal_sectors": 0}
 ARRAYS = ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
 OPTIONAL_ARRAYS = ("visits", "visit_weights")  # the recent visits (not in older checkpoints)
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
@@ -145,8 +147,8 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
         )
     saved = meta["config"]
     ours, defaults = (_as_saved(c) for c in (config, LearnerConfig()))
-    # A setting a checkpoint does not name was not there yet: it learnt with the default.
-    changed = [k for k in REPRESENTATION if ours[k] != saved.get(k, defaults[k])]
+    # A setting a checkpoint does not name was not there yet: it learnt without it.
+    changed = [k for k in REPRESENTATION if ours[k] != saved.get(k, UNNAMED.get(k, defaults[k]))]
     if changed:
         raise CheckpointError(
             f"{path}: learnt with other state settings ({', '.join(changed)})"

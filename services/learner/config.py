@@ -26,8 +26,12 @@ class LearnerConfig:
     # Which side of the goal the robot is on, in this many sectors of the world-frame
     # direction from the goal to the robot (odometry's heading + the bearing): with the
     # distance bins a coarse polar grid around the goal, so the two sides of a wall differ
-    # where the straight line to the goal crosses it. 0: off.
-    goal_sectors: int = 0
+    # where the straight line to the goal crosses it. 0: off. Measured (10 seeds each, with
+    # the teacher's action bias below): the teacher's advice can then say "up along this
+    # wall" on one side and "down" on the other; with feedback, task 4 took 33 robot minutes
+    # instead of 63, task 3 31 instead of 29; plain RL moves both ways (task 4 101 instead of
+    # 208, task 3 186 instead of 103, task 1 35 instead of 16).
+    goal_sectors: int = 8
     # Pearson's correlation ignores scale: a wall 2 m ahead and one 0.3 m ahead look alike.
     # So the state also says which of the laser's right, front and left thirds has something
     # nearer than this (metres): what decides whether moving on or turning hits it. None: off.
@@ -85,13 +89,24 @@ class LearnerConfig:
     epsilon_episodes: int = 60  # ... over this many episodes
 
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
-    shaping: Literal["additive", "action_bias"] = "additive"
+    # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias" (TAMER+RL):
+    # they go to a table H of their own and the policy ranks Q + beta H. Measured over the four
+    # tasks (10 seeds, 20% noise): with feedback 30 robot minutes on average instead of 44.
+    # Additive shaping is unlearnt as the teacher falls silent: Q of the way it was praised
+    # for sinks to its R_RL value, below the untried actions' optimistic 0, and the robot
+    # wanders off the way it had found (task 3: the goal in 28 s at episode 10, timeouts at
+    # 17-24). H only changes when the teacher speaks, so what it taught stays.
+    shaping: Literal["additive", "action_bias"] = "action_bias"
     feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
     feedback_window: int = 100  # steps kept for late feedback; older credit is dropped
-    bias_weight: float = 1.0  # action_bias: the policy ranks Q + beta * H, beta = ...
-    bias_decay: float = 0.97  # ... bias_weight * bias_decay ** episode
+    # action_bias: the policy ranks Q + beta * H, beta = bias_weight * bias_decay ** episode.
+    # H sums the teacher's credits, so advice said often weighs more. Measured on tasks 3-4
+    # (rl+f, 10 seeds): beta 1, 3, 10 took 30/74, 29/63 and 31/65 robot minutes; decaying
+    # (0.97 per episode) 62 on task 3, as bad as additive: the advice must not fade.
+    bias_weight: float = 3.0
+    bias_decay: float = 1.0
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...

@@ -25,9 +25,10 @@ g's bounded f to those steps' rewards after the fact: Q <- Q + alpha w f e_k, wh
 the traces as they stood at step k (the same change the update would have made had f
 arrived in time). Feedback on steps that left the window is counted and dropped.
 
-With shaping="action_bias" (TAMER+RL's action biasing) the teacher's rewards go to a separate
-table H instead of r, and the policy ranks Q + beta H, beta fading over the episodes; Q then
-learns from R_RL alone.
+That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
+action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
+policy ranks Q + beta H and Q learns from R_RL alone. H changes only when the teacher speaks,
+so what it taught is not unlearnt as it falls silent (config.py has the measurements).
 """
 
 from __future__ import annotations

@@ -28,6 +28,7 @@ class TracePercept:
     reward: float
     outcome: str
     step: int
+    theta: float = 0.0  # heading (goal sectors); files saved before it was kept read as 0
 
 
 @dataclass
@@ -49,6 +50,7 @@ class TraceBook:
                     float(p.reward),
                     p.outcome,
                     int(p.step),
+                    float(p.theta),
                 ),
                 decision,
             )
@@ -89,6 +91,7 @@ class TraceBook:
             reward=np.array([p.reward for _, p, _ in rows]),
             outcome=np.array([OUTCOMES.index(p.outcome) for _, p, _ in rows], dtype=np.int64),
             step=np.array([p.step for _, p, _ in rows], dtype=np.int64),
+            theta=np.array([p.theta for _, p, _ in rows]),
             weights=np.array([d.weights if d else np.zeros(N_ACTIONS) for _, _, d in rows]),
             velocity=np.array([(d.v, d.omega) if d else (0.0, 0.0) for _, _, d in rows]),
             teacher=np.array([bool(d and d.chooser == "teacher") for _, _, d in rows]),
@@ -103,6 +106,7 @@ class TraceBook:
         except (OSError, ValueError) as e:
             raise ValueError(f"{path}: not a trace file ({e})") from None
         book = cls()
+        theta = data.get("theta", np.zeros(len(data.get("episode", []))))
         for i in np.unique(data["episode"]) if len(data.get("episode", [])) else []:
             rows = np.flatnonzero(data["episode"] == i)
             book.episodes.append(
@@ -116,6 +120,7 @@ class TraceBook:
                             float(data["reward"][r]),
                             OUTCOMES[int(data["outcome"][r])],
                             int(data["step"][r]),
+                            float(theta[r]),
                         ),
                         None
                         if data["ended"][r]
