@@ -227,6 +227,19 @@ def test_action_bias_keeps_teacher_rewards_out_of_q():
     assert learner.Q[0, FORWARD] == 0.0 and learner.H[0, FORWARD] > 0
 
 
+@pytest.mark.parametrize("shaping, kept", [("additive", False), ("action_bias", True)])
+def test_what_the_teacher_praised_is_kept_after_it_falls_silent_only_with_the_action_bias(
+    shaping, kept
+):
+    learner = Learner(replace(EXACT, shaping=shaping), seed=0)
+    forward = learner.actions.one_hot(FORWARD)
+    for step in range(5):  # the teacher praises going forward here, five times
+        learner.step(P(WALL_LEFT, step=step), forced=forward)
+        learner.credit(step=step, weight=1.0, f=10.0)
+    chosen = [learner.step(P(WALL_LEFT, step=step)).discrete for step in range(5, 105)]
+    assert (chosen[-20:] == [FORWARD] * 20) is kept  # additive: -1 a step unlearns the praise
+
+
 def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None) -> None:
     shapes = [WALL_LEFT, WALL_RIGHT, WALL_LEFT, WALL_RIGHT]
     for step, laser in enumerate(shapes):
