@@ -267,16 +267,16 @@ def test_traces_are_recorded_saved_and_replayed(tmp_path):
 
 
 def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_path):
-    sided = replace(EXACT, goal_sectors=8)
+    student = Learner(replace(EXACT, goal_sectors=8), seed=0)
+    left = student.actions.one_hot(LEFT, "teacher")
     book = TraceBook()
     for step, theta in enumerate((0.0, math.pi / 2, math.pi)):
         end = step == 2
         p = P(WALL_LEFT, theta=theta, outcome="goal" if end else "running", step=step)
-        book.record(p, None if end else Learner(sided).actions.one_hot(LEFT, "teacher"))
+        book.record(p, None if end else left)
     book.save(tmp_path / "traces.npz")
     loaded = TraceBook.load(tmp_path / "traces.npz")
     assert [p.theta for p, _ in loaded.episodes[0]] == [0.0, math.pi / 2, math.pi]
-    student = Learner(sided, seed=0)
     assert loaded.replay(student) == 3
     assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
 
