@@ -266,13 +266,13 @@ def train(session: launcher.Session, progress: Progress, stall_timeout: float) -
     assert bus is not None
     bus.input("episode", robot_key(bus.session_id, ROBOT, "episode"))
     bus.input("teaching", robot_key(bus.session_id, ROBOT, "teaching"))
-    last_end = time.monotonic()
+    last_end, cpu_then = time.monotonic(), session.cpu_seconds()
     done_at: float | None = None
     for event in bus.events(tick=0.5):
         now = time.monotonic()
         if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
             if event.message.kind != "start" and not progress.done:
-                last_end = now
+                last_end, cpu_then = now, session.cpu_seconds()
             progress.on_episode(event.message, now)
         elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
             progress.on_teaching(event.message)
@@ -287,7 +287,12 @@ def train(session: launcher.Session, progress: Progress, stall_timeout: float) -
             if progress.all_shown or now - done_at > FINAL_WAIT_S:
                 return
         elif now - last_end > stall_timeout:
-            raise TimeoutError(f"no episode ended for {stall_timeout:g} s: is the robot stuck?")
+            used = session.cpu_seconds()
+            cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
+            raise TimeoutError(
+                f"no episode ended for {stall_timeout:g} s: is the robot stuck? (CPU seconds "
+                f"used meanwhile: {cpu}; the sim near 0: it is blocked, not slow)"
+            )
     raise KeyboardInterrupt
 
 

@@ -157,6 +157,18 @@ class Session:
         for event in self.bus.events(tick=0.2):
             self._observe(event)
 
+    def cpu_seconds(self) -> dict[str, float]:
+        """CPU seconds each running service has used so far (Linux; empty elsewhere): a
+        service whose figure stops growing is blocked, not slow."""
+        used = {}
+        for name, proc in self.procs.items():
+            try:
+                fields = Path(f"/proc/{proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            except (OSError, IndexError):
+                continue
+            used[name] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        return used
+
     # -- stopping -----------------------------------------------------------------------
     def stop(self) -> dict[str, int | None]:
         """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes."""

@@ -81,6 +81,21 @@ def test_a_robot_making_no_progress_is_told_bad_at_every_look_until_it_moves_on(
     assert all(not never.watch(look(float(s), 1.0, 1.0)) for s in range(10))
 
 
+def test_turning_on_the_spot_is_judged_by_how_it_faces_the_way_only_when_asked():
+    # Task 1 from (1, 1): the way to the goal at (5, 5) is up and to the right, 45 degrees.
+    t = teacher(replace(QUIET, turn_progress=0.48, stuck_after=0.0))
+    t.watch(look(0.0, 1.0, 1.0, heading=-math.pi / 2))  # facing down, away from the way
+    towards = t.watch(look(1.0, 1.0, 1.0, heading=-math.pi / 2 + 1.0))  # turned 1 rad left
+    assert meanings(towards) == ["excellent"]  # 0.48 m worth of progress
+    back = t.watch(look(2.0, 1.0, 1.0, heading=-math.pi / 2 + 0.5))  # half a radian back
+    assert meanings(back) == ["bad"]
+    assert meanings(t.watch(look(3.0, 1.0, 1.0, heading=math.pi / 4))) == ["excellent"]
+    assert t.watch(look(4.0, 1.0, 1.0, heading=math.pi / 4 + 0.1)) == []  # a slight turn
+    silent = teacher(replace(QUIET, stuck_after=0.0))  # turn_progress 0: turning says nothing
+    silent.watch(look(0.0, 1.0, 1.0, heading=-math.pi / 2))
+    assert silent.watch(look(1.0, 1.0, 1.0, heading=-math.pi / 2 + 1.0)) == []
+
+
 def test_a_teacher_with_patience_does_not_repeat_a_judgement_while_nothing_changes():
     t = teacher(replace(QUIET, repeat_after=3.0))
     t.watch(look(0.0, 1.0, 1.0))

@@ -268,7 +268,7 @@ class BusTeacher:
                 out.append(Spoken(text, now, now, "command"))
         else:
             episode = max(0, self._started - self.traces - 1)  # of the episodes it judges
-            look = Look(t, episode, obs.x, obs.y, obs.collided, obs.outcome)
+            look = Look(t, episode, obs.x, obs.y, obs.collided, obs.outcome, obs.theta)
             for speech in self.teacher.watch(look):
                 heapq.heappush(self._pending, (speech.end, self._order, speech.said, speech.onset))
                 self._order += 1

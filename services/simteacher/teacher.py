@@ -5,7 +5,8 @@ obstacles, never the straight line) and watches the robot:
 
 - every `interval` seconds of robot time it compares the distance now with the distance at
   its previous look: progress of at least `small_change` metres is "good", of at least
-  `large_change` "excellent"; regress the same way is "bad" or "terrible"; a smaller change
+  `large_change` "excellent"; regress the same way is "bad" or "terrible" (with
+  `turn_progress`, turning towards the way on counts as progress); a smaller change
   (turning on the spot, or a standstill) gets no comment, unless the robot has made no
   progress for `stuck_after` seconds (pinned to a wall, or turning back and forth): then it is
   "bad" at every look until it gets going again, as a person watching would say;
@@ -89,6 +90,18 @@ class TeacherProfile:
     interval: float = 1.0  # seconds of robot time between looks
     small_change: float = 0.1  # metres of geodesic progress (regress) for good (bad) ...
     large_change: float = 0.35  # ... and for excellent (terrible); 0.5 m/s at most
+    # Turning to face the way on counts as progress too, this many metres per radian (the
+    # way: the shortest path's direction where the robot was at the previous look), as a
+    # person praises a robot turning the right way before it moves. 0.48 = forward speed /
+    # turn rate (0.5 m/s, 60 deg/s): a second spent turning the right way counts as a
+    # second spent driving it. 0 (default): turning on the spot gets no comment. Measured at
+    # 0.48 (10 seeds, four tasks): task 4 got faster (median robot minutes 16 instead of 31
+    # with perfect advice, 19 instead of 28 with feedback), tasks 2 and 3 slower, and on
+    # task 1 one run of 10 with feedback circled and never converged; the means were worse:
+    # 27.8 instead of 22.7 (rl+f), 20.8 instead of 19.6 (perfect). The praised turns pile
+    # up in the learner's advice table, and where one state stands for several headings the
+    # advice can chain into a loop.
+    turn_progress: float = 0.0
     schedule: FeedbackSchedule = field(default_factory=FeedbackSchedule)
     noise: float = 0.0  # probability an utterance comes out wrong
     confusion: Confusion = field(default_factory=Confusion)
@@ -255,7 +268,7 @@ class SimulatedTeacher:
         elif bump:
             meaning = "terrible"
         elif not new_episode and look.time - previous.time >= p.interval - 1e-9:
-            meaning = self.judge(self._last_distance - distance)
+            meaning = self.judge(self._last_distance - distance + self._turned(previous, look))
             stuck = p.stuck_after and look.time - self._progress[1] >= p.stuck_after
             if meaning is None and stuck:
                 meaning = "bad"
@@ -281,6 +294,18 @@ class SimulatedTeacher:
         if progress > 0:
             return "excellent" if size >= p.large_change else "good"
         return "terrible" if size >= p.large_change else "bad"
+
+    def _turned(self, before: Look, now: Look) -> float:
+        """Metres of progress the turn from `before` to `now` is worth: radians turned towards
+        the way on from where the robot was `before` (away: negative)."""
+        way = downhill_heading(self.map, before.x, before.y) if self.profile.turn_progress else None
+        if way is None:
+            return 0.0
+
+        def off(theta: float) -> float:
+            return abs(math.remainder(way - theta, math.tau))
+
+        return self.profile.turn_progress * (off(before.heading) - off(now.heading))
 
     def _valence(self, meaning: str) -> float:
         return math.copysign(1.0, self.vocabulary.meanings[meaning].reward or 0.0)
