@@ -96,6 +96,18 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     assert results["learner_settings"] == ["goal_sectors=8"]
 
 
+def test_first_seed_runs_other_seeds_and_says_which(tmp_path):
+    out = tmp_path / "paper"
+    assert (
+        main([*one_run_of_task_1(out, "rl", episodes=1), "--seeds", "2", "--first-seed", "10"]) == 0
+    )
+    results = json.loads((out / "results.json").read_text())
+    assert sorted(r["seed"] for r in results["runs"]) == [10, 11]
+    assert results["seeds"] == 2 and results["first_seed"] == 10
+    assert "seeds 10-11" in (out / "report.md").read_text()
+    assert main([*one_run_of_task_1(out, "rl", episodes=1), "--first-seed", "-1"]) == 2
+
+
 def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
     out = tmp_path / "paper"
     argv = one_run_of_task_1(out, "rl+f", episodes=2)

@@ -41,6 +41,13 @@ def _values(text: str) -> list[float]:
 
 def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     parser.add_argument("--seeds", type=int, default=seeds, help="runs per task and setting")
+    parser.add_argument(
+        "--first-seed",
+        type=int,
+        default=0,
+        help="seeds run: this one and the next --seeds - 1 (e.g. 10: seeds held out from "
+        "choosing the defaults, which were tuned on seeds 0-9)",
+    )
     parser.add_argument("--max-episodes", type=int, default=150, help="then a run is censored")
     parser.add_argument(
         "--tasks",
@@ -109,8 +116,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.seeds < 1 or args.max_episodes < 1:
-        print("voxshape experiment: --seeds and --max-episodes must be >= 1", file=sys.stderr)
+    if args.seeds < 1 or args.max_episodes < 1 or getattr(args, "first_seed", 0) < 0:
+        print(
+            "voxshape experiment: --seeds and --max-episodes must be >= 1, --first-seed >= 0",
+            file=sys.stderr,
+        )
         return 2
     if args.experiment != "distributed":
         try:
@@ -128,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         args.out,
         args.tasks,
         args.settings,
-        args.seeds,
+        range(args.first_seed, args.first_seed + args.seeds),
         args.max_episodes,
         command,
         workers=args.workers,
@@ -149,7 +159,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     sweep(
         args.out,
         args.tasks,
-        args.seeds,
+        range(args.first_seed, args.first_seed + args.seeds),
         args.max_episodes,
         args.noise,
         args.delay,

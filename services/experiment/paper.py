@@ -177,6 +177,11 @@ def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) 
     return f"{censored}{cell[key] / scale:.1f} ± {cell[key + '_ci95'] / scale:.1f}"
 
 
+def seed_range(summary: dict) -> str:
+    first = summary.get("first_seed", 0)
+    return f"seeds {first}-{first + summary['seeds'] - 1}"
+
+
 def _paper(table: dict, setting: str, task: str) -> str:
     value = table.get(setting, {}).get(task)
     return "-" if value is None else f"{value:g}"
@@ -193,7 +198,8 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     lines = [
         "# Dynamic reward shaping: the paper's experiments again",
         "",
-        f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting), "
+        f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting, "
+        f"{seed_range(summary)}), "
         f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores.",
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
@@ -325,7 +331,7 @@ def experiment(
     out: Path,
     tasks: list[str],
     settings: list[str],
-    seeds: int,
+    seeds: range,
     max_episodes: int,
     command: str,
     workers: int | None = None,
@@ -345,13 +351,14 @@ def experiment(
         RunSpec(task, setting, seed, max_episodes, learner=learner, teacher=teacher)
         for task in tasks
         for setting in settings
-        for seed in range(seeds)
+        for seed in seeds
     ]
     out.mkdir(parents=True, exist_ok=True)
     (out / "runs.jsonl").unlink(missing_ok=True)
     results = run_all(specs, workers, progress, log=out / "runs.jsonl")
     wall = clock() - began
-    summary = summarize(results, seeds)
+    summary = summarize(results, len(seeds))
+    summary["first_seed"] = seeds.start
     summary["command"] = command
     summary["wall_time_s"] = round(wall, 1)
     summary["max_episodes"] = max_episodes

@@ -148,7 +148,7 @@ def figure(rows: list[dict], path: Path) -> None:
 def sweep(
     out: Path,
     tasks: list[str],
-    seeds: int,
+    seeds: range,
     max_episodes: int,
     noise: list[float],
     delay: list[float],
@@ -165,7 +165,7 @@ def sweep(
         (p, spec_of(p, t, s, max_episodes, learner, teacher))
         for p in points
         for t in tasks
-        for s in range(seeds)
+        for s in seeds
     ]
     results: dict[Point, list[RunResult]] = {p: [] for p in points}
     out.mkdir(parents=True, exist_ok=True)
@@ -178,7 +178,8 @@ def sweep(
         json.dumps(
             {
                 "tasks": tasks,
-                "seeds": seeds,
+                "seeds": len(seeds),
+                "first_seed": seeds.start,
                 "max_episodes": max_episodes,
                 "learner_settings": list(learner),
                 "teacher_settings": list(teacher),

@@ -169,7 +169,8 @@ def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config
             raise SettingsError(f"{flag} {setting!r}: {key} is not a single value")
         if isinstance(current, tuple) and isinstance(value, list):
             value = tuple(value)
-        if isinstance(current, float) and type(value) is int:
+        takes_float = isinstance(current, float) or "float" in str(fields[key].type)
+        if takes_float and type(value) is int:
             value = float(value)
         ok = (
             type(value) is type(current)
