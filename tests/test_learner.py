@@ -97,6 +97,18 @@ def test_accumulating_traces_add_up():
     assert learner.e[0, FORWARD] == pytest.approx((0.72 + 1) * 0.72)
 
 
+def test_a_policy_action_goes_on_for_min_hold_steps_even_if_the_state_changes():
+    config = replace(EXACT, max_hold=20, min_hold=3)
+    learner = Learner(config, seed=0)
+    first = learner.step(P(WALL_LEFT, step=0))
+    flickers = [learner.step(P(wall, step=k)) for k, wall in enumerate([WALL_RIGHT, WALL_LEFT], 1)]
+    assert all(d is first for d in flickers)  # held through the states' flicker
+    assert learner.counters["decisions"] == 1 and not learner.Q.any()
+    learner.step(P(WALL_RIGHT, step=3))  # held 3 steps: now the state change counts
+    assert learner.counters["decisions"] == 2
+    assert learner.Q[0].any()  # one update over the 3 steps, from the state it started in
+
+
 def test_near_bits_tell_a_wall_close_ahead_from_one_far_ahead():
     space = StateSpace(replace(EXACT, pearson_threshold=None, near_range=0.6))
     far, _ = space.classify(P(tuple([2.0] * 180)))

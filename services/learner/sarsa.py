@@ -3,8 +3,9 @@
 At every control step, with s the previous state and a the action taken in it:
 
     observe r, s'                    r = R_RL, the simulator's reward for the step
-    (while s' == s, the policy's action goes on: r accumulates as G = sum gamma^i r_i over
-    the k steps, and the update below uses G and gamma^k: SARSA over the states' changes)
+    (while s' == s, and for its first min_hold steps, the policy's action goes on: r
+    accumulates as G = sum gamma^i r_i over the k steps, and the update below uses G and
+    gamma^k: SARSA over the states' changes)
     if the teacher selected a:       r <- h(r, a)          (h: + command_reward, bounded)
     select a' from s'                the teacher's command if one is pending, else the
                                      policy derived from Q (epsilon-greedy, or the blend)
@@ -105,7 +106,7 @@ class Learner:
             self.discount *= c.gamma
             self.held += 1
             if (
-                s_next == self.s
+                (s_next == self.s or self.held < c.min_hold)
                 and not ended
                 and forced is None
                 and not self.commands
