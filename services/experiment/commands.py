@@ -39,7 +39,7 @@ def _values(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{text!r} is not comma-separated numbers") from None
 
 
-def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
+def _add_seeds(parser: argparse.ArgumentParser, seeds: int) -> None:
     parser.add_argument("--seeds", type=int, default=seeds, help="runs per task and setting")
     parser.add_argument(
         "--first-seed",
@@ -48,6 +48,10 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         help="seeds run: this one and the next --seeds - 1 (e.g. 10: seeds held out from "
         "choosing the defaults, which were tuned on seeds 0-9)",
     )
+
+
+def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
+    _add_seeds(parser, seeds)
     parser.add_argument("--max-episodes", type=int, default=150, help="then a run is censored")
     parser.add_argument(
         "--tasks",
@@ -110,13 +114,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     distributed.add_argument("--task", choices=TASKS, default="1")
     distributed.add_argument("--setting", choices=tuple(SETTINGS), default="rl")
-    distributed.add_argument("--seeds", type=int, default=3, help="seeds 0..N-1")
+    _add_seeds(distributed, 3)
     distributed.add_argument("--max-episodes", type=int, default=150, help="then censored")
     distributed.add_argument("--out", type=Path, default=Path("runs/experiment-distributed"))
 
 
+def seeds_of(args: argparse.Namespace) -> range:
+    return range(args.first_seed, args.first_seed + args.seeds)
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.seeds < 1 or args.max_episodes < 1 or getattr(args, "first_seed", 0) < 0:
+    if args.seeds < 1 or args.max_episodes < 1 or args.first_seed < 0:
         print(
             "voxshape experiment: --seeds and --max-episodes must be >= 1, --first-seed >= 0",
             file=sys.stderr,
@@ -138,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         args.out,
         args.tasks,
         args.settings,
-        range(args.first_seed, args.first_seed + args.seeds),
+        seeds_of(args),
         args.max_episodes,
         command,
         workers=args.workers,
@@ -159,7 +167,7 @@ def run_sweep(args: argparse.Namespace) -> int:
     sweep(
         args.out,
         args.tasks,
-        range(args.first_seed, args.first_seed + args.seeds),
+        seeds_of(args),
         args.max_episodes,
         args.noise,
         args.delay,
@@ -176,7 +184,7 @@ def run_sweep(args: argparse.Namespace) -> int:
 
 def run_distributed(args: argparse.Namespace) -> int:
     spec = RunSpec(args.task, args.setting, 0, args.max_episodes)
-    comparison = distributed.compare(spec, list(range(args.seeds)))
+    comparison = distributed.compare(spec, list(seeds_of(args)))
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
     text = distributed.report(comparison)
