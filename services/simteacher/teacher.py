@@ -95,12 +95,11 @@ class TeacherProfile:
     # person praises a robot turning the right way before it moves. 0.48 = forward speed /
     # turn rate (0.5 m/s, 60 deg/s): a second spent turning the right way counts as a
     # second spent driving it. 0 (default): turning on the spot gets no comment. Measured at
-    # 0.48 (10 seeds, four tasks): task 4 got faster (median robot minutes 16 instead of 31
-    # with perfect advice, 19 instead of 28 with feedback), tasks 2 and 3 slower, and on
-    # task 1 one run of 10 with feedback circled and never converged; the means were worse:
-    # 27.8 instead of 22.7 (rl+f), 20.8 instead of 19.6 (perfect). The praised turns pile
-    # up in the learner's advice table, and where one state stands for several headings the
-    # advice can chain into a loop.
+    # 0.48 (10 seeds, four tasks, mean robot minutes): perfect advice 12.2 instead of 15.5,
+    # but with 20% noise (rl+f) 25.4 instead of 22.4: a wrong word about a turn misleads
+    # where the robot has nothing else to go by. (With the learner deciding at every state
+    # change, min_hold=1, it was worse for both: 20.8 against 19.6 and 27.8 against 22.7;
+    # one task 1 run circled among praised turns and never converged.)
     turn_progress: float = 0.0
     schedule: FeedbackSchedule = field(default_factory=FeedbackSchedule)
     noise: float = 0.0  # probability an utterance comes out wrong
