@@ -177,7 +177,7 @@ def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) 
     return f"{censored}{cell[key] / scale:.1f} ± {cell[key + '_ci95'] / scale:.1f}"
 
 
-def seed_range(summary: dict) -> str:
+def _seed_range(summary: dict) -> str:
     first = summary.get("first_seed", 0)
     return f"seeds {first}-{first + summary['seeds'] - 1}"
 
@@ -199,7 +199,7 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         "# Dynamic reward shaping: the paper's experiments again",
         "",
         f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting, "
-        f"{seed_range(summary)}), "
+        f"{_seed_range(summary)}), "
         f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores.",
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "

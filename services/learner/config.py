@@ -175,8 +175,7 @@ def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config
             raise SettingsError(f"{flag} {setting!r}: {key} is not a single value")
         if isinstance(current, tuple) and isinstance(value, list):
             value = tuple(value)
-        takes_float = isinstance(current, float) or "float" in str(fields[key].type)
-        if takes_float and type(value) is int:
+        if type(value) is int and "float" in str(fields[key].type):  # float, float | None
             value = float(value)
         ok = (
             type(value) is type(current)
