@@ -252,6 +252,33 @@ def test_what_the_teacher_praised_is_kept_after_it_falls_silent_only_with_the_ac
     assert (chosen[-20:] == [FORWARD] * 20) is kept  # additive: -1 a step unlearns the praise
 
 
+ADVISED = replace(EXACT, shaping="action_bias", goal_sectors=8, pearson_threshold=None)
+
+
+def test_advice_speaks_for_the_states_that_share_a_tile_with_where_it_was_given():
+    learner = Learner(ADVISED, seed=0)  # tiles ignoring the distance, and the sector
+    far = P(WALL_LEFT, goal_distance=3.0, theta=0.0, step=0)
+    learner.step(far, forced=learner.actions.one_hot(FORWARD))
+    learner.credit(step=0, weight=1.0, f=10.0)  # H(far, forward) = alpha f = 5
+    nearer = learner._state_of(replace(far, goal_distance=2.0))  # same side, another bin
+    other_side = learner._state_of(replace(far, goal_distance=2.0, theta=math.pi))
+    turned = learner._state_of(replace(far, goal_bearing=math.pi / 2))
+    assert learner.advice(0)[FORWARD] == pytest.approx(5.0)  # (5 + 5 + 5) / 3
+    assert learner.advice(nearer)[FORWARD] == pytest.approx(5.0 / 3)  # the side's tile
+    assert not learner.advice(other_side).any() and not learner.advice(turned).any()
+    alone = Learner(replace(ADVISED, advice_generalization=()), seed=0)
+    alone.step(far, forced=alone.actions.one_hot(FORWARD))
+    alone.credit(step=0, weight=1.0, f=10.0)
+    assert alone.advice(0)[FORWARD] == 5.0
+    assert not alone.advice(alone._state_of(replace(far, goal_distance=2.0))).any()
+
+
+def test_advice_tiles_must_name_fields_of_the_state():
+    with pytest.raises(SettingsError, match="name fields of the state, of prototype, near"):
+        with_settings(['advice_generalization=["heading"]'])
+    assert with_settings(["advice_generalization=[]"]).advice_generalization == ()
+
+
 def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None) -> None:
     shapes = [WALL_LEFT, WALL_RIGHT, WALL_LEFT, WALL_RIGHT]
     for step, laser in enumerate(shapes):
@@ -293,13 +320,17 @@ def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_p
     assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
 
 
-def test_checkpoint_round_trip(tmp_path):
-    learner = Learner(EXACT, seed=3)
+@pytest.mark.parametrize("config", [EXACT, ADVISED])
+def test_checkpoint_round_trip(tmp_path, config):
+    learner = Learner(config, seed=3)
     run_episode(learner, TraceBook())
+    learner.credit(step=2, weight=1.0, f=10.0)
     path = tmp_path / "learner.npz"
     checkpoint.save(learner, path)
-    back = checkpoint.load(path, EXACT)
+    back = checkpoint.load(path, config)
     assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
+    assert np.array_equal(back.H_tiles, learner.H_tiles)  # the advice tiles, summed again
+    assert (config.shaping == "action_bias") == back.H_tiles.any()
     assert back.states.keys == learner.states.keys and back.episode == learner.episode
     assert np.allclose(np.array(back.states.prototypes), np.array(learner.states.prototypes))
     assert back.rng.random() == learner.rng.random()  # the random stream goes on

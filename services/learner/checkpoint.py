@@ -165,6 +165,7 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
         )
     learner.Q, learner.H, learner.e = q.copy(), h.copy(), np.zeros_like(q)
     learner.Q_goal = arrays["Q_goal"].copy()
+    learner.sum_advice_tiles()
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:

@@ -29,7 +29,10 @@ arrived in time). Feedback on steps that left the window is counted and dropped.
 That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
 action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
 policy ranks Q + beta H and Q learns from R_RL alone. H changes only when the teacher speaks,
-so what it taught is not unlearnt as it falls silent (config.py has the measurements).
+so what it taught is not unlearnt as it falls silent (config.py has the measurements). With
+advice_generalization the policy's H(s) is the mean of H[s] and the sums of H over the
+state's advice tiles (coarser tilings, states.py): tile coding, each tiling credited in full,
+so what was said in a state also speaks for the states that share a tile with it.
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ class Learner:
         self.actions = ActionSet(c)
         self.Q = np.zeros((0, N_ACTIONS))  # action values of the states (the fine tiling)
         self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
+        self.H_tiles = np.zeros((0, N_ACTIONS))  # H summed over each advice tile
         self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
         # The coarse tiling (goal_prior): action values of the goal cells alone, added to Q.
         self.tilings = 2 if c.goal_prior and c.goal_features else 1
@@ -159,7 +163,7 @@ class Learner:
             )
         )
         if self.config.shaping == "action_bias":
-            self.H[s] += self.config.alpha * bonus * a.weights
+            self._advise(s, self.config.alpha * bonus * a.weights)
             return r
         return r + bonus
 
@@ -191,7 +195,7 @@ class Learner:
                 break
             change = c.alpha * weight * f * trace * visit.weights
             if bias:
-                self.H[visit.state] += change
+                self._advise(visit.state, change)
             else:
                 self.Q[visit.state] += change / self.tilings
                 if self.tilings == 2:
@@ -223,8 +227,23 @@ class Learner:
             return self.actions.one_hot(self.commands.popleft(), "teacher")
         q = self.value(s)
         if self.config.shaping == "action_bias":
-            q = q + self.config.bias_weight * self.config.bias_decay**self.episode * self.H[s]
+            q = q + self.config.bias_weight * self.config.bias_decay**self.episode * self.advice(s)
         return self.actions.choose(q, self.config.epsilon(self.episode), self.rng)
+
+    def advice(self, s: int) -> np.ndarray:
+        """H(s, .) as the policy weighs it: the state's own, with its tiles' (if any)."""
+        tiles = self.states.tiles[s]
+        return (self.H[s] + self.H_tiles[list(tiles)].sum(axis=0)) / (1 + len(tiles))
+
+    def _advise(self, s: int, change: np.ndarray) -> None:
+        self.H[s] += change
+        self.H_tiles[list(self.states.tiles[s])] += change
+
+    def sum_advice_tiles(self) -> None:
+        """H_tiles from H (after H was restored)."""
+        self.H_tiles = np.zeros((len(self.states.tile_ids), N_ACTIONS))
+        for s, tiles in enumerate(self.states.tiles):
+            self.H_tiles[list(tiles)] += self.H[s]
 
     def _state_of(self, p: Percept) -> int:
         s, parent = self.states.classify(p)
@@ -232,6 +251,8 @@ class Learner:
             row = self.Q[parent] if parent is not None and self.config.init_from_neighbour else 0
             self.Q = np.vstack([self.Q, np.zeros(N_ACTIONS) + row])
             self.H = np.vstack([self.H, np.zeros(N_ACTIONS)])
+            new_tiles = len(self.states.tile_ids) - len(self.H_tiles)
+            self.H_tiles = np.vstack([self.H_tiles, np.zeros((new_tiles, N_ACTIONS))])
             self.e = np.vstack([self.e, np.zeros(N_ACTIONS)])
         return s
 

@@ -9,6 +9,11 @@ bin, goal-distance bin, goal sector), where `near` has a bit for each of the las
 front and left thirds with something within `near_range` (0 when off), the goal bins are 0
 without `goal_features`, and the goal sector (which side of the goal the robot is on, from
 odometry: `goal_sectors`) is 0 when off.
+
+Advice tiles (`advice_generalization`): coarser partitions of the states, each ignoring one
+field of the key, so what the teacher said in one state also speaks for its neighbours:
+ignoring "distance", every state on that side of the goal with the same near bits and goal
+bearing shares a tile, whatever its distance.
 """
 
 from __future__ import annotations
@@ -18,10 +23,9 @@ from typing import Protocol
 
 import numpy as np
 
-from services.learner.config import LearnerConfig
+from services.learner.config import KEY_FIELDS, LearnerConfig
 
 CLEAR = -1  # the prototype of readings with nothing within clear_range
-KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
 
 
 def _bin(angle: float, n: int) -> int:
@@ -46,6 +50,9 @@ class StateSpace:
         # (prototype, near, bearing, distance, sector)
         self.keys: dict[tuple[int, int, int, int, int], int] = {}
         self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
+        self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
+        self.tile_ids: dict[tuple[int, ...], int] = {}  # (tiling, key without its field)
+        self.tiles: list[tuple[int, ...]] = []  # each state's advice tile in every tiling
         self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
 
@@ -96,7 +103,7 @@ class StateSpace:
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
-        self.cells.append(self._cell(key))
+        self._add_cells(key)
         # The nearest existing state: same bits and bins, best-matching prototype.
         parent = (
             self.keys.get((neighbour_prototype, *key[1:]))
@@ -105,8 +112,10 @@ class StateSpace:
         )
         return self.keys[key], parent
 
-    def _cell(self, key: tuple[int, int, int, int, int]) -> int:
-        return key[2] * (len(self.config.distance_edges) + 1) + key[3]
+    def _add_cells(self, key: tuple[int, int, int, int, int]) -> None:
+        self.cells.append(key[2] * (len(self.config.distance_edges) + 1) + key[3])
+        coarse = ((t, *key[:i], *key[i + 1 :]) for t, i in enumerate(self.ignored))
+        self.tiles.append(tuple(self.tile_ids.setdefault(k, len(self.tile_ids)) for k in coarse))
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
         """(prototype index, best other prototype when a new one was born)."""
@@ -128,4 +137,6 @@ class StateSpace:
         self.keys = {
             (*(int(v) for v in k), *(0,) * (width - len(k))): i for i, k in enumerate(keys)
         }
-        self.cells = [self._cell(k) for k in self.keys]
+        self.cells, self.tile_ids, self.tiles = [], {}, []
+        for key in self.keys:
+            self._add_cells(key)
