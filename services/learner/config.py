@@ -124,8 +124,8 @@ class LearnerConfig:
     # longer advice-blind. () is off. Measured (`voxshape experiment paper`, robot minutes,
     # four-task means, seeds 0-9 | 10-19): RL + F 20.6 | 13.4 against 22.4 | 24.4 (one run of
     # 40 did not converge: it reached the goal in nearly every episode, in 24-60 s, never
-    # three alike), RL + T
-    # + F 11.1 | 12.8 against 14.7 | 16.6, perfect advice 10.7 | 13.6 against 15.5 | 14.7.
+    # three alike), RL + T + F 11.1 | 12.8 against 14.7 | 16.6, perfect advice 10.7 | 13.6
+    # against 15.5 | 14.7. Plain RL does not use H.
     # Other tilings (survey, seeds 0-9, RL + F / RL + T + F / perfect; the default 17.6 /
     # 11.1 / 10.7 there): one tile ignoring both 18.4 / 12.5 / 13.2; ignoring the distance
     # alone 19.3 / 13.3 / 11.5; ignoring the distance in two tilings, the second's sectors
