@@ -316,6 +316,11 @@ def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_p
     book.save(tmp_path / "traces.npz")
     loaded = TraceBook.load(tmp_path / "traces.npz")
     assert [p.theta for p, _ in loaded.episodes[0]] == [0.0, math.pi / 2, math.pi]
+    assert loaded.headings
+    with np.load(tmp_path / "traces.npz") as z:  # a file saved before headings were kept
+        np.savez(tmp_path / "old.npz", **{k: z[k] for k in z.files if k != "theta"})
+    old = TraceBook.load(tmp_path / "old.npz")
+    assert not old.headings and [p.theta for p, _ in old.episodes[0]] == [0.0] * 3
     assert loaded.replay(student) == 3
     assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
 

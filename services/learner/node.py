@@ -75,6 +75,13 @@ def run(args: argparse.Namespace) -> int:
             ),
         )
         initial = TraceBook.load(args.traces) if args.traces else None
+        if initial and not initial.headings and learner.config.goal_sectors:
+            node.log.warning(
+                "initial traces without headings: replayed facing 0 rad, so their goal "
+                "sectors are wrong; record them again (headings are saved now), or run "
+                "with --set goal_sectors=0",
+                extra=fields(traces=args.traces),
+            )
         if initial:
             replayed = initial.replay(learner)
             node.log.info("learnt from initial traces", extra=fields(steps=replayed))

@@ -36,6 +36,7 @@ class TraceBook:
     """Recorded episodes: each a list of (percept, decision or None at the end)."""
 
     episodes: list[list[tuple[TracePercept, Decision | None]]] = field(default_factory=list)
+    headings: bool = True  # False: read from a file saved before headings were kept
     _current: list[tuple[TracePercept, Decision | None]] = field(default_factory=list)
 
     def record(self, p: LearnerPercept, decision: Decision | None) -> None:
@@ -105,7 +106,7 @@ class TraceBook:
                 data = {k: z[k] for k in z.files}
         except (OSError, ValueError) as e:
             raise ValueError(f"{path}: not a trace file ({e})") from None
-        book = cls()
+        book = cls(headings="theta" in data)
         theta = data.get("theta", np.zeros(len(data.get("episode", []))))
         for i in np.unique(data["episode"]) if len(data.get("episode", [])) else []:
             rows = np.flatnonzero(data["episode"] == i)
