@@ -11,6 +11,8 @@ from services.cli import main
 from services.experiment import distributed
 from services.experiment.paper import mean_ci, speedup_interval
 from services.experiment.session import RunResult, RunSpec, run
+from services.learner.config import SettingsError, replaced
+from services.simteacher.teacher import TeacherProfile
 
 
 def test_mean_and_95_percent_interval():
@@ -122,6 +124,16 @@ def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     chatty = run(RunSpec("1", "rl+f", 0, max_episodes=2))
     per_second = [r["interventions"] / sum(r["durations_s"]) for r in (patient, chatty.to_json())]
     assert 0 < per_second[0] < 0.8 * per_second[1]  # no praise a second on a steady way
+
+
+def test_the_teacher_schedule_is_set_field_by_field():
+    silent = ("schedule.permanent=0", "schedule.sporadic=0")
+    result = run(RunSpec("1", "rl+f", 0, max_episodes=2, teacher=silent))
+    assert result.interventions == 0 and result.spec["teacher"] == silent
+    with pytest.raises(SettingsError, match=r"'schedule=0.5': .* schedule\.FIELD=VALUE"):
+        replaced(TeacherProfile(), ["schedule=0.5"], "--teacher")
+    with pytest.raises(SettingsError, match=r"'schedule\.often=1': use KEY=VALUE .* sporadic"):
+        replaced(TeacherProfile(), ["schedule.often=1"], "--teacher")
 
 
 def test_experiment_sweep_end_to_end(tmp_path, capsys):

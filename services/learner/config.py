@@ -182,12 +182,22 @@ Config = TypeVar("Config")
 
 def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config:
     """The dataclass `config` with `KEY=VALUE` settings applied (values in JSON: 0.1, true,
-    "replacing", [1.0, 2.5]); raises SettingsError naming an unknown key, a value of the
-    wrong type or one the dataclass refuses (`flag` names the option in the message)."""
+    "replacing", [1.0, 2.5]; KEY.FIELD=VALUE sets a field of a nested dataclass); raises
+    SettingsError naming an unknown key, a value of the wrong type or one the dataclass
+    refuses (`flag` names the option in the message)."""
     fields = {f.name: f for f in dataclasses.fields(config)}
     changes = {}
     for setting in settings:
         key, sep, raw = setting.partition("=")
+        outer, dot, inner = key.partition(".")
+        if dot and sep and outer in fields and dataclasses.is_dataclass(getattr(config, outer)):
+            nested, inner_setting = changes.get(outer, getattr(config, outer)), f"{inner}={raw}"
+            try:
+                changes[outer] = replaced(nested, [inner_setting], flag)
+            except SettingsError as e:  # name the setting as it was given
+                said = str(e).replace(f"{flag} {inner_setting!r}", f"{flag} {setting!r}", 1)
+                raise SettingsError(said) from None
+            continue
         if not sep or key not in fields:
             raise SettingsError(
                 f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
@@ -198,7 +208,11 @@ def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config
             value = raw  # a bare word: a string
         current = getattr(config, key)
         if dataclasses.is_dataclass(current):
-            raise SettingsError(f"{flag} {setting!r}: {key} is not a single value")
+            names = ", ".join(f.name for f in dataclasses.fields(current))
+            raise SettingsError(
+                f"{flag} {setting!r}: {key} is not a single value; set its fields as "
+                f"{key}.FIELD=VALUE, FIELD one of {names}"
+            )
         if isinstance(current, tuple) and isinstance(value, list):
             value = tuple(value)
         if type(value) is int and "float" in str(fields[key].type):  # float, float | None
