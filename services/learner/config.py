@@ -185,20 +185,24 @@ def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config
     "replacing", [1.0, 2.5]; KEY.FIELD=VALUE sets a field of a nested dataclass); raises
     SettingsError naming an unknown key, a value of the wrong type or one the dataclass
     refuses (`flag` names the option in the message)."""
-    fields = {f.name: f for f in dataclasses.fields(config)}
-    changes = {}
+    items = []
     for setting in settings:
         key, sep, raw = setting.partition("=")
+        items.append((setting, key if sep else "", raw))  # no "=": no key, refused below
+    return _replaced(config, items, flag)
+
+
+def _replaced(config: Config, items: list[tuple[str, str, str]], flag: str) -> Config:
+    """`replaced` over (the setting as given, KEY, VALUE) items."""
+    fields = {f.name: f for f in dataclasses.fields(config)}
+    changes = {}
+    for setting, key, raw in items:
         outer, dot, inner = key.partition(".")
-        if dot and sep and outer in fields and dataclasses.is_dataclass(getattr(config, outer)):
-            nested, inner_setting = changes.get(outer, getattr(config, outer)), f"{inner}={raw}"
-            try:
-                changes[outer] = replaced(nested, [inner_setting], flag)
-            except SettingsError as e:  # name the setting as it was given
-                said = str(e).replace(f"{flag} {inner_setting!r}", f"{flag} {setting!r}", 1)
-                raise SettingsError(said) from None
+        if dot and outer in fields and dataclasses.is_dataclass(getattr(config, outer)):
+            nested = changes.get(outer, getattr(config, outer))
+            changes[outer] = _replaced(nested, [(setting, inner, raw)], flag)
             continue
-        if not sep or key not in fields:
+        if key not in fields:
             raise SettingsError(
                 f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
             )
