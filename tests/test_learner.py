@@ -109,6 +109,31 @@ def test_a_policy_action_goes_on_for_min_hold_steps_even_if_the_state_changes():
     assert learner.Q[0].any()  # one update over the 3 steps, from the state it started in
 
 
+@pytest.mark.parametrize(
+    ("turned_by", "turn_back", "epsilon", "undone"),
+    [
+        ("policy", False, 0.0, False),
+        ("policy", False, 1.0, False),  # nor does exploration
+        ("policy", True, 0.0, True),
+        ("teacher", False, 0.0, True),  # a teacher's turn may be undone
+    ],
+)
+def test_the_policy_does_not_undo_its_own_turn_at_once(turned_by, turn_back, epsilon, undone):
+    right = ACTION_NAMES.index("right")
+    config = replace(EXACT, turn_back=turn_back, epsilon_start=epsilon, epsilon_end=epsilon)
+    learner = Learner(config, seed=0)
+    assert learner.actions.undoing == {LEFT: right, right: LEFT}
+    learner.step(P(WALL_RIGHT, step=0))  # state 0: B, where turning right looks best by far
+    learner.interrupt()
+    learner.Q[0, [FORWARD, LEFT, right]] = (-5.0, -5.0, 10.0)
+    taken = []
+    for k in range(0, 40, 2):  # turned left in A, then in B: right, at once?
+        learner.step(P(WALL_LEFT, step=k), forced=learner.actions.one_hot(LEFT, turned_by))
+        taken.append(learner.step(P(WALL_RIGHT, step=k + 1)).discrete)
+        learner.Q[0, [FORWARD, LEFT, right]] = (-5.0, -5.0, 10.0)
+    assert (right in taken) == undone
+
+
 def test_near_bits_tell_a_wall_close_ahead_from_one_far_ahead():
     space = StateSpace(replace(EXACT, pearson_threshold=None, near_range=0.6))
     far, _ = space.classify(P(tuple([2.0] * 180)))
@@ -303,6 +328,18 @@ def test_traces_are_recorded_saved_and_replayed(tmp_path):
     direct = Learner(EXACT, seed=2)
     book.replay(direct)
     assert np.array_equal(direct.Q, student.Q)
+
+
+@pytest.mark.parametrize("trace_values", [False, True])
+def test_with_the_action_bias_a_replayed_trace_teaches_advice_and_values_only_if_asked(
+    trace_values,
+):
+    book = TraceBook()
+    run_episode(Learner(EXACT, seed=1), book, command_at=0)  # left, left, left, ..., the goal
+    student = Learner(replace(EXACT, shaping="action_bias", trace_values=trace_values), seed=2)
+    book.replay(student)
+    assert student.H[:, LEFT].max() > 0  # h's bonus, as advice
+    assert student.Q.any() == trace_values  # the route's values, only if asked
 
 
 def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_path):

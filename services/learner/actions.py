@@ -31,6 +31,13 @@ class ActionSet:
         self.config = config
         self.velocity = np.array([config.velocities[name] for name in ACTION_NAMES])
         self.allowed = np.array([name in config.policy_actions for name in ACTION_NAMES])
+        # The turn that undoes each turn on the spot (left <-> right): same speed, -omega.
+        self.undoing = {
+            i: j
+            for i, (v, omega) in enumerate(self.velocity)
+            for j, (v2, omega2) in enumerate(self.velocity)
+            if v == v2 == 0 and omega != 0 and omega2 == -omega
+        }
 
     def one_hot(self, index: int, chooser: str = "policy") -> Decision:
         weights = np.zeros(N_ACTIONS)
@@ -38,9 +45,16 @@ class ActionSet:
         v, omega = self.velocity[index]
         return Decision(weights, float(v), float(omega), chooser)
 
-    def choose(self, q: np.ndarray, epsilon: float, rng: np.random.Generator) -> Decision:
-        """Epsilon-greedy: a random allowed action, else the greedy one or the blend."""
-        allowed = np.flatnonzero(self.allowed)
+    def choose(
+        self,
+        q: np.ndarray,
+        epsilon: float,
+        rng: np.random.Generator,
+        barred: int | None = None,
+    ) -> Decision:
+        """Epsilon-greedy: a random allowed action, else the greedy one or the blend; never
+        the `barred` one."""
+        allowed = np.flatnonzero(self.allowed & (np.arange(N_ACTIONS) != barred))
         if rng.random() < epsilon:
             return self.one_hot(int(rng.choice(allowed)))
         if not self.config.blend:

@@ -8,7 +8,8 @@ At every control step, with s the previous state and a the action taken in it:
     gamma^k: SARSA over the states' changes)
     if the teacher selected a:       r <- h(r, a)          (h: + command_reward, bounded)
     select a' from s'                the teacher's command if one is pending, else the
-                                     policy derived from Q (epsilon-greedy, or the blend)
+                                     policy derived from Q (epsilon-greedy, or the blend),
+                                     never the turn that undoes a policy's turn a
     delta = r + gamma Q(s', a') - Q(s, a)         Q(s', a') = 0 when s' is terminal
     e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
     Q <- Q + alpha delta e;  e <- gamma lambda e;  s <- s', a <- a'
@@ -28,7 +29,8 @@ arrived in time). Feedback on steps that left the window is counted and dropped.
 
 That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
 action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
-policy ranks Q + beta H and Q learns from R_RL alone. H changes only when the teacher speaks,
+policy ranks Q + beta H and Q learns from R_RL alone, on the robot's own steps (a replayed
+trace, `replay=True`, teaches H alone, unless trace_values). H changes only when the teacher speaks,
 so what it taught is not unlearnt as it falls silent (config.py has the measurements). With
 advice_generalization the policy's H(s) is the mean of H[s] and the sums of H over the
 state's advice tiles (coarser tilings, states.py): tile coding, each tiling credited in full,
@@ -91,10 +93,14 @@ class Learner:
         self.episode_return = 0.0
 
     # -- Algorithm 1 ----------------------------------------------------------------------
-    def step(self, p: LearnerPercept, forced: Decision | None = None) -> Decision | None:
+    def step(
+        self, p: LearnerPercept, forced: Decision | None = None, replay: bool = False
+    ) -> Decision | None:
         """Learns from the step that led to `p` and decides the next action (None when the
-        episode ended). `forced` imposes the action (replaying a teacher's trace)."""
+        episode ended). `forced` imposes the action; `replay`: the step is a teacher's trace
+        replayed, not the robot's own."""
         c = self.config
+        learns_q = not replay or c.trace_values or c.shaping == "additive"
         s_next = self._state_of(p)
         ended = p.outcome != "running"
         terminal = ended and p.outcome != "timeout"  # a timeout cuts the episode short: s'
@@ -120,7 +126,7 @@ class Learner:
                 self.recent[-1].last = p.step  # same state: the action goes on
                 return self.a
         a_next = None if terminal else (forced or self._select(s_next))
-        if self.s is not None:
+        if self.s is not None and learns_q:
             q_next = 0.0 if terminal else a_next.weights @ self.value(s_next)
             if ended:
                 a_next = None
@@ -228,7 +234,10 @@ class Learner:
         q = self.value(s)
         if self.config.shaping == "action_bias":
             q = q + self.config.bias_weight * self.config.bias_decay**self.episode * self.advice(s)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng)
+        barred = None
+        if not self.config.turn_back and self.a is not None and self.a.chooser == "policy":
+            barred = self.actions.undoing.get(self.a.discrete)
+        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
 
     def advice(self, s: int) -> np.ndarray:
         """H(s, .) as the policy weighs it: the state's own, with its tiles' (if any)."""

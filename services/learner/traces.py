@@ -1,9 +1,10 @@
 """Initial traces: episodes a teacher steered, recorded, saved, and replayed for learning.
 
 An episode in which the teacher gave at least one command is kept whole (the percepts, the
-action taken at each step and who chose it). Replaying it runs the very SARSA(lambda) update
-over it with those actions imposed, so the learner learns from the teacher's route before
-(and, replayed again, during) its own episodes. Files are .npz arrays, no pickle.
+action taken at each step and who chose it). Replaying it runs the learner over it with
+those actions imposed, so the learner learns from the teacher's route before (and, replayed
+again, during) its own episodes: the teacher's advice (h's bonus; with additive shaping, or
+trace_values, the very SARSA(lambda) update too, see sarsa.py). Files are .npz arrays, no pickle.
 """
 
 from __future__ import annotations
@@ -68,7 +69,7 @@ class TraceBook:
         for recorded in self.episodes:
             learner.interrupt()
             for percept, decision in recorded:
-                learner.step(percept, forced=decision)
+                learner.step(percept, forced=decision, replay=True)
                 steps += 1
             learner.interrupt()
         learner.episode = episode
