@@ -30,9 +30,9 @@ arrived in time). Feedback on steps that left the window is counted and dropped.
 That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
 action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
 policy ranks Q + beta H and Q learns from R_RL alone, on the robot's own steps (a replayed
-trace, `replay=True`, teaches H alone, unless trace_values). H changes only when the teacher speaks,
-so what it taught is not unlearnt as it falls silent (config.py has the measurements). With
-advice_generalization the policy's H(s) is the mean of H[s] and the sums of H over the
+trace, `replay=True`, teaches H alone, unless trace_values). H changes only when the teacher
+speaks, so what it taught is not unlearnt as it falls silent (config.py has the measurements).
+With advice_generalization the policy's H(s) is the mean of H[s] and the sums of H over the
 state's advice tiles (coarser tilings, states.py): tile coding, each tiling credited in full,
 so what was said in a state also speaks for the states that share a tile with it.
 """
