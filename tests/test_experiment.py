@@ -110,6 +110,36 @@ def test_first_seed_runs_other_seeds_and_says_which(tmp_path):
     assert main([*one_run_of_task_1(out, "rl", episodes=1), "--first-seed", "-1"]) == 2
 
 
+def test_pooled_experiments_are_the_experiment_of_all_their_seeds(tmp_path, capsys):
+    def paper(out, *extra):
+        argv = [*one_run_of_task_1(tmp_path / out, "rl,rl+f", episodes=2), *extra]
+        assert main(argv) == 0
+
+    paper("both", "--seeds", "2")
+    paper("first")
+    paper("second", "--first-seed", "1")
+    assert main(["experiment", "pool", str(tmp_path / "first"), str(tmp_path / "second"),
+                 "--out", str(tmp_path / "pooled")]) == 0  # fmt: skip
+    pooled, both = (json.loads((tmp_path / d / "results.json").read_text())
+                    for d in ("pooled", "both"))  # fmt: skip
+    for key in ("seeds", "tasks", "speedup", "speedup_ci95", "interventions"):
+        assert pooled[key] == both[key]
+    assert pooled["pooled"] == [str(tmp_path / "first"), str(tmp_path / "second")]
+    assert "seeds 0-1" in (tmp_path / "pooled" / "report.md").read_text()
+    capsys.readouterr()
+
+    def refused(*dirs: str) -> str:
+        argv = ["experiment", "pool", *(str(tmp_path / d) for d in dirs)]
+        assert main([*argv, "--out", str(tmp_path / "refused")]) == 2
+        assert not (tmp_path / "refused").exists()
+        return capsys.readouterr().err
+
+    assert "seed 0 is in more than one of" in refused("first", "both")
+    paper("other", "--first-seed", "1", "--set", "alpha=0.1")
+    assert "learner_settings ['alpha=0.1'] differ" in refused("first", "other")
+    assert "not the results.json" in refused("first", "nowhere")
+
+
 def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_path, capsys):
     out = tmp_path / "paper"
     argv = one_run_of_task_1(out, "rl+f", episodes=2)

@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from services.experiment import distributed
-from services.experiment.paper import TASKS, experiment
+from services.experiment.paper import TASKS, PoolError, experiment, pool
 from services.experiment.session import SETTINGS, RunSpec
 from services.experiment.sweep import sweep
 from services.learner.config import (
@@ -105,6 +105,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="sporadic feedback probability, e.g. 0.05,0.2,0.5",
     )
 
+    pooling = sub.add_parser(
+        "pool",
+        help="the runs of several `paper` outputs as one experiment (e.g. seeds 0-9 and "
+        "10-19): tables and figure again",
+        description="reads each DIR's results.json and writes results.json, report.md and "
+        "figure2.png for all their runs to --out; the outputs must come from the same "
+        "experiment (episode limit, --set, --teacher) run on other seeds",
+    )
+    pooling.add_argument("dirs", type=Path, nargs="+", metavar="DIR", help="`paper` outputs")
+    pooling.add_argument("--out", type=Path, default=Path("runs/experiment-pool"))
+
     distributed = sub.add_parser(
         "distributed",
         help="one task and setting in-process and with every service its own process over "
@@ -124,6 +135,8 @@ def seeds_of(args: argparse.Namespace) -> range:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.experiment == "pool":
+        return run_pool(args)
     if args.seeds < 1 or args.max_episodes < 1 or args.first_seed < 0:
         print(
             "voxshape experiment: --seeds and --max-episodes must be >= 1, --first-seed >= 0",
@@ -157,6 +170,19 @@ def run(args: argparse.Namespace) -> int:
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
           f"({summary['wall_time_s'] / 60:.1f} min)")  # fmt: skip
+    return 0
+
+
+def run_pool(args: argparse.Namespace) -> int:
+    command = "voxshape experiment " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    try:
+        summary = pool(args.dirs, args.out, command)
+    except PoolError as e:
+        print(f"voxshape experiment pool: {e}", file=sys.stderr)
+        return 2
+    print((args.out / "report.md").read_text())
+    print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
+          f"({len(summary['runs'])} runs of {len(args.dirs)} experiments)")  # fmt: skip
     return 0
 
 

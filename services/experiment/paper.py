@@ -11,6 +11,9 @@ per core). Writes to the output directory:
 - figure2.png: episode duration against episode, one line per setting (the paper's Figure 2);
 - runs.jsonl: each run as it finishes, with the RunSpec it ran (setting, teacher, learner).
 
+`voxshape experiment pool DIR DIR...` writes the same three files for the runs of several
+outputs taken as one experiment (seeds 0-9 and the held-out 10-19: 20 seeds).
+
 A run that does not converge within max_episodes is censored: it counts with its time so far
 (a lower bound) and is flagged; a setting's cell with censored runs is marked.
 """
@@ -22,6 +25,7 @@ import math
 import os
 import random
 import statistics
+from collections import Counter
 from collections.abc import Callable, Iterable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from operator import attrgetter
@@ -178,8 +182,13 @@ def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) 
 
 
 def _seed_range(summary: dict) -> str:
-    first = summary.get("first_seed", 0)
-    return f"seeds {first}-{first + summary['seeds'] - 1}"
+    spans: list[list[int]] = []  # runs of consecutive seeds, [first, last]
+    for seed in sorted({r["seed"] for r in summary["runs"]}):
+        if spans and seed == spans[-1][1] + 1:
+            spans[-1][1] = seed
+        else:
+            spans.append([seed, seed])
+    return "seeds " + ", ".join(f"{a}-{b}" if a < b else f"{a}" for a, b in spans)
 
 
 def _paper(table: dict, setting: str, task: str) -> str:
@@ -359,12 +368,62 @@ def experiment(
     wall = clock() - began
     summary = summarize(results, len(seeds))
     summary["first_seed"] = seeds.start
-    summary["command"] = command
-    summary["wall_time_s"] = round(wall, 1)
-    summary["max_episodes"] = max_episodes
-    summary["learner_settings"] = list(learner)
-    summary["teacher_settings"] = list(teacher)
+    summary.update(command=command, wall_time_s=round(wall, 1), max_episodes=max_episodes)
+    summary.update(learner_settings=list(learner), teacher_settings=list(teacher))
+    _write(out, summary, results)
+    return summary
+
+
+def _write(out: Path, summary: dict, results: list[RunResult]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(summary, indent=1))
-    (out / "report.md").write_text(report(summary, command, wall))
+    (out / "report.md").write_text(report(summary, summary["command"], summary["wall_time_s"]))
     figure2(results, out / "figure2.png")
+
+
+class PoolError(ValueError):
+    """Results that cannot be pooled; the message names the directory and why."""
+
+
+POOLED_ALIKE = ("max_episodes", "learner_settings", "teacher_settings")
+
+
+def pool(dirs: list[Path], out: Path, command: str) -> dict:
+    """The runs of several `experiment` outputs (their results.json) as one experiment:
+    writes results.json, report.md and figure2.png to `out`. Refuses outputs run with another
+    episode limit or other learner or teacher settings, and a run found in two of them."""
+    loaded, runs = [], []
+    for d in dirs:
+        path = d / "results.json"
+        try:
+            results = json.loads(path.read_text())
+            runs += [RunResult(**r) for r in results["runs"]]
+        except (OSError, ValueError, KeyError, TypeError) as e:
+            raise PoolError(
+                f"{path}: not the results.json of `voxshape experiment paper` ({e})"
+            ) from None
+        loaded.append(results)
+    for d, results in zip(dirs[1:], loaded[1:], strict=True):
+        for key in POOLED_ALIKE:
+            if results.get(key) != loaded[0].get(key):
+                raise PoolError(
+                    f"{d}: its {key} {results.get(key)!r} differ from {dirs[0]}'s "
+                    f"{loaded[0].get(key)!r}: only runs of the same experiment pool"
+                )
+    twice = [k for k, n in Counter((r.task, r.setting, r.seed) for r in runs).items() if n > 1]
+    if twice:
+        task, setting, seed = twice[0]
+        raise PoolError(
+            f"task {task} {setting} seed {seed} is in more than one of {', '.join(map(str, dirs))}"
+            ": pool experiments of other seeds (run them with --first-seed)"
+        )
+    summary = summarize(runs, len({r.seed for r in runs}))
+    summary["first_seed"] = min(r.seed for r in runs)
+    summary.update({key: loaded[0].get(key) for key in POOLED_ALIKE})
+    summary.update(
+        command=command,
+        wall_time_s=round(sum(results.get("wall_time_s", 0.0) for results in loaded), 1),
+        pooled=[str(d) for d in dirs],
+    )
+    _write(out, summary, runs)
     return summary
