@@ -1,4 +1,4 @@
-"""`voxshape experiment paper|sweep`: the command line of the experiments."""
+"""`voxshape experiment paper|sweep|pool|distributed`: the command line of the experiments."""
 
 from __future__ import annotations
 
@@ -130,6 +130,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     distributed.add_argument("--out", type=Path, default=Path("runs/experiment-distributed"))
 
 
+def command_line() -> str:
+    """The command being run, as results.json and the report quote it."""
+    return "voxshape experiment " + shlex.join(sys.argv[2:])
+
+
 def seeds_of(args: argparse.Namespace) -> range:
     return range(args.first_seed, args.first_seed + args.seeds)
 
@@ -154,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         return run_sweep(args)
     if args.experiment == "distributed":
         return run_distributed(args)
-    command = "voxshape experiment " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    command = command_line()
     summary = experiment(
         args.out,
         args.tasks,
@@ -174,7 +179,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_pool(args: argparse.Namespace) -> int:
-    command = "voxshape experiment " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else [])
+    command = command_line()
     try:
         summary = pool(args.dirs, args.out, command)
     except PoolError as e:

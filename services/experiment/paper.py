@@ -389,7 +389,7 @@ POOLED_ALIKE = ("max_episodes", "learner_settings", "teacher_settings")
 
 
 def pool(dirs: list[Path], out: Path, command: str) -> dict:
-    """The runs of several `experiment` outputs (their results.json) as one experiment:
+    """The runs of several `experiment paper` outputs (their results.json) as one experiment:
     writes results.json, report.md and figure2.png to `out`. Refuses outputs run with another
     episode limit or other learner or teacher settings, and a run found in two of them."""
     loaded, runs = [], []
