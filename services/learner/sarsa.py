@@ -242,17 +242,17 @@ class Learner:
     def advice(self, s: int) -> np.ndarray:
         """H(s, .) as the policy weighs it: the state's own, with its tiles' (if any)."""
         tiles = self.states.tiles[s]
-        return (self.H[s] + self.H_tiles[list(tiles)].sum(axis=0)) / (1 + len(tiles))
+        return (self.H[s] + self.H_tiles[tiles].sum(axis=0)) / (1 + len(tiles))
 
     def _advise(self, s: int, change: np.ndarray) -> None:
         self.H[s] += change
-        self.H_tiles[list(self.states.tiles[s])] += change
+        self.H_tiles[self.states.tiles[s]] += change
 
     def sum_advice_tiles(self) -> None:
         """H_tiles from H (after H was restored)."""
         self.H_tiles = np.zeros((len(self.states.tile_ids), N_ACTIONS))
         for s, tiles in enumerate(self.states.tiles):
-            self.H_tiles[list(tiles)] += self.H[s]
+            self.H_tiles[tiles] += self.H[s]
 
     def _state_of(self, p: Percept) -> int:
         s, parent = self.states.classify(p)

@@ -52,7 +52,7 @@ class StateSpace:
         self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
         self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
         self.tile_ids: dict[tuple[int, ...], int] = {}  # (tiling, key without its field)
-        self.tiles: list[tuple[int, ...]] = []  # each state's advice tile in every tiling
+        self.tiles: list[list[int]] = []  # each state's advice tile in every tiling (an index)
         self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
 
@@ -115,7 +115,7 @@ class StateSpace:
     def _add_cells(self, key: tuple[int, int, int, int, int]) -> None:
         self.cells.append(key[2] * (len(self.config.distance_edges) + 1) + key[3])
         coarse = ((t, *key[:i], *key[i + 1 :]) for t, i in enumerate(self.ignored))
-        self.tiles.append(tuple(self.tile_ids.setdefault(k, len(self.tile_ids)) for k in coarse))
+        self.tiles.append([self.tile_ids.setdefault(k, len(self.tile_ids)) for k in coarse])
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
         """(prototype index, best other prototype when a new one was born)."""
