@@ -397,6 +397,22 @@ def test_a_flood_is_cut_counted_and_the_teacher_told_once():
     assert feedback(other)  # another teacher is not limited
 
 
+def test_a_robot_time_teachers_rate_is_per_robot_second():
+    """At 20x real time a simulated teacher saying one thing every robot second says 20 a
+    wall second: within its rate in robot seconds. A person saying as much is a flood."""
+    fast = PERIOD / 20
+    config = ArbiterConfig(robot_time=frozenset({"sim"}), learning=DelayLearning(enabled=False))
+    a = Arbiter(config, VOCABULARY)
+    for k in range(800):
+        a.on_observation(observation("r1", k, T0 + k * fast), T0 + k * fast)
+    said = {"sim": 0, "ana": 0}
+    for i in range(40):  # one every 10 steps: a robot second, 50 ms of wall time
+        at = T0 + (400 + 10 * i) * fast
+        for teacher in said:
+            said[teacher] += len(feedback(a.on_utterance(utterance(teacher, "r1", "good", at), at)))
+    assert said == {"sim": 40, "ana": 8 + 7}  # ana: the burst, then 4/s over 1.95 s
+
+
 def test_an_unknown_robot_is_rejected_and_the_teacher_told():
     a = arbiter()
     out = a.on_utterance(utterance("ana", "r9", "good", shown(90)), shown(99))

@@ -209,6 +209,16 @@ def test_the_distributed_run_learns_exactly_what_the_in_process_run_learns():
     assert bus.durations_s == local.durations_s and len(bus.durations_s) == 2
 
 
+def test_over_zenoh_the_simulated_teacher_says_as_much_per_robot_minute_as_in_process():
+    """Lockstep runs ~50x real time: the teacher, the speech service and the arbiter keep to
+    robot time (rate, delays), so the teacher is heard as often as in-process, not refused
+    as a flood (before: 4% of its words)."""
+    spec = RunSpec("1", "rl+f", seed=0, max_episodes=2)
+    local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
+    per_minute = [o.interventions / (sum(o.durations_s) / 60) for o in (local, bus)]
+    assert 0.67 < per_minute[1] / per_minute[0] < 1.5, per_minute
+
+
 def test_the_speedup_interval_holds_the_speedup_and_narrows_with_agreeing_seeds():
     def runs(times: list[float]) -> list[RunResult]:
         return [RunResult("1", "rl", i, True, 1, t, 0, 0, [t], False, (0, 0), {})

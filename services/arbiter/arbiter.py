@@ -6,7 +6,8 @@ teacher gets a TeacherNotice for those marked *):
   teacher_mismatch   the utterance names another teacher than the key it came on
   duplicate          a message id seen before (the first copy was answered)
   too_many_teachers  more than `max_teachers` teachers
-  rate_limited *     the teacher's token bucket is empty (one notice per second at most)
+  rate_limited *     the teacher's token bucket is empty (one notice per second at most;
+                     a robot-time teacher's rate is per robot second)
   unknown_robot *    no observation of that robot within the remembered history
   low_confidence *   below `min_confidence` ("not understood, please repeat")
   not_understood *   not a phrase of the vocabulary
@@ -151,7 +152,8 @@ class Arbiter:
             robot = None  # its simulator went quiet: nothing to credit
         tally = robot.tally(teacher_id) if robot is not None else _Tally()
         tally.utterances += 1
-        if not self._rates.allow(teacher_id, received_at):
+        pace = robot.timeline.pace if robot is not None else 1.0
+        if not self._rates.allow(teacher_id, received_at, self.config.time_scale(teacher_id, pace)):
             return self._ignore("rate_limited", utterance, tally, received_at)
         if robot is None:
             return self._ignore("unknown_robot", utterance, tally, received_at)

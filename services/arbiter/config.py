@@ -66,9 +66,10 @@ class ArbiterConfig:
     min_confidence: float = 0.5  # utterances below are ignored; the teacher is asked to repeat
     delay: DelayWindow = field(default_factory=DelayWindow)
     teacher_delay: dict[str, DelayWindow] = field(default_factory=dict)
-    # Teachers whose delays are robot seconds, not their own: a simulated teacher watching a
-    # simulator that runs faster than real time reacts after as many steps as at real time
-    # (services/simteacher). People react in their own seconds whatever the robot's pace.
+    # Teachers whose delays and rate are in robot seconds, not their own: a simulated teacher
+    # watching a simulator that runs faster than real time reacts after as many steps, and
+    # says as much per robot second, as at real time (services/simteacher). People react in
+    # their own seconds whatever the robot's pace.
     robot_time: frozenset[str] = frozenset()
     learning: DelayLearning = field(default_factory=DelayLearning)
     reward_bound: float = 100.0  # g(r, f): |f| at most this (the learner's feedback_bound)

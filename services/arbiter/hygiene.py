@@ -26,15 +26,16 @@ class RecentIds:
 
 
 class TokenBucket:
-    """`rate` tokens per second up to `burst`; each utterance takes one."""
+    """`rate` tokens per second up to `burst`; each utterance takes one. `scale`: clock seconds
+    per second of the rate (a teacher who lives in robot time, at the robot's pace)."""
 
     def __init__(self, rate: float, burst: float, now: float) -> None:
         self.rate, self.burst = rate, burst
         self.tokens = burst
         self.updated = now
 
-    def take(self, now: float) -> bool:
-        elapsed = max(0.0, now - self.updated)  # a clock set back refills nothing
+    def take(self, now: float, scale: float = 1.0) -> bool:
+        elapsed = max(0.0, now - self.updated) / max(scale, 1e-9)  # set back: refills nothing
         self.tokens = min(self.burst, self.tokens + elapsed * self.rate)
         self.updated = now
         if self.tokens >= 1.0:
@@ -50,11 +51,11 @@ class RateLimits:
         self.rate, self.burst = rate, burst
         self._buckets: dict[str, TokenBucket] = {}
 
-    def allow(self, teacher: str, now: float) -> bool:
+    def allow(self, teacher: str, now: float, scale: float = 1.0) -> bool:
         bucket = self._buckets.get(teacher)
         if bucket is None:
             bucket = self._buckets[teacher] = TokenBucket(self.rate, self.burst, now)
-        return bucket.take(now)
+        return bucket.take(now, scale)
 
     def forget(self, teacher: str) -> None:
         self._buckets.pop(teacher, None)

@@ -216,9 +216,10 @@ def run_sweep(args: argparse.Namespace) -> int:
 def run_distributed(args: argparse.Namespace) -> int:
     spec = RunSpec(args.task, args.setting, 0, args.max_episodes)
     comparison = distributed.compare(spec, list(seeds_of(args)))
+    comparison["command"] = command_line()
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
-    text = distributed.report(comparison)
+    text = distributed.report(comparison) + f"\n\nReproduce: `{comparison['command']}`"
     (args.out / "distributed.md").write_text(text + "\n")
     print(text)
     print(f"wrote {args.out / 'distributed.json'}, distributed.md")

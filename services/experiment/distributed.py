@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import signal
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -19,14 +20,16 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from protocol import EpisodeEvent, robot_key
-from services.experiment.session import ROBOT, SETTINGS, TEACHER, RunSpec, run
+from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
+from services.experiment.paper import mean_ci
+from services.experiment.session import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, Episode
 from services.learner.train import convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
 from services.sim.maps import load_map
 from services.sim.task import SimConfig
+from services.simteacher.teacher import Confusion
 
 VOXSHAPE = [sys.executable, "-m", "services"]
 STOP_WAIT_S = 10.0
@@ -44,6 +47,7 @@ class Outcome:
     learning_time_s: float
     durations_s: list[float]
     wall_time_s: float
+    interventions: int  # understood utterances until convergence (or the end)
 
 
 def in_process(spec: RunSpec) -> Outcome:
@@ -55,6 +59,7 @@ def in_process(spec: RunSpec) -> Outcome:
         result.learning_time_s,
         result.durations_s[: result.episodes],
         round(time.monotonic() - start, 1),
+        result.interventions,
     )
 
 
@@ -75,18 +80,24 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
     sim += [*seed, "--action-timeout", str(ACTION_WAIT_S)]
     commands = [["router", "--session", session, "--node", "router", "--listen", router]]
     if setting.feedback:
-        teacher = ["--teacher", TEACHER, "--task", spec.task, "--noise", str(setting.noise)]
+        slips, misheard = noise_shares(setting.noise)
+        teacher = ["--teacher", TEACHER, "--task", spec.task, "--noise", str(slips)]
+        # The mock's recognition latency is wall seconds: 0 here, where 0.3 s would be 100+
+        # lockstep steps (the in-process run's recognition is 0.3 robot seconds, 3 steps).
+        speech = ["--engine", "mock", "--latency", "0", *seed]
+        speech += ["--error-rate", str(misheard), "--confusion", "misheard=1,dropped=0,inserted=0"]
         commands += [
-            ["arbiter", *bus("arbiter")],
-            ["speech", *bus("speech"), "--engine", "mock"],
+            ["arbiter", *bus("arbiter"), "--robot-time", TEACHER],
+            ["speech", *bus("speech"), *speech],
             ["sim-teacher", *bus("sim-teacher"), "--robot", ROBOT, *teacher, *seed],
         ]
-        if setting.traces:
-            commands[-1] += ["--traces", str(setting.traces)]
     with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
         checkpoint = str(Path(folder) / "learner.npz")
         learner = ["learner", *bus("learner"), "--robot", ROBOT, "--fresh", *seed]
         commands.append([*learner, "--checkpoint", checkpoint])
+        if book := initial_traces(spec):  # the in-process run's traces, replayed alike
+            book.save(Path(folder) / "traces.npz")
+            commands[-1] += ["--traces", str(Path(folder) / "traces.npz")]
         children: list[subprocess.Popen] = []
         start = time.monotonic()
         try:
@@ -95,13 +106,16 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
             config = replace(bus_config("equivalence"), session=session, mode="client")
             with Node("equivalence", replace(config, connect=(router,))) as node:
                 node.input("episode", robot_key(session, ROBOT, "episode"))
+                node.input("notice", teacher_key(session, TEACHER, "notice"))
                 node.watch_presence()
                 children += [_start(c, folder) for c in commands[1:]]
                 _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
                 time.sleep(0.5)  # their subscriptions reach the router with their tokens
                 children.append(_start(sim, folder))
                 progress = convergence_on(load_map(spec.task), LearnerConfig())
-                _watch(node, progress, spec.max_episodes, start + timeout_s, children)
+                interventions = _watch(
+                    node, progress, spec.max_episodes, start + timeout_s, children
+                )
         finally:
             for child in reversed(children):
                 _stop(child)
@@ -111,7 +125,17 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
         round(progress.learning_time, 1),
         [e.sim_seconds for e in progress.episodes[: progress.n_episodes]],
         round(time.monotonic() - start, 1),
+        interventions,
     )
+
+
+def noise_shares(noise: float) -> tuple[float, float]:
+    """The in-process teacher's error rate split as over the bus: its own slips (the opposite
+    qualifier, said by the sim-teacher) and mishearings (made by the mock speech engine), in
+    the proportions of the profile's Confusion."""
+    c = Confusion()
+    share = c.wrong_qualifier / (c.wrong_qualifier + c.misheard)
+    return noise * share, noise * (1 - share)
 
 
 def _watch(
@@ -120,7 +144,11 @@ def _watch(
     max_episodes: int,
     deadline: float,
     children: list[subprocess.Popen],
-) -> None:
+) -> int:
+    """Follows the episodes until convergence or `max_episodes`; returns the interventions
+    meanwhile (the teacher's words the arbiter understood, as its notices say: its
+    TeachingStats are sent at most once a wall second, many episodes apart in lockstep)."""
+    interventions = 0
     while len(progress.episodes) < max_episodes and not progress.converged:
         if time.monotonic() > deadline:
             raise TimeoutError(f"no convergence nor {max_episodes} episodes in time")
@@ -131,6 +159,9 @@ def _watch(
             e = event.message
             if e.kind != "start":
                 progress.add(Episode(e.kind, e.episode_steps, e.episode_steps * PERIOD))
+        elif isinstance(event, Input) and isinstance(event.message, TeacherNotice):
+            interventions += event.message.kind == "understood"
+    return interventions
 
 
 def _await(node: Node, names: set[str], deadline: float) -> None:
@@ -159,7 +190,8 @@ def _stop(child: subprocess.Popen) -> None:
 
 
 def compare(spec: RunSpec, seeds: list[int]) -> dict:
-    """Both ways for each seed: their outcomes, and whether the learning matched exactly."""
+    """Both ways for each seed: their outcomes, whether the learning matched exactly, and the
+    means of both ways (within noise of each other, when not identical)."""
     runs = []
     for seed in seeds:
         one = replace(spec, seed=seed)
@@ -173,25 +205,61 @@ def compare(spec: RunSpec, seeds: list[int]) -> dict:
         "setting": spec.setting,
         "max_episodes": spec.max_episodes,
         "runs": runs,
+        "summary": {way: _summary([r[way] for r in runs]) for way in WAYS},
+        "identical": sum(r["same"] for r in runs),
+    }
+
+
+WAYS = ("in_process", "over_zenoh")
+
+
+def _summary(outcomes: list[dict]) -> dict:
+    minutes, half = mean_ci(o["learning_time_s"] / 60 for o in outcomes)
+    return {
+        "learning_time_min": round(minutes, 2),
+        "learning_time_min_ci95": round(half, 2),
+        "episodes": statistics.fmean(o["episodes"] for o in outcomes),
+        "interventions": statistics.fmean(o["interventions"] for o in outcomes),
+        "converged_fraction": statistics.fmean(o["converged"] for o in outcomes),
+        "wall_time_s": round(sum(o["wall_time_s"] for o in outcomes), 1),
     }
 
 
 def report(comparison: dict) -> str:
-    """A Markdown table of a comparison."""
+    """A Markdown table of a comparison, and its means."""
     lines = [
         f"Task {comparison['task']}, setting `{comparison['setting']}`: in-process vs every "
         "service its own process over zenoh (lockstep)",
         "",
-        "| seed | episodes (in-process / zenoh) | learning time min | converged | same episodes "
-        "| wall s (in-process / zenoh) |",
-        "|---|---|---|---|---|---|",
+        "| seed | episodes (in-process / zenoh) | learning time min | interventions | converged "
+        "| same episodes | wall s |",
+        "|---|---|---|---|---|---|---|",
     ]
     for r in comparison["runs"]:
         a, b = r["in_process"], r["over_zenoh"]
         lines.append(
             f"| {r['seed']} | {a['episodes']} / {b['episodes']} "
             f"| {a['learning_time_s'] / 60:.1f} / {b['learning_time_s'] / 60:.1f} "
+            f"| {a['interventions']} / {b['interventions']} "
             f"| {a['converged']} / {b['converged']} | {'yes' if r['same'] else 'no'} "
             f"| {a['wall_time_s']:.0f} / {b['wall_time_s']:.0f} |"
         )
+    a, b = (comparison["summary"][way] for way in WAYS)
+    n = len(comparison["runs"])
+    lines += [
+        f"| mean | {a['episodes']:.1f} / {b['episodes']:.1f} "
+        f"| {a['learning_time_min']:.1f} ± {a['learning_time_min_ci95']:.1f} / "
+        f"{b['learning_time_min']:.1f} ± {b['learning_time_min_ci95']:.1f} "
+        f"| {a['interventions']:.0f} / {b['interventions']:.0f} "
+        f"| {a['converged_fraction']:.0%} / {b['converged_fraction']:.0%} "
+        f"| {comparison['identical']} of {n} | {a['wall_time_s']:.0f} / {b['wall_time_s']:.0f} |",
+        "",
+        f"Learning time (robot minutes, mean ± 95% interval): {a['learning_time_min']:.2f} ± "
+        f"{a['learning_time_min_ci95']:.2f} in-process, {b['learning_time_min']:.2f} ± "
+        f"{b['learning_time_min_ci95']:.2f} over zenoh; {comparison['identical']} of {n} runs "
+        f"learnt step for step the same episodes. Over zenoh took "
+        f"{b['wall_time_s'] / max(a['wall_time_s'], 0.1):.1f}x the wall time "
+        f"({b['wall_time_s']:.0f} s against {a['wall_time_s']:.0f} s, every process started "
+        "and stopped for each run).",
+    ]
     return "\n".join(lines)

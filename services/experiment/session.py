@@ -28,8 +28,9 @@ from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.learner.config import replaced, with_settings
 from services.learner.convergence import Episode
 from services.learner.sarsa import Learner
+from services.learner.traces import TraceBook
 from services.learner.train import convergence_on
-from services.sim.maps import load_map
+from services.sim.maps import Map, load_map
 from services.sim.stepper import observation
 from services.sim.task import Reading, Simulation
 from services.simteacher.dictation import dictate
@@ -106,7 +107,7 @@ def run(spec: RunSpec) -> RunResult:
     learner_config = with_settings(list(spec.learner))
     learner = Learner(learner_config, seed=spec.seed)
     progress = convergence_on(m, learner_config)
-    book = dictate(m, setting.traces, seed=10_000 + spec.seed) if setting.traces else None
+    book = initial_traces(spec, m)
     teacher = SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
     arbiter = Arbiter(
         ArbiterConfig(learning=replace(DelayLearning(), enabled=spec.delay_learning)), vocabulary
@@ -161,6 +162,12 @@ def run(spec: RunSpec) -> RunResult:
         counters=counters,
         spec=asdict(spec),
     )
+
+
+def initial_traces(spec: RunSpec, m: Map | None = None) -> TraceBook | None:
+    """The episodes the teacher dictates before learning in the run's setting (None: none)."""
+    traces = SETTINGS[spec.setting].traces
+    return dictate(m or load_map(spec.task), traces, seed=10_000 + spec.seed) if traces else None
 
 
 def deliver(

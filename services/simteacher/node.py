@@ -18,8 +18,9 @@ with its onset and end at the display times of those steps, on the teacher's own
 paced simulator at real time this is a person; on a lockstep one it is a person watching the
 robot fast-forwarded, who still reacts after as many steps as at normal speed (a real-time
 reaction would land hundreds of steps late). It never says more than `--max-rate` things per
-second of its own clock (a person says at most 2-3; the arbiter refuses floods), so at lockstep
-speed it comments on fewer of the steps it judges.
+robot second (a person says at most 2-3 a second); the arbiter must be told it lives in robot
+time (`voxshape arbiter --robot-time <teacher>`), or it refuses the fast-forwarded words as a
+flood and credits them with a person's delays.
 """
 
 from __future__ import annotations
@@ -157,7 +158,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--max-rate",
         type=float,
         default=3.0,
-        help="utterances per second of its own clock at most (the arbiter allows 4)",
+        help="utterances per robot second at most (the arbiter allows 4)",
     )
     parser.add_argument(
         "--audio",
@@ -275,12 +276,12 @@ class BusTeacher:
         while self._pending and self._pending[0][0] <= t + 1e-9:
             end, _, text, onset = heapq.heappop(self._pending)
             out.append(Spoken(text, self.display.at(onset), self.display.at(end), "judgement"))
-        return [s for s in out if self._may_say(s, now)]
+        return [s for s in out if self._may_say(s, t)]
 
-    def _may_say(self, spoken: Spoken, now: float) -> bool:
+    def _may_say(self, spoken: Spoken, t: float) -> bool:
         if self._bucket is None:
-            self._bucket = TokenBucket(self.max_rate, max(1.0, self.max_rate), now)
-        if self._bucket.take(now):
+            self._bucket = TokenBucket(self.max_rate, max(1.0, self.max_rate), t)
+        if self._bucket.take(t):
             self.counters[f"said.{spoken.kind}"] += 1
             return True
         self.counters[f"unsaid.{spoken.kind}.too_fast"] += 1
