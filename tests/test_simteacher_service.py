@@ -71,6 +71,10 @@ def test_it_never_says_more_than_max_rate_things_a_robot_second():
         said += len(bus.on_observation(obs(k, x), 10.0 + k * 0.001))
     assert 38 <= said <= 42  # 20 robot seconds at 2/s, burst 2
     assert bus.counters["unsaid.judgement.too_fast"] > 100
+    restarted = [  # a new simulator: steps from 0 again, its rate anew
+        bus.on_observation(obs(k, TASK.start.x + 0.3 * (k % 12), 1, k), 11.0 + k) for k in range(30)
+    ]
+    assert sum(map(len, restarted)) >= 4  # 3 robot seconds at 2/s (not the old clock's)
 
 
 def test_it_dictates_commands_during_the_first_episodes_it_sees_start():

@@ -279,7 +279,7 @@ class BusTeacher:
         return [s for s in out if self._may_say(s, t)]
 
     def _may_say(self, spoken: Spoken, t: float) -> bool:
-        if self._bucket is None:
+        if self._bucket is None or t < self._bucket.updated:  # none yet, or a new simulator
             self._bucket = TokenBucket(self.max_rate, max(1.0, self.max_rate), t)
         if self._bucket.take(t):
             self.counters[f"said.{spoken.kind}"] += 1
