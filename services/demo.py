@@ -10,7 +10,7 @@ episode, then stops the session and writes the logger's recording, the report's 
 The simulator runs paced at `--rtf` times real time: the arbiter credits what teachers say by
 the wall-clock display time of the steps, so the robot must not outrun that (a lockstep
 simulator here runs ~500 steps/s, and 0.1 s of a teacher's timing would cover 50 steps). The
-simulated teacher's delays are robot seconds, and the arbiter is told so (`--robot-time`).
+simulated teacher's delays are robot seconds, and the arbiter is told so (VOXSHAPE_ROBOT_TIME).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import argparse
 import os
 import shutil
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from protocol import EpisodeEvent, TeachingStats, robot_key
@@ -174,6 +174,9 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
         "VOXSHAPE_CLOCK": "paced",
         "VOXSHAPE_RTF": f"{args.rtf:g}",
         "VOXSHAPE_SPEECH_ENGINE": "pocketsphinx" if mode == "audio" else "mock",
+        # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
+        # reacts after as many steps as at real time, services/simteacher), whatever --rtf.
+        "VOXSHAPE_ROBOT_TIME": TEACHER,
         "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
     }
     for name, value in defaults.items():
@@ -198,14 +201,6 @@ def teacher_spec(session: launcher.Session, mode: str, seed: int) -> ServiceSpec
     return ServiceSpec("sim-teacher", tuple(command), environment, ("router", "speech"), ())
 
 
-def robot_time_arbiter(spec: ServiceSpec) -> ServiceSpec:
-    """The arbiter takes the simulated teacher's delays as robot seconds (it reacts after as
-    many steps as at real time, services/simteacher/node.py), whatever `--rtf`."""
-    if spec.name != "arbiter":
-        return spec
-    return replace(spec, command=(*spec.command, "--robot-time", TEACHER))
-
-
 def run(args: argparse.Namespace) -> int:
     if args.max_episodes < 3 or args.rtf <= 0:
         print("voxshape demo: error: --max-episodes must be >= 3 and --rtf > 0")
@@ -216,7 +211,6 @@ def run(args: argparse.Namespace) -> int:
     if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
         session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
         return 2
-    session.specs[:] = [robot_time_arbiter(spec) for spec in session.specs]
     session.specs.append(teacher_spec(session, mode, args.seed))
     speaks = (
         "synthesized speech (espeak-ng) heard by pocketsphinx"

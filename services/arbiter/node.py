@@ -81,9 +81,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--robot-time",
         action="append",
+        default=[t for t in os.environ.get("VOXSHAPE_ROBOT_TIME", "").split(",") if t],
         metavar="TEACHER",
-        help="a teacher whose delays are robot seconds: a simulated teacher on a simulator "
-        "faster than real time (repeatable; people react in their own seconds)",
+        help="a teacher whose delays and rate are robot seconds: a simulated teacher on a "
+        "simulator faster than real time (repeatable, or comma-separated in "
+        "VOXSHAPE_ROBOT_TIME; people react in their own seconds)",
     )
     parser.add_argument(
         "--no-delay-learning",
