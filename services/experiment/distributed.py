@@ -5,6 +5,12 @@ settings the arbiter, the mock speech service and the simulated teacher. Same se
 learning results expected (within noise: the bus delivers a teacher's words at wall-clock
 moments, not at the in-process run's exact steps), and the wall time of both.
 
+The bus run is made the in-process one's equal where it can be: the teacher keeps to robot
+time (the arbiter takes it as a robot-time teacher: its delays and rate are per robot second,
+at lockstep's ~50 robot seconds a wall second), its errors are split as in-process (its own
+slips, the mock engine's mishearings), the mock hears at once (its latency is wall time), and
+the learner replays the very traces the in-process run dictates.
+
 Processes are started and stopped here, by pid, on a free loopback port.
 """
 
