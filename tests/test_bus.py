@@ -8,6 +8,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import pytest
@@ -211,3 +212,32 @@ def test_node_refuses_to_start_without_router():
     )
     with pytest.raises(BusError, match="Is the session's router running"):
         Node("test", config)
+
+
+def test_a_timed_wait_ends_on_time_after_messages(client_config, session_id, spawn):
+    """A paced simulator froze in CI: CPython 3.11's SimpleQueue.get(timeout=t) waited for the
+    next message instead of t when the deadline passed inside it, which takes the thread being
+    preempted there, and a simulator waiting 5 ms for its next tick gets no message until it
+    steps. Busy processes preempt this one; each round, a message arrives and is taken (as an
+    action is), then a 1 ns wait must come back empty; should it hang, a timer sends a message
+    after 0.2 s to end the round. With the old queue, 13-36 of 1500 rounds hung (4 runs)."""
+    busy = "import time\nend = time.time() + 60\nwhile time.time() < end: pass"
+    for _ in range(3):  # more than CI's cores
+        spawn([sys.executable, "-c", busy])
+    key, message = example_messages(session_id)[0]
+    rounds, hung = 1000, 0
+    with Node("test", client_config("self")) as node:
+        node.input("in", key)
+        out = node.output("out", key)
+        for _ in range(rounds):
+            out.put(message)
+            time.sleep(0.001)  # it is in before the node looks: taken without waiting
+            assert isinstance(node.poll(5.0), Input)
+            wake = threading.Timer(0.2, out.put, (message,))
+            wake.start()
+            if node.poll(1e-9) is not None:
+                hung += 1
+            wake.cancel()
+            wake.join()
+            node.poll(0)  # a message the timer sent just as the wait ended
+    assert hung == 0, f"{hung} of {rounds} waits of 1 ns lasted until the next message"

@@ -57,7 +57,8 @@ def sync_clock(
     check_id(teacher, "teacher")
     if n < 1:
         raise ValueError(f"n={n}: at least one exchange is needed")
-    replies: queue.SimpleQueue[tuple[ClockReply, float]] = queue.SimpleQueue()
+    # queue.Queue: SimpleQueue's timed get can wait past its timeout (services/runtime/node.py)
+    replies: queue.Queue[tuple[ClockReply, float]] = queue.Queue()
 
     def on_reply(sample: zenoh.Sample) -> None:
         t3 = clock()
@@ -104,7 +105,7 @@ def _exchange(
     teacher: str,
     best: ClockEstimate | None,
     clock: Callable[[], float],
-    replies: queue.SimpleQueue[tuple[ClockReply, float]],
+    replies: queue.Queue[tuple[ClockReply, float]],
     wait: float,
 ) -> ClockEstimate | None:
     probe = ClockProbe(

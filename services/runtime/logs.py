@@ -15,6 +15,8 @@ import sys
 import time
 from typing import Any
 
+import zenoh
+
 _FIELDS = "voxshape_fields"
 
 
@@ -64,3 +66,6 @@ def configure_logging(level: str | None = None, fmt: str | None = None) -> None:
     root = logging.getLogger()
     root.handlers[:] = [handler]
     root.setLevel(level if level in logging.getLevelNamesMapping() else "INFO")
+    # zenoh's own errors (a transport closed for congestion, a lost link) are otherwise
+    # invisible: they go to stderr in zenoh's format; RUST_LOG chooses more.
+    zenoh.init_log_from_env_or("error")

@@ -140,7 +140,11 @@ class Node:
         if quiet and not self.log.isEnabledFor(logging.DEBUG):
             self.log.setLevel(logging.WARNING)
         self.counters: Counter[str] = Counter()
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        # Not queue.SimpleQueue: on CPython 3.11 its get(timeout=t) can wait for the next
+        # put instead of t (when the deadline passes inside it, the time left turns negative,
+        # which its C code takes as "forever"); a simulator waiting 5 ms for its next tick
+        # then sleeps until an action comes, and none comes (tests/test_bus.py).
+        self._queue: queue.Queue = queue.Queue()
         self._stopping = threading.Event()
         self._declared: list = []
         self.session = open_session(config)
