@@ -212,6 +212,9 @@ def run(args: argparse.Namespace) -> int:
         session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
         return 2
     session.specs.append(teacher_spec(session, mode, args.seed))
+    # The robot starts once its learner and teacher listen: at 20x, a start slowed by a busy
+    # machine would otherwise run minutes of robot time untaught.
+    session.specs.sort(key=lambda spec: spec.name == "sim")
     speaks = (
         "synthesized speech (espeak-ng) heard by pocketsphinx"
         if mode == "audio"
@@ -222,6 +225,8 @@ def run(args: argparse.Namespace) -> int:
         f"time, taught by a simulated teacher speaking {speaks}"
     )
     progress = Progress(ROBOT, args.max_episodes)
+    session.input("episode", robot_key(session_id, ROBOT, "episode"))  # from the first one
+    session.input("teaching", robot_key(session_id, ROBOT, "teaching"))
     code = 0
     t0 = time.monotonic()
     try:
@@ -258,8 +263,6 @@ def train(session: launcher.Session, progress: Progress, stall_timeout: float) -
     """Shows episodes as they end until convergence or the episode bound."""
     bus = session.bus
     assert bus is not None
-    bus.input("episode", robot_key(bus.session_id, ROBOT, "episode"))
-    bus.input("teaching", robot_key(bus.session_id, ROBOT, "teaching"))
     last_end, cpu_then = time.monotonic(), session.cpu_seconds()
     done_at: float | None = None
     for event in bus.events(tick=0.5):

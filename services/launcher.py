@@ -59,8 +59,17 @@ class Session:
         self._print_lock = threading.Lock()
         self._width = max(len(s.name) for s in specs)
         self._stop_requested = False
+        self._inputs: list[tuple[str, str]] = []  # the launcher node's, declared on joining
 
     # -- starting -----------------------------------------------------------------------
+    def input(self, name: str, key: str) -> None:
+        """An input of the launcher's own node. Declared before start() is, it is there as soon
+        as the node joins the bus, before any service but the router starts, so none of their
+        messages on it is missed."""
+        self._inputs.append((name, key))
+        if self.bus is not None:
+            self.bus.input(name, key)
+
     def start(self) -> float:
         """Starts every service; returns seconds until all were present."""
         t0 = time.monotonic()
@@ -114,6 +123,8 @@ class Session:
                     raise
                 continue
             node.watch_presence()
+            for name, key in self._inputs:
+                node.input(name, key)
             return node
 
     def _wait_until(self, condition: object, what: str) -> None:

@@ -11,7 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from services.topology import TopologyError, interpolate, load_topology
+from protocol import robot_key
+from services.launcher import Session
+from services.runtime import Input
+from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port
 
 COMPOSE = ROOT / "compose.yaml"
@@ -185,3 +188,25 @@ def test_profiles_select_optional_services(tmp_path):
     )
     assert [s.name for s in load_topology(compose, {})] == ["a", "c"]
     assert [s.name for s in load_topology(compose, {}, ("extra",))] == ["a", "b", "c"]
+
+
+def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_path, monkeypatch):
+    """The demo counts episodes from the first: the launcher's inputs declared before start()
+    are there when it joins the bus, before the simulator starts and announces episode 0."""
+    port = free_port()
+    monkeypatch.chdir(tmp_path)  # the services write under ./runs
+    monkeypatch.setenv("VOXSHAPE_SESSION", session_id)  # the services' and the launcher's
+    variables = local_variables()
+    variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = f"tcp/127.0.0.1:{port}"
+    specs = [s for s in load_topology(COMPOSE, variables) if s.name in ("router", "sim")]
+    session = Session(specs, variables["VOXSHAPE_ROUTER"], ready_timeout=30)
+    session.input("episode", robot_key(session_id, "r1", "episode"))
+    try:
+        session.start()
+        assert session.bus is not None
+        deadline = time.monotonic() + 10
+        while not isinstance(event := session.bus.poll(0.5), Input):
+            assert time.monotonic() < deadline, "no episode event within 10 s"
+    finally:
+        session.stop()
+    assert (event.message.kind, event.message.episode) == ("start", 0), event
