@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import faulthandler
+import signal
 import sys
 from collections.abc import Callable
 from types import ModuleType
@@ -124,6 +126,9 @@ def parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     configure_logging(args.log_level)
+    # `kill -USR1 <pid>` prints where every thread of a stuck process is (the demo does it
+    # for each service when no episode ends).
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         return COMMANDS[args.command][2](args)
     except (

@@ -286,9 +286,11 @@ def train(session: launcher.Session, progress: Progress, stall_timeout: float) -
         elif now - last_end > stall_timeout:
             used = session.cpu_seconds()
             cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
+            session.print_stacks()
             raise TimeoutError(
                 f"no episode ended for {stall_timeout:g} s: is the robot stuck? (CPU seconds "
-                f"used meanwhile: {cpu}; the sim near 0: it is blocked, not slow)"
+                f"used meanwhile: {cpu}; the sim near 0: it is blocked, not slow; each "
+                "service's threads are printed above)"
             )
     raise KeyboardInterrupt
 

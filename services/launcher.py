@@ -180,6 +180,14 @@ class Session:
             used[name] = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
         return used
 
+    def print_stacks(self, wait: float = 1.0) -> None:
+        """Has every running service print where each of its threads is (SIGUSR1, see
+        services/cli.py), relayed with the rest of its output within `wait` seconds."""
+        for proc in self.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGUSR1)
+        time.sleep(wait)
+
     # -- stopping -----------------------------------------------------------------------
     def stop(self) -> dict[str, int | None]:
         """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes."""

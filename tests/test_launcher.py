@@ -15,7 +15,7 @@ from protocol import robot_key
 from services.launcher import Session
 from services.runtime import Input
 from services.topology import TopologyError, interpolate, load_topology, local_variables
-from tests.conftest import ROOT, VOXSHAPE, free_port
+from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
 
 COMPOSE = ROOT / "compose.yaml"
 
@@ -210,3 +210,17 @@ def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_
     finally:
         session.stop()
     assert (event.message.kind, event.message.episode) == ("start", 0), event
+
+
+def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
+    """What the demo does to every service when no episode ends: each says where it is."""
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    argv = [VOXSHAPE, "router", "--session", session_id, "--listen", endpoint]
+    router = spawn(argv, text=True, stderr=subprocess.STDOUT)
+    wait_for_port(port)
+    router.send_signal(signal.SIGUSR1)
+    lines = read_until(router, r"services/router.py\", line \d+ in run$")  # its own loop
+    assert any("most recent call first" in line for line in lines), lines
+    time.sleep(0.5)
+    assert router.poll() is None, "SIGUSR1 stopped the service"
