@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import faulthandler
+import io
 import signal
 import sys
 from collections.abc import Callable
@@ -127,8 +129,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser().parse_args(argv)
     configure_logging(args.log_level)
     # `kill -USR1 <pid>` prints where every thread of a stuck process is (the demo does it
-    # for each service when no episode ends).
-    faulthandler.register(signal.SIGUSR1, all_threads=True)
+    # for each service when no episode ends); not when main() runs in a process whose stderr
+    # is no file (a test's captured output).
+    with contextlib.suppress(io.UnsupportedOperation):
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
         return COMMANDS[args.command][2](args)
     except (
