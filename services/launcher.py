@@ -181,10 +181,12 @@ class Session:
         return used
 
     def print_stacks(self, wait: float = 1.0) -> None:
-        """Has every running service print where each of its threads is (SIGUSR1, see
-        services/cli.py), relayed with the rest of its output within `wait` seconds."""
-        for proc in self.procs.values():
-            if proc.poll() is None:
+        """Has every running voxshape service print where each of its threads is (SIGUSR1,
+        see services/cli.py), relayed with the rest of its output within `wait` seconds.
+        Other commands (the viewer) are left alone: SIGUSR1 would end most of them."""
+        for spec in self.specs:
+            proc = self.procs.get(spec.name)
+            if spec.command[0] == "voxshape" and proc is not None and proc.poll() is None:
                 proc.send_signal(signal.SIGUSR1)
         time.sleep(wait)
 
