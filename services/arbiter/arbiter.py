@@ -153,7 +153,8 @@ class Arbiter:
         tally = robot.tally(teacher_id) if robot is not None else _Tally()
         tally.utterances += 1
         pace = robot.timeline.pace if robot is not None else 1.0
-        if not self._rates.allow(teacher_id, received_at, self.config.time_scale(teacher_id, pace)):
+        scale = self.config.time_scale(teacher_id, pace)  # for its rate, and its delays below
+        if not self._rates.allow(teacher_id, received_at, scale):
             return self._ignore("rate_limited", utterance, tally, received_at)
         if robot is None:
             return self._ignore("unknown_robot", utterance, tally, received_at)
@@ -168,7 +169,8 @@ class Arbiter:
             out, episode = self._command(utterance, meaning.action or "stop", robot)
             said = f"command {meaning.action}"
         else:
-            judged = self._judge(utterance, meaning.reward or 0.0, teacher, robot, received_at)
+            reward = meaning.reward or 0.0
+            judged = self._judge(utterance, reward, teacher, robot, received_at, scale)
             if judged is None:
                 return self._ignore("too_late", utterance, tally, received_at)
             out, episode = judged
@@ -277,12 +279,18 @@ class Arbiter:
         return [feedback], episode
 
     def _judge(
-        self, utterance: Utterance, reward: float, teacher: _Teacher, robot: _Robot, now: float
+        self,
+        utterance: Utterance,
+        reward: float,
+        teacher: _Teacher,
+        robot: _Robot,
+        now: float,
+        scale: float,
     ) -> tuple[list[Message], int] | None:
         """A qualifier or the goal, credited to the steps the teacher saw (None: too late):
-        the feedback to send now (merge policy, bound g) and the episode it is about."""
+        the feedback to send now (merge policy, bound g) and the episode it is about. `scale`:
+        wall seconds per second of the teacher's delays."""
         onset = self._onset_on_sim_clock(utterance, robot, now)
-        scale = self.config.time_scale(utterance.teacher, robot.timeline.pace)
         polarity = 1 if reward > 0 else -1 if reward < 0 else 0
         if self.config.learning.enabled and polarity:
             self._learn_delay(teacher, utterance.robot, robot, polarity, onset, scale)
