@@ -171,7 +171,7 @@ def flood_rate(work: Path, n: int) -> tuple[float, float, dict]:
         stats_path = RunDir(work / "runs" / session).receiver_stats
         with client(session, router, "flooder") as node:
             wait_for_presence(node, {"logger"})
-            publisher = node.session.declare_publisher(
+            publisher = node.zenoh.declare_publisher(
                 key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
             )
             time.sleep(0.5)
@@ -203,7 +203,7 @@ session, router, delay = sys.argv[1], sys.argv[2], float(sys.argv[3])
 config = replace(bus_config("slow", env={}), session=session, node="slow", mode="client",
                  connect=(router,))
 with Node("slow", config, quiet=True) as node:
-    node.session.declare_subscriber(f"voxshape/{session}/**", lambda s: time.sleep(delay))
+    node.zenoh.declare_subscriber(f"voxshape/{session}/**", lambda s: time.sleep(delay))
     for event in node.events():
         pass
 """

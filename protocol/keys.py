@@ -1,18 +1,20 @@
 """Key expressions of the bus, and which message type travels on each.
 
-voxshape/<session>/robot/<robot>/obs           simulator -> *
-voxshape/<session>/robot/<robot>/action        learner/teacher -> simulator
-voxshape/<session>/robot/<robot>/episode       simulator -> *
-voxshape/<session>/robot/<robot>/feedback      arbiter -> learner
-voxshape/<session>/robot/<robot>/learning      learner -> logger
-voxshape/<session>/robot/<robot>/teaching      arbiter -> *   (interventions, teacher stats)
-voxshape/<session>/teacher/<teacher>/audio     teacher -> speech
-voxshape/<session>/teacher/<teacher>/utterance speech/teacher -> arbiter
-voxshape/<session>/teacher/<teacher>/said      teacher (as text) -> mock speech engine
-voxshape/<session>/teacher/<teacher>/clock     teacher -> arbiter (clock probe, NTP style)
-voxshape/<session>/teacher/<teacher>/clock-reply  arbiter -> teacher
-voxshape/<session>/teacher/<teacher>/notice    arbiter -> teacher (understood, or why not)
-voxshape/<session>/presence/<role>/<node>      liveliness token of every running node
+voxshape/<session>/robot/<robot>/obs              Observation
+voxshape/<session>/robot/<robot>/action           Action
+voxshape/<session>/robot/<robot>/episode          EpisodeEvent
+voxshape/<session>/robot/<robot>/feedback         CreditedFeedback
+voxshape/<session>/robot/<robot>/learning         LearningSummary
+voxshape/<session>/robot/<robot>/teaching         TeachingStats (interventions, teacher stats)
+voxshape/<session>/teacher/<teacher>/audio        AudioChunk
+voxshape/<session>/teacher/<teacher>/utterance    Utterance
+voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for the mock engine)
+voxshape/<session>/teacher/<teacher>/clock        ClockProbe (NTP style)
+voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
+voxshape/<session>/teacher/<teacher>/notice       TeacherNotice (understood, or why not)
+voxshape/<session>/presence/<role>/<node>         liveliness token of every running node
+
+Who publishes and who subscribes to each: protocol/dataflow.py (`voxshape dataflow`).
 """
 
 from __future__ import annotations

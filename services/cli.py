@@ -78,6 +78,11 @@ COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
         tools.add_listen_arguments,
         tools.listen,
     ),
+    "dataflow": (
+        "print who publishes and subscribes to what (protocol/dataflow.py)",
+        tools.add_dataflow_arguments,
+        tools.show_dataflow,
+    ),
     "vocabulary": (
         "check a vocabulary file and list its phrases",
         tools.add_vocabulary_arguments,

@@ -25,7 +25,7 @@ from pathlib import Path
 from protocol import EpisodeEvent, TeachingStats, robot_key
 from services import launcher
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, Episode
+from services.learner.convergence import Convergence, EpisodeResult
 from services.learner.train import convergence_on
 from services.logger.report import write_report
 from services.logger.run import RunDir, RunError
@@ -76,7 +76,7 @@ class Shown:
 
 
 @dataclass
-class Progress:
+class ConvergenceWatch:
     """Episodes of one robot and the arbiter's interventions per episode, to convergence
     (pure: messages in, lines out)."""
 
@@ -94,7 +94,7 @@ class Progress:
             return
         seconds = event.episode_steps * 0.1
         self.episodes.append(Shown(event.episode, event.kind, event.episode_steps, seconds, now))
-        self.convergence.add(Episode(event.kind, event.episode_steps, seconds))
+        self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
 
     def on_teaching(self, stats: TeachingStats) -> None:
         if stats.robot == self.robot:
@@ -184,7 +184,7 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     return os.environ["VOXSHAPE_SESSION"]
 
 
-def teacher_spec(session: launcher.Session, mode: str, seed: int) -> ServiceSpec:
+def teacher_spec(session: launcher.LocalSession, mode: str, seed: int) -> ServiceSpec:
     """The simulated teacher as one more service of the session (on the learner's bus
     settings), started last."""
     bus = next(s for s in session.specs if s.name == "learner").environment
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace) -> int:
         f"voxshape demo: session {session_id!r}, task 1, robot {ROBOT} at {args.rtf:g}x real "
         f"time, taught by a simulated teacher speaking {speaks}"
     )
-    progress = Progress(ROBOT, args.max_episodes)
+    progress = ConvergenceWatch(ROBOT, args.max_episodes)
     session.input("episode", robot_key(session_id, ROBOT, "episode"))  # from the first one
     session.input("teaching", robot_key(session_id, ROBOT, "teaching"))
     code = 0
@@ -259,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
     return outputs(session, session_id, progress) or code
 
 
-def train(session: launcher.Session, progress: Progress, stall_timeout: float) -> None:
+def train(session: launcher.LocalSession, progress: ConvergenceWatch, stall_timeout: float) -> None:
     """Shows episodes as they end until convergence or the episode bound."""
     bus = session.bus
     assert bus is not None
@@ -295,7 +295,7 @@ def train(session: launcher.Session, progress: Progress, stall_timeout: float) -
     raise KeyboardInterrupt
 
 
-def outputs(session: launcher.Session, session_id: str, progress: Progress) -> int:
+def outputs(session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch) -> int:
     """Writes the report and the episode table; says where everything is."""
     run_dir = Path("runs") / session_id
     try:

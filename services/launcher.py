@@ -46,7 +46,7 @@ def resolve_command(command: tuple[str, ...]) -> list[str]:
     return [found, *command[1:]]
 
 
-class Session:
+class LocalSession:
     """A running local session: child processes plus the launcher's own bus node."""
 
     def __init__(self, specs: list[ServiceSpec], router: str, ready_timeout: float) -> None:
@@ -215,7 +215,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ready-timeout", type=float, default=30.0, help="seconds per service")
 
 
-def open_session(args: argparse.Namespace) -> Session:
+def open_session(args: argparse.Namespace) -> LocalSession:
     variables = local_variables()
     if args.port is not None:
         variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = (
@@ -223,7 +223,7 @@ def open_session(args: argparse.Namespace) -> Session:
         )
     path = args.compose or find_compose_file()
     specs = load_topology(path, variables, tuple(args.profile))
-    return Session(specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout)
+    return LocalSession(specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -1,10 +1,11 @@
 """Small tools for people and scripts looking at a session: who is there, what is said.
 
 `voxshape status`  lists the nodes present in a session (and checks required ones: compose
-                   healthchecks use it).
+                   healthchecks use it), and notes their inputs nobody present publishes.
 `voxshape listen`  prints every message of a session, decoded and validated (JSON lines with
                    --json), like zenoh's z_sub but knowing voxshape's types.
 `voxshape vocabulary` checks a vocabulary file and lists its phrases.
+`voxshape dataflow` prints who publishes and subscribes to what (protocol/dataflow.py).
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from protocol import Key, load_vocabulary, parse_key, presence_key, session_keys, to_wire
+from protocol import Key, dataflow, load_vocabulary, parse_key, presence_key, session_keys, to_wire
 from services.runtime import Input, Node, add_bus_arguments, bus_config
 
 
@@ -38,7 +39,7 @@ def status(args: argparse.Namespace) -> int:
     if args.mode is None and config.mode == "peer":
         config = replace(config, mode="client")  # a one-shot look needs no listener
     with Node("status", config, quiet=True) as node:
-        replies = node.session.liveliness().get(presence_key(node.session_id), timeout=2.0)
+        replies = node.zenoh.liveliness().get(presence_key(node.session_id), timeout=2.0)
         present = []
         for reply in replies:
             if reply.ok is not None:
@@ -47,15 +48,52 @@ def status(args: argparse.Namespace) -> int:
                     present.append({"role": key.owner, "node": key.name})
     present.sort(key=lambda p: (p["role"], p["node"]))
     missing = sorted(set(args.require) - {p["node"] for p in present})
+    unfed = unfed_inputs(present)
     if args.json:
-        print(json.dumps({"session": config.session, "present": present, "missing": missing}))
+        print(
+            json.dumps(
+                {"session": config.session, "present": present, "missing": missing, "unfed": unfed}
+            )
+        )
     else:
         print(f"session {config.session!r}: {len(present)} node(s) present")
         for p in present:
             print(f"  {p['role']:<12} {p['node']}")
         for name in missing:
             print(f"  missing      {name}")
+        for line in unfed:
+            print(f"  note         {line}")
     return 1 if missing else 0
+
+
+def unfed_inputs(present: list[dict[str, str]]) -> list[str]:
+    """The inputs of present nodes (their rows in protocol/dataflow.py) that no present node's
+    role publishes, e.g. "learner learner-1 subscribes to robot/*/feedback: no arbiter present";
+    a node's inputs missing the same publishers share a line."""
+    roles = {p["role"] for p in present}
+    notes = []
+    for p in present:
+        row = dataflow.DATAFLOW.get(p["role"])
+        unfed: dict[str, list[str]] = {}  # the missing publisher roles -> the inputs
+        for flow in row.subscribes if row else ():
+            publishers = dataflow.publishers_of(flow.scope, flow.topic)
+            if not roles & set(publishers):
+                unfed.setdefault(" or ".join(publishers), []).append(f"{flow.scope}/*/{flow.topic}")
+        for publishers, inputs in unfed.items():
+            notes.append(
+                f"{p['role']} {p['node']} subscribes to {', '.join(inputs)}: "
+                f"no {publishers} present"
+            )
+    return notes
+
+
+def add_dataflow_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--markdown", action="store_true", help="as a markdown table")
+
+
+def show_dataflow(args: argparse.Namespace) -> int:
+    print(dataflow.markdown() if args.markdown else dataflow.text())
+    return 0
 
 
 def add_listen_arguments(parser: argparse.ArgumentParser) -> None:

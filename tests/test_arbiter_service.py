@@ -69,8 +69,8 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         # Malformed utterances are rejected without harm; unknown words get a notice.
         key = teacher_key(session_id, "ana", "utterance")
         bad = to_wire(utterance("ana", "r1", "good", onset))
-        node.session.put(key, msgpack.packb({**bad, "confidence": 2.0}))
-        node.session.put(key, b"\x00garbage")
+        node.zenoh.put(key, msgpack.packb({**bad, "confidence": 2.0}))
+        node.zenoh.put(key, b"\x00garbage")
         said.put(utterance("ana", "r1", "cucumber", onset + 0.1))
         notice = collect(node, 1, TeacherNotice)[0]
         assert notice.kind == "not_understood" and "please repeat" in notice.text

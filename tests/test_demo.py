@@ -12,7 +12,7 @@ import subprocess
 import pytest
 
 from protocol import EpisodeEvent, TeachingStats
-from services.demo import FINAL_WAIT_S, Progress
+from services.demo import FINAL_WAIT_S, ConvergenceWatch
 from services.runtime import free_loopback_port
 from tests.conftest import VOXSHAPE
 
@@ -74,7 +74,7 @@ def stats(episode: int, interventions: int, final: bool) -> TeachingStats:
 
 
 def test_an_episode_is_shown_once_its_interventions_are_final_or_waited_for():
-    progress = Progress("r1", max_episodes=10)
+    progress = ConvergenceWatch("r1", max_episodes=10)
     progress.on_episode(ended(0, 900, "timeout"), now=0.0)
     progress.on_teaching(stats(0, 4, final=False))
     assert progress.due_lines(now=1.0) == []
@@ -87,7 +87,7 @@ def test_an_episode_is_shown_once_its_interventions_are_final_or_waited_for():
 
 
 def test_it_is_done_at_convergence_and_marks_the_episode():
-    progress = Progress("r1", max_episodes=10)
+    progress = ConvergenceWatch("r1", max_episodes=10)
     for n, steps in enumerate([2000, 400, 150, 160, 170]):
         progress.on_episode(ended(n, steps), now=0.0)
     assert progress.done and progress.convergence.n_episodes == 5
@@ -97,7 +97,7 @@ def test_it_is_done_at_convergence_and_marks_the_episode():
 
 
 def test_it_gives_up_at_the_episode_bound_and_ignores_other_robots():
-    progress = Progress("r1", max_episodes=3)
+    progress = ConvergenceWatch("r1", max_episodes=3)
     progress.on_episode(EpisodeEvent(**{**ended(0, 10).__dict__, "robot": "r2"}), now=0.0)
     assert progress.episodes == []
     for n in range(3):

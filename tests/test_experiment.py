@@ -9,8 +9,8 @@ import pytest
 
 from services.cli import main
 from services.experiment import distributed
+from services.experiment.inprocess import RunResult, RunSpec, run
 from services.experiment.paper import mean_ci, speedup_interval
-from services.experiment.session import RunResult, RunSpec, run
 from services.learner.config import SettingsError, replaced
 from services.simteacher.teacher import TeacherProfile
 

@@ -546,7 +546,7 @@ def test_malformed_messages_on_every_topic_crash_nothing_and_each_is_counted(
         node.watch_presence()
         wait_present(node, set(services))
         outputs = {
-            (scope, topic): node.session.declare_publisher(
+            (scope, topic): node.zenoh.declare_publisher(
                 (robot_key if scope == "robot" else teacher_key)(session_id, OWNER[scope], topic),
                 congestion_control=zenoh.CongestionControl.BLOCK,
             )

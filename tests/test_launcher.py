@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from protocol import robot_key
-from services.launcher import Session
+from services.launcher import LocalSession
 from services.runtime import Input
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
@@ -199,7 +199,7 @@ def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_
     variables = local_variables()
     variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = f"tcp/127.0.0.1:{port}"
     specs = [s for s in load_topology(COMPOSE, variables) if s.name in ("router", "sim")]
-    session = Session(specs, variables["VOXSHAPE_ROUTER"], ready_timeout=30)
+    session = LocalSession(specs, variables["VOXSHAPE_ROUTER"], ready_timeout=30)
     session.input("episode", robot_key(session_id, "r1", "episode"))
     try:
         session.start()

@@ -49,7 +49,6 @@ EXACT = LearnerConfig(
     max_hold=1,
     clear_range=None,
     use_sonar=False,
-    goal_prior=False,
     pearson_threshold=0.9,
     near_range=None,
     goal_sectors=0,
@@ -110,17 +109,16 @@ def test_a_policy_action_goes_on_for_min_hold_steps_even_if_the_state_changes():
 
 
 @pytest.mark.parametrize(
-    ("turned_by", "turn_back", "epsilon", "undone"),
+    ("turned_by", "epsilon", "undone"),
     [
-        ("policy", False, 0.0, False),
-        ("policy", False, 1.0, False),  # nor does exploration
-        ("policy", True, 0.0, True),
-        ("teacher", False, 0.0, True),  # a teacher's turn may be undone
+        ("policy", 0.0, False),
+        ("policy", 1.0, False),  # nor does exploration
+        ("teacher", 0.0, True),  # a teacher's turn may be undone
     ],
 )
-def test_the_policy_does_not_undo_its_own_turn_at_once(turned_by, turn_back, epsilon, undone):
+def test_the_policy_does_not_undo_its_own_turn_at_once(turned_by, epsilon, undone):
     right = ACTION_NAMES.index("right")
-    config = replace(EXACT, turn_back=turn_back, epsilon_start=epsilon, epsilon_end=epsilon)
+    config = replace(EXACT, epsilon_start=epsilon, epsilon_end=epsilon)
     learner = Learner(config, seed=0)
     assert learner.actions.undoing == {LEFT: right, right: LEFT}
     learner.step(P(WALL_RIGHT, step=0))  # state 0: B, where turning right looks best by far
@@ -246,6 +244,22 @@ def test_credited_feedback_is_taken_whole_and_names_the_steps_it_dropped():
     assert learner.take(command) == [] and list(learner.commands) == [LEFT] * EXACT.command_steps
 
 
+def test_online_feedback_is_taken_once_even_when_delivered_again():
+    from collections import Counter
+
+    from services.learner.online import OnlineLearner
+
+    online = OnlineLearner(Learner(EXACT, seed=0), checkpoint.Bookmark(), None, Counter())
+    online.learner.step(P(WALL_LEFT, step=0))
+    feedback = CreditedFeedback(
+        robot="r1", kind="reward", reward=10.0, command=None,
+        credits=(Credit(step=0, weight=1.0),), sources=("u1",), teachers=("ana",),
+    )  # fmt: skip
+    assert online.take(feedback) == [] and online.take(feedback) == []
+    assert online.learner.counters["feedback_credited"] == 1
+    assert online.counters["learner.feedback_taken_before"] == 1
+
+
 def test_a_command_overrides_the_policy_and_earns_h():
     learner = Learner(EXACT, seed=0)
     learner.step(P(WALL_LEFT, step=0))
@@ -330,16 +344,13 @@ def test_traces_are_recorded_saved_and_replayed(tmp_path):
     assert np.array_equal(direct.Q, student.Q)
 
 
-@pytest.mark.parametrize("trace_values", [False, True])
-def test_with_the_action_bias_a_replayed_trace_teaches_advice_and_values_only_if_asked(
-    trace_values,
-):
+def test_with_the_action_bias_a_replayed_trace_teaches_advice_not_values():
     book = TraceBook()
     run_episode(Learner(EXACT, seed=1), book, command_at=0)  # left, left, left, ..., the goal
-    student = Learner(replace(EXACT, shaping="action_bias", trace_values=trace_values), seed=2)
+    student = Learner(replace(EXACT, shaping="action_bias"), seed=2)
     book.replay(student)
     assert student.H[:, LEFT].max() > 0  # h's bonus, as advice
-    assert student.Q.any() == trace_values  # the route's values, only if asked
+    assert not student.Q.any()  # the route's values stay untried (optimistic)
 
 
 def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_path):
@@ -422,19 +433,21 @@ def test_goal_sectors_must_match_and_checkpoints_from_before_them_resume(tmp_pat
         checkpoint.load(old, replace(EXACT, goal_sectors=8))  # learnt without, not the default
 
 
-def test_goal_prior_shares_what_is_learnt_across_states_of_a_goal_cell():
-    learner = Learner(
-        replace(EXACT, goal_prior=True, pearson_threshold=0.99, init_from_neighbour=False), seed=0
-    )
-    forward = learner.actions.one_hot(FORWARD)
-    learner.step(P(WALL_LEFT, step=0), forced=forward)
-    learner.step(P(WALL_RIGHT, reward=-1.0, step=1), forced=forward)
-    # delta = -1; each tiling moves by alpha / 2 * delta, and Q(s) is their sum
-    assert learner.Q[0, FORWARD] == pytest.approx(0.25 * -1.0)
-    assert learner.value(0)[FORWARD] == pytest.approx(0.5 * -1.0)
-    unseen = learner._state_of(P(tuple([0.5] * 30 + [3.0] * 150)))  # a new shape, same cell
-    assert learner.Q[unseen, FORWARD] == 0.0
-    assert learner.value(unseen)[FORWARD] == pytest.approx(0.25 * -1.0)  # the cell's share
+def test_a_checkpoint_learnt_with_a_removed_setting_is_refused(tmp_path):
+    path, learner = tmp_path / "learner.npz", Learner(EXACT)
+    learner.step(P(WALL_LEFT))
+    checkpoint.save(learner, path)
+    with np.load(path) as data:
+        arrays = dict(data)
+    meta = json.loads(str(arrays["meta"]))
+    meta["config"]["goal_prior"] = True
+    arrays["meta"] = np.array(json.dumps(meta))
+    np.savez(path, **arrays)
+    with pytest.raises(checkpoint.CheckpointError, match=r"learnt with goal_prior, .*start afresh"):
+        checkpoint.load(path, EXACT)
+    meta["config"]["goal_prior"] = False  # saved before it was removed, off: resumes
+    np.savez(path, **(arrays | {"meta": np.array(json.dumps(meta))}))
+    assert checkpoint.load(path, EXACT).states.keys
 
 
 def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():
@@ -480,7 +493,7 @@ def test_the_summary_reports_the_episode_return():
 
 
 def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
-    from services.learner.convergence import Convergence, Episode
+    from services.learner.convergence import Convergence, EpisodeResult
 
     progress = Convergence(LearnerConfig(converge_episodes=3, converge_margin=0.25))
     history = [
@@ -492,7 +505,7 @@ def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
         ("goal", 124, 0),
         ("goal", 300, 0),
     ]
-    done = [progress.add(Episode(o, n, n * 0.1, i)) for o, n, i in history]
+    done = [progress.add(EpisodeResult(o, n, n * 0.1, i)) for o, n, i in history]
     # converged at the 6th: of the last three (120, 110, 124) the slowest is within 125% of
     # the fastest
     assert done == [False, False, False, False, False, True, True]
@@ -501,18 +514,22 @@ def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
 
 
 def test_three_equally_slow_goal_episodes_are_not_convergence_on_a_map():
-    from services.learner.convergence import Convergence, Episode
+    from services.learner.convergence import Convergence, EpisodeResult
     from services.learner.train import convergence_on
     from services.sim.maps import load_map
 
     config = LearnerConfig(converge_episodes=3, converge_slack=2.5)
-    slow = [Episode("goal", 2400, 240.0)] * 3
+    slow = [EpisodeResult("goal", 2400, 240.0)] * 3
     unbounded = Convergence(config)
     assert [unbounded.add(e) for e in slow][-1]  # without the map's bound
     progress = convergence_on(load_map("1"), config)  # task 1: 5.1 m at 0.5 m/s, 10.3 s
     assert progress.shortest_s == pytest.approx(10.3, abs=0.2)
     assert not any(progress.add(e) for e in slow)
-    assert [progress.add(Episode("goal", 200, 20.0)) for _ in range(3)] == [False, False, True]
+    assert [progress.add(EpisodeResult("goal", 200, 20.0)) for _ in range(3)] == [
+        False,
+        False,
+        True,
+    ]
 
 
 def test_traces_are_replayed_again_every_replay_every_episodes():

@@ -24,7 +24,6 @@ import zenoh
 from protocol import CreditedFeedback, robot_key, session_keys, teacher_key
 from protocol.examples import example_messages
 from services.deploy.access import (
-    ROLES,
     AccessError,
     access_control,
     load_access,
@@ -308,9 +307,3 @@ def test_credentials_and_secrets_folder(secrets, tmp_path):
     bad.write_text("ana\n")
     with pytest.raises(AccessError, match="line 1: expected user:password"):
         load_credentials(bad)
-
-
-def test_every_role_is_in_the_readme_table():
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    for role in ROLES:
-        assert f"| {role} |" in readme, role

@@ -141,10 +141,10 @@ def test_garbage_audio_is_rejected_and_counted_and_the_service_goes_on(
         while not out.has_subscribers() and time.monotonic() < deadline:
             time.sleep(0.05)
         assert out.has_subscribers(), "the speech service never subscribed"
-        node.session.put(key, b"\x93not msgpack at all")
-        node.session.put(key, msgpack.packb({**wire, "sample_rate": 8000}, use_bin_type=True))
-        node.session.put(key, msgpack.packb({**wire, "pcm": bytes(1601)}, use_bin_type=True))
-        node.session.put(key, msgpack.packb({**wire, "pcm": bytes(40_000)}, use_bin_type=True))
+        node.zenoh.put(key, b"\x93not msgpack at all")
+        node.zenoh.put(key, msgpack.packb({**wire, "sample_rate": 8000}, use_bin_type=True))
+        node.zenoh.put(key, msgpack.packb({**wire, "pcm": bytes(1601)}, use_bin_type=True))
+        node.zenoh.put(key, msgpack.packb({**wire, "pcm": bytes(40_000)}, use_bin_type=True))
         out.put(replace(good, teacher="mallory"))  # not eve's chunk
         out.put(good)
         out.put(replace(good, seq=0))  # repeated

@@ -3,8 +3,8 @@
 Pure: no zenoh import. `voxshape router` turns an access file (deploy/access.toml) and a
 credentials file (`user:password` lines, zenoh's own dictionary format) into the router's
 `transport.auth.usrpwd` and `access_control` settings. Deny by default: a user may do only
-what its role grants, in the router's session only. Every key expression comes from
-protocol/keys.py.
+what its role grants, in the router's session only. A role's rights come from the dataflow
+table (protocol/dataflow.py), every key expression from protocol/keys.py.
 
 An access file:
 
@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from protocol import ProtocolError, check_id, presence_key, robot_key, session_keys, teacher_key
+from protocol.dataflow import DATAFLOW, Direction
 
 ANY = "*"
 ACCESS_FILE = Path("deploy") / "access.toml"
@@ -33,7 +34,7 @@ class AccessError(ValueError):
 
 @dataclass(frozen=True)
 class Role:
-    """What a role may do. Topics are (scope, topic); an owner of "self" is the user's own
+    """What a role may do. Topics are (scope, owner, topic); an owner of "self" is the user's own
     teacher id, "robots" the user's robots, "*" any robot or teacher of the session."""
 
     summary: str
@@ -44,56 +45,47 @@ class Role:
     takes_robots: bool = False
 
 
-def _each(scope: str, owner: str, *topics: str) -> tuple[tuple[str, str, str], ...]:
-    return tuple((scope, owner, topic) for topic in topics)
-
-
-ROLES: dict[str, Role] = {
-    "admin": Role("everything in the session (logger, launcher)", everything=True),
-    "teacher": Role(
-        "speak or type as itself; see its robots, its feedback and its notices",
-        publish=_each("teacher", "self", "audio", "utterance", "said", "clock"),
-        subscribe=(
-            *_each("teacher", "self", "utterance", "notice", "clock-reply"),
-            *_each("robot", ANY, "obs", "episode", "feedback", "teaching"),
-        ),
-        announce=("teacher", "simteacher"),
-    ),
-    "simulator": Role(
-        "its robots' observations and episodes; their actions",
-        publish=_each("robot", "robots", "obs", "episode"),
-        subscribe=_each("robot", "robots", "action"),
-        announce=("sim",),
-        takes_robots=True,
-    ),
-    "learner": Role(
-        "its robots' actions and learning summaries; their observations and feedback",
-        publish=_each("robot", "robots", "action", "learning"),
-        subscribe=_each("robot", "robots", "obs", "episode", "feedback"),
-        announce=("learner",),
-        takes_robots=True,
-    ),
-    "arbiter": Role(
-        "credited feedback, teaching stats, notices, clock replies; observations, utterances",
-        publish=(
-            *_each("robot", ANY, "feedback", "teaching"),
-            *_each("teacher", ANY, "notice", "clock-reply"),
-        ),
-        subscribe=(
-            *_each("robot", ANY, "obs", "episode"),
-            *_each("teacher", ANY, "utterance", "clock"),
-        ),
-        announce=("arbiter",),
-    ),
-    "speech": Role(
-        "utterances of every teacher; their audio and said text",
-        publish=_each("teacher", ANY, "utterance"),
-        subscribe=_each("teacher", ANY, "audio", "said"),
-        announce=("speech",),
-    ),
+# What a flow's "own" owner is, for a user: its teacher id, or the robots it is given.
+_OWN = {"teacher": "self", "robot": "robots"}
+_SUMMARIES = {
+    "simulator": "its robots' observations and episodes; their actions",
+    "learner": "its robots' actions and learning summaries; their observations and feedback",
+    "arbiter": "credited feedback, teaching stats, notices, clock replies; observations, "
+    "utterances, clock probes",
+    "speech": "utterances of every teacher; their audio and said text",
+    "teacher": "speak or type as itself; see the robots (observations, episodes, feedback) "
+    "and its notices",
+    "admin": "everything in the session (logger, launcher, tools)",
 }
-# Every role may look at who is present (and `voxshape status` under its own user, as compose
-# healthchecks do).
+
+
+def _role(access: str) -> Role:
+    """An access role's rights: the union of its node roles' rows in protocol/dataflow.py (and
+    of those any user may run, such as `voxshape status`)."""
+    rows = [(name, row) for name, row in DATAFLOW.items() if row.access in (access, ANY)]
+
+    def union(direction: Direction) -> tuple[tuple[str, str, str], ...]:
+        flows = [f for _, row in rows for f in row.flows(direction)]
+        triples = ((f.scope, _OWN[f.scope] if f.owner == "own" else ANY, f.topic) for f in flows)
+        return tuple(dict.fromkeys(triples))
+
+    publish, subscribe = union("publishes"), union("subscribes")
+    return Role(
+        _SUMMARIES[access],
+        publish=publish,
+        subscribe=subscribe,
+        announce=tuple(name for name, _ in rows),
+        everything=any(row.everything for _, row in rows),
+        takes_robots=any(owner == "robots" for _, owner, _ in (*publish, *subscribe)),
+    )
+
+
+# The access roles, in the table's order; a summary missing here fails at import.
+ROLES: dict[str, Role] = {
+    access: _role(access)
+    for access in dict.fromkeys(row.access for row in DATAFLOW.values() if row.access != ANY)
+}
+# The presence role of `voxshape status`, which every user may run (compose healthchecks do).
 STATUS_ROLE = "status"
 
 
@@ -239,7 +231,7 @@ def access_control(session: str, users: dict[str, User]) -> dict:
         else:
             published = [k for t in role.publish for k in _key(session, user, *t)]
             subscribed = [k for t in role.subscribe for k in _key(session, user, *t)]
-            tokens = [presence_key(session, r, "*") for r in (*role.announce, STATUS_ROLE)]
+            tokens = [presence_key(session, r, "*") for r in role.announce]
             own.append(_rule(f"{name}:publish", ["put"], published, "ingress"))
             own.append(_rule(f"{name}:subscribe", ["declare_subscriber"], subscribed, "ingress"))
             own.append(_rule(f"{name}:receive", ["put"], subscribed, "egress"))

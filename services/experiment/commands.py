@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 
 from services.experiment import distributed
+from services.experiment.inprocess import SETTINGS, RunSpec
 from services.experiment.paper import TASKS, PoolError, experiment, pool
-from services.experiment.session import SETTINGS, RunSpec
 from services.experiment.sweep import sweep
 from services.learner.config import (
     SettingsError,

@@ -1,5 +1,5 @@
 """`voxshape experiment distributed`: one task and setting run twice for the same seeds, once
-in-process (services/experiment/session.py) and once with every service as its own process
+in-process (services/experiment/inprocess.py) and once with every service as its own process
 over zenoh: a router, the simulator on the lockstep clock, the learner, and for the feedback
 settings the arbiter, the mock speech service and the simulated teacher. Same seeds, same
 learning results expected (within noise: the bus delivers a teacher's words at wall-clock
@@ -27,10 +27,10 @@ from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
+from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.experiment.paper import mean_ci
-from services.experiment.session import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, Episode
+from services.learner.convergence import Convergence, EpisodeResult
 from services.learner.train import convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
 from services.sim.maps import load_map
@@ -164,7 +164,7 @@ def _watch(
         if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
             e = event.message
             if e.kind != "start":
-                progress.add(Episode(e.kind, e.episode_steps, e.episode_steps * PERIOD))
+                progress.add(EpisodeResult(e.kind, e.episode_steps, e.episode_steps * PERIOD))
         elif isinstance(event, Input) and isinstance(event.message, TeacherNotice):
             interventions += event.message.kind == "understood"
     return interventions

@@ -1,6 +1,6 @@
 """`voxshape experiment paper`: the paper's Section 4 again, with many more runs.
 
-4 tasks x 4 settings x N seeds of services/experiment/session.py, in parallel processes (one
+4 tasks x 4 settings x N seeds of services/experiment/inprocess.py, in parallel processes (one
 per core). Writes to the output directory:
 
 - results.json: every run, and per task and setting the means (episodes, learning time,
@@ -33,7 +33,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from services.experiment.session import SETTINGS, RunResult, RunSpec, run
+from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence
 

@@ -16,8 +16,8 @@ import statistics
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from services.experiment.inprocess import SETTINGS, RunResult, RunSpec
 from services.experiment.paper import run_all, speedup_interval, task_means
-from services.experiment.session import SETTINGS, RunResult, RunSpec
 from services.simteacher.teacher import TeacherProfile
 
 FEEDBACK = "rl+f"

@@ -5,7 +5,7 @@ current one becomes `<name>.prev.npz`, and the temporary file is renamed into pl
 at any moment leaves a complete checkpoint behind. On load, a corrupt file is reported and
 the previous one used, so at most one checkpoint interval of learning is lost.
 
-With the tables go the learner's progress on the bus (`Progress`): the last step it learnt
+With the tables go the learner's progress on the bus (`Bookmark`): the last step it learnt
 from, the ids of the credited feedback it took (so feedback that a kept output delivers again
 after a restart is taken once: exactly the feedback whose effect the tables hold is skipped),
 and the recent visits late feedback is credited to. Checkpoints without them (older ones) load
@@ -40,21 +40,23 @@ REPRESENTATION = (
     "bearing_bins",
     "distance_edges",
     "clear_range",
-    "goal_prior",
     "near_range",
     "near_sectors",
     "goal_sectors",
 )
 # What a setting was in checkpoints saved before it was named (when it is not its default).
 UNNAMED = {"goal_sectors": 0}
-ARRAYS = ("Q", "H", "Q_goal", "prototypes", "keys", "meta")
+# Representation settings since removed, with the value that means "off": a checkpoint
+# learnt with another value is refused.
+DROPPED = {"goal_prior": False}
+ARRAYS = ("Q", "H", "prototypes", "keys", "meta")
 OPTIONAL_ARRAYS = ("visits", "visit_weights")  # the recent visits (not in older checkpoints)
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.learner")
 
 
 @dataclass
-class Progress:
+class Bookmark:
     """Where a learner on the bus stands, saved with its tables."""
 
     step: int | None = None  # the observation step it learnt from last
@@ -70,7 +72,7 @@ class Progress:
         return True
 
     @classmethod
-    def of(cls, step: int | None, taken: Iterable[str]) -> Progress:
+    def of(cls, step: int | None, taken: Iterable[str]) -> Bookmark:
         return cls(step, OrderedDict.fromkeys(list(taken)[-MAX_TAKEN:]))
 
 
@@ -82,10 +84,10 @@ def previous(path: Path) -> Path:
     return path.with_name(path.name.removesuffix(".npz") + ".prev.npz")
 
 
-def save(learner: Learner, path: Path, progress: Progress | None = None) -> None:
+def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     config = dataclasses.asdict(learner.config)
-    progress = progress or Progress()
+    progress = progress or Bookmark()
     meta = {
         "version": VERSION,
         "episode": learner.episode,
@@ -106,7 +108,6 @@ def save(learner: Learner, path: Path, progress: Progress | None = None) -> None
             f,
             Q=learner.Q,
             H=learner.H,
-            Q_goal=learner.Q_goal,
             prototypes=prototypes,
             keys=np.array(keys, dtype=np.int64).reshape(len(keys), len(KEY_FIELDS)),
             meta=np.array(json.dumps(meta)),
@@ -127,7 +128,7 @@ def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
     return _load(path, config, seed)[0]
 
 
-def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner, Progress]:
+def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner, Bookmark]:
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {name: data[name] for name in ARRAYS}
@@ -149,6 +150,12 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     ours, defaults = (_as_saved(c) for c in (config, LearnerConfig()))
     # A setting a checkpoint does not name was not there yet: it learnt without it.
     changed = [k for k in REPRESENTATION if ours[k] != saved.get(k, UNNAMED.get(k, defaults[k]))]
+    dropped = [k for k in DROPPED if saved.get(k, DROPPED[k]) != DROPPED[k]]
+    if dropped:
+        raise CheckpointError(
+            f"{path}: learnt with {', '.join(dropped)}, settings this build no longer has "
+            "(docs/decisions.md); start afresh with another file"
+        )
     if changed:
         raise CheckpointError(
             f"{path}: learnt with other state settings ({', '.join(changed)})"
@@ -159,12 +166,7 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
         raise CheckpointError(f"{path}: inconsistent tables {q.shape}, {h.shape}, {keys.shape}")
     learner = Learner(config, seed)
     learner.states.restore(arrays["prototypes"], keys)
-    if arrays["Q_goal"].shape != learner.Q_goal.shape:
-        raise CheckpointError(
-            f"{path}: goal table {arrays['Q_goal'].shape}, expected {learner.Q_goal.shape}"
-        )
     learner.Q, learner.H, learner.e = q.copy(), h.copy(), np.zeros_like(q)
-    learner.Q_goal = arrays["Q_goal"].copy()
     learner.sum_advice_tiles()
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
@@ -177,7 +179,7 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
             for (first, last, episode, state), w in zip(visits, weights, strict=True)
             if 0 <= state < len(q)
         )
-    return learner, Progress.of(meta.get("step"), meta.get("feedback_taken", []))
+    return learner, Bookmark.of(meta.get("step"), meta.get("feedback_taken", []))
 
 
 def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner | None:
@@ -189,7 +191,7 @@ def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> L
 
 def resume(
     path: Path, config: LearnerConfig, seed: int | None = None
-) -> tuple[Learner, Progress] | None:
+) -> tuple[Learner, Bookmark] | None:
     """`load_latest` with the progress saved beside the tables."""
     if not path.exists() and not previous(path).exists():
         return None

@@ -15,38 +15,27 @@ KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
 
 @dataclass(frozen=True)
 class LearnerConfig:
+    """The learner's settings; docs/learner.md explains them and docs/decisions.md records
+    the measurements behind the defaults."""
+
     # -- state representation (Pearson prototypes, after Millan et al. 2002) ---------------
     laser_sectors: int = 12  # the 180 beams summarised as the nearest range per sector
     use_sonar: bool = True  # append the 8 rear sonar ranges to the sensor vector
-    # Best correlation below this: a new prototype is born. None: one prototype, the state is
-    # the near bits and the goal bins alone. None by default: on task 2 (300 s episodes,
-    # 150 at most) 0.3, 0.6 and 0.9 made 5-10x more states and reached the goal in up to 80%
-    # of the late episodes but did not converge; without prototypes tasks 1-3 converged.
+    # A reading whose best correlation with the prototypes is below this is a new prototype.
+    # None: no prototypes, the state is the near bits and the goal bins alone.
     pearson_threshold: float | None = None
     goal_features: bool = True  # add the quantised goal bearing and distance to the state
     bearing_bins: int = 8  # 45 degrees each, the first centred straight ahead
     distance_edges: tuple[float, ...] = (1.0, 2.5)  # metres: bins [0,1) [1,2.5) [2.5,inf)
-    # Which side of the goal the robot is on, in this many sectors of the world-frame
-    # direction from the goal to the robot (odometry's heading + the bearing): with the
-    # distance bins a coarse polar grid around the goal, so the two sides of a wall differ
-    # where the straight line to the goal crosses it. 0: off. Measured (10 seeds each, with
-    # the teacher's action bias below): the teacher's advice can then say "up along this
-    # wall" on one side and "down" on the other; with feedback, task 4 took 33 robot minutes
-    # instead of 63, task 3 31 instead of 29; plain RL moves both ways (task 4 101 instead of
-    # 208, task 3 186 instead of 103, task 1 35 instead of 16).
+    # Which side of the goal the robot is on: sectors of the world-frame direction from the
+    # goal to the robot (heading + bearing). 0: off.
     goal_sectors: int = 8
-    # Pearson's correlation ignores scale: a wall 2 m ahead and one 0.3 m ahead look alike.
-    # So the state also says which of the laser's right, front and left thirds has something
-    # nearer than this (metres): what decides whether moving on or turning hits it. None: off.
+    # Which of the laser's near_sectors (right to left) has something nearer than this
+    # (metres): Pearson's correlation ignores scale. None: off.
     near_range: float | None = 0.6
-    near_sectors: int = 3  # the laser's sectors with a near bit each, right to left
+    near_sectors: int = 3
     init_from_neighbour: bool = True  # a new state starts with its nearest state's Q-values
-    # Also learn values per goal cell alone and add them to the state's (two tilings): what is
-    # learnt about heading for the goal then holds in every state of that cell at once. Off:
-    # where the straight line to the goal crosses walls (tasks 2-4) it pulled the wrong way.
-    goal_prior: bool = False
-    # Readings with nothing nearer than this (metres) share one "clear" prototype: the shape
-    # of far walls says nothing about where to go, and would multiply the states. None: off.
+    # Readings with nothing nearer than this (metres) share one "clear" prototype. None: off.
     clear_range: float | None = 1.0
 
     # -- actions ----------------------------------------------------------------------------
@@ -60,84 +49,38 @@ class LearnerConfig:
             "right": (0.0, -math.radians(60)),
         }
     )
-    # The policy chooses among these. "stop" is left to teachers: standing still never
-    # earns anything under R_RL (-1 per step), so exploring it only wastes episodes. So is
-    # "back": the state has no sensor behind (near bits are the laser's, ahead), and backing
-    # blind made the most bumps (44 of 131 early on); a bump's recoil (services/sim/world.py)
-    # leaves room to turn instead. Measured (2 seeds, T1-T4): every run converged without it;
-    # with it plain RL on task 2 took 250-360 robot minutes with feedback.
+    # The actions the policy chooses among; the others are left to teachers' commands.
     policy_actions: tuple[str, ...] = ("forward", "left", "right")
-    # Send the softmax-weighted mix of the actions (Millan et al.) instead of one action.
-    # Off by default: on task 1, discrete actions converged in 3 of 3 seeds (50-99 episodes),
-    # the blend in 0 of 1 within 200 (benchmarks/plain_rl.py --blend compares them).
-    blend: bool = False
-    temperature: float = 0.2  # of the blend, in units of the state's Q spread (max - min):
-    # an action half the spread below the best gets exp(-0.5 / 0.2) = 8% of the best's weight
+    blend: bool = False  # send the softmax-weighted mix of the actions (Millan et al.)
+    # The blend's temperature, in units of the state's Q spread (max - min).
+    temperature: float = 0.2
 
     # -- SARSA(lambda) ------------------------------------------------------------------------
     alpha: float = 0.2  # learning rate
-    # Discount per control step (0.1 s): 0.999 sees about 100 s ahead. At 0.98 a goal 22 s
-    # away was worth 0.98^220 = 1% of its reward, and plain RL never found task 2's goal.
-    gamma: float = 0.999
+    gamma: float = 0.999  # discount per control step (0.1 s): about 100 s ahead
     lam: float = 0.8  # trace decay (lambda)
-    # A policy action goes on until the state changes, at most this many steps (1: decide at
-    # every step). States are coarse: deciding inside one sees no progress, only -1 per step.
+    # A policy action goes on while the state stays the same, at least min_hold and at most
+    # max_hold steps (1 and 1: decide at every step).
     max_hold: int = 20
-    # ... and at least this many steps, even if the state changes sooner: on the edge of two
-    # bearing bins (or near bits) one step flips the state, and deciding again at once made
-    # the robot turn back and forth there. Measured (10 seeds, four tasks, robot minutes):
-    # 3 against 1: RL 79 against 106, RL + F 22.4 against 22.7, perfect advice 15.5
-    # against 19.6; 5: 112, 28.2 and 17.9 (a bump is held too).
     min_hold: int = 3
-    # May the policy undo its own turn at once (left right after left)? Two states on either
-    # side of a bin's edge could each rank the turn towards the other first: the robot turned
-    # back and forth on the spot for 10 s and more, its values falling by about 1 a visit,
-    # until the teacher scolded it (task 4). Without, a turn goes on, or the robot moves on.
-    # Measured (10 seeds, four-task means, robot minutes) against True: plain RL 66.2 against
-    # 79.2 (task 2 66.5 against 101.7), RL + F 11.8 against 20.6 (task 4 17.6 against 35.4),
-    # RL + T + F 10.3 against 11.1, perfect advice 11.4 against 10.7.
-    turn_back: bool = False
     traces: Literal["replacing", "accumulating"] = "replacing"
-    # Epsilon-greedy exploration, decaying linearly ... Zero initial values are optimistic
-    # (R_RL is -1 a step), which explores by itself; a random action is held until the state
-    # changes (max_hold), so 0.2 kept late episodes 2-15x slower than the converged ones.
+    # Epsilon-greedy exploration, decaying linearly from epsilon_start to epsilon_end over
+    # epsilon_episodes episodes.
     epsilon_start: float = 0.05
-    epsilon_end: float = 0.01  # ... to this ...
-    epsilon_episodes: int = 60  # ... over this many episodes
+    epsilon_end: float = 0.01
+    epsilon_episodes: int = 60
 
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
-    # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias" (TAMER+RL):
-    # they go to a table H of their own and the policy ranks Q + beta H. Measured over the four
-    # tasks (10 seeds, 20% noise): with feedback 30 robot minutes on average instead of 44.
-    # Additive shaping is unlearnt as the teacher falls silent: Q of the way it was praised
-    # for sinks to its R_RL value, below the untried actions' optimistic 0, and the robot
-    # wanders off the way it had found (task 3: the goal in 28 s at episode 10, timeouts at
-    # 17-24). H only changes when the teacher speaks, so what it taught stays.
+    # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
+    # (TAMER+RL): they go to a table H and the policy ranks Q + bias_weight * H.
     shaping: Literal["additive", "action_bias"] = "action_bias"
     feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
-    feedback_window: int = 100  # steps kept for late feedback; older credit is dropped
-    # action_bias: the policy ranks Q + beta * H, beta = bias_weight * bias_decay ** episode.
-    # H sums the teacher's credits, so advice said often weighs more. Measured on tasks 3-4
-    # (rl+f, 10 seeds): beta 1, 3, 10 took 30/74, 29/63 and 31/65 robot minutes; decaying
-    # (0.97 per episode) 62 on task 3, as bad as additive: the advice must not fade.
-    bias_weight: float = 3.0
-    bias_decay: float = 1.0
-    # The advice generalizes: a coarse tiling of the states per field named here, each
-    # ignoring that field (states.py), and the policy's H(s, .) is the mean of the state's
-    # own advice and its tiles' (what was said in every state of the tile). What the teacher
-    # said at one distance then speaks for that side of the goal at every distance, and on
-    # one side for every side at that distance: a state entered for the first time is no
-    # longer advice-blind. () is off. Measured (`voxshape experiment paper`, robot minutes,
-    # four-task means, seeds 0-9 | 10-19): RL + F 20.6 | 13.4 against 22.4 | 24.4 (one run of
-    # 40 did not converge: it reached the goal in nearly every episode, in 24-60 s, never
-    # three alike), RL + T + F 11.1 | 12.8 against 14.7 | 16.6, perfect advice 10.7 | 13.6
-    # against 15.5 | 14.7. Plain RL does not use H.
-    # Other tilings (survey, seeds 0-9, RL + F / RL + T + F / perfect; the default 17.6 /
-    # 11.1 / 10.7 there): one tile ignoring both 18.4 / 12.5 / 13.2; ignoring the distance
-    # alone 19.3 / 13.3 / 11.5; ignoring the distance in two tilings, the second's sectors
-    # offset by half a sector, 16.7 / 12.6 / 10.7 but 16.0 / 10.6 / 17.5 on seeds 10-19.
+    feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
+    bias_weight: float = 3.0  # beta, the weight of H in the policy (action_bias)
+    # Fields of the state the advice generalizes over: one coarse tiling per field, each
+    # ignoring it; the policy's H(s) is the mean of the state's own and its tiles'. (): off.
     advice_generalization: tuple[str, ...] = ("distance", "sector")
 
     # -- convergence (see convergence.py) ---------------------------------------------------
@@ -147,13 +90,6 @@ class LearnerConfig:
 
     # -- initial traces ---------------------------------------------------------------------
     replay_every: int = 10  # replay the teacher's traces again every this many episodes (0: once)
-    # action_bias: replaying a trace also runs the Q update over the teacher's route. Off: the
-    # trace teaches H alone. With it, the route's actions got their true values (-50 to -100
-    # at the start, R_RL being -1 a step), below the untried actions' optimistic 0 in the
-    # same states, so the robot left the route it had just been shown to try them.
-    # Measured (10 seeds, four-task means, robot minutes) against True: RL + T + F 9.2
-    # against 10.3, perfect advice 8.1 against 11.4 (task 4 12.4 against 21.6).
-    trace_values: bool = False
 
     def __post_init__(self) -> None:
         unknown = set(self.advice_generalization) - set(KEY_FIELDS)

@@ -19,7 +19,7 @@ from services.learner.config import LearnerConfig
 
 
 @dataclass(frozen=True)
-class Episode:
+class EpisodeResult:
     outcome: str  # goal, collision, timeout
     steps: int
     sim_seconds: float
@@ -30,10 +30,10 @@ class Episode:
 class Convergence:
     config: LearnerConfig
     shortest_s: float | None = None  # the map's shortest time to the goal (Map.shortest_time)
-    episodes: list[Episode] = field(default_factory=list)
+    episodes: list[EpisodeResult] = field(default_factory=list)
     converged_at: int | None = None  # index of the episode that converged
 
-    def add(self, episode: Episode) -> bool:
+    def add(self, episode: EpisodeResult) -> bool:
         """Records a finished episode; True once converged."""
         self.episodes.append(episode)
         if self.converged_at is None and self._converged_now():
@@ -67,7 +67,7 @@ class Convergence:
     def converged(self) -> bool:
         return self.converged_at is not None
 
-    def _until(self) -> list[Episode]:
+    def _until(self) -> list[EpisodeResult]:
         end = self.converged_at + 1 if self.converged else len(self.episodes)
         return self.episodes[:end]
 

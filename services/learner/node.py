@@ -18,9 +18,10 @@ import os
 import time
 from pathlib import Path
 
-from protocol import Action, CreditedFeedback, LearningSummary, Observation, check_id, robot_key
+from protocol import CreditedFeedback, Observation, check_id, robot_key
 from services.learner import checkpoint
 from services.learner.config import add_settings_argument, with_settings
+from services.learner.online import OnlineLearner
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError, Input, Node, add_bus_arguments, bus_config, fields
@@ -60,8 +61,7 @@ def run(args: argparse.Namespace) -> int:
         resumed = None if args.fresh else checkpoint.resume(path, config, args.seed)
     except checkpoint.CheckpointError as e:
         raise ConfigError(f"{e}. To start over, run with --fresh (it overwrites it).") from None
-    learner, progress = resumed or (Learner(config, args.seed), checkpoint.Progress())
-    book = TraceBook()
+    learner, bookmark = resumed or (Learner(config, args.seed), checkpoint.Bookmark())
     with Node("learner", bus) as node:
         node.log.info(
             "learning",
@@ -70,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
                 checkpoint=path,
                 states=len(learner.states),
                 episodes=learner.episode,
-                resumed_at_step=progress.step if progress.step is not None else "-",
-                feedback_taken=len(progress.taken),
+                resumed_at_step=bookmark.step if bookmark.step is not None else "-",
+                feedback_taken=len(bookmark.taken),
             ),
         )
         initial = TraceBook.load(args.traces) if args.traces else None
@@ -85,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
         if initial:
             replayed = initial.replay(learner)
             node.log.info("learnt from initial traces", extra=fields(steps=replayed))
+        online = OnlineLearner(learner, bookmark, initial, node.counters)
         node.input("obs", robot_key(node.session_id, robot, "obs"))
         node.input(
             "feedback", robot_key(node.session_id, robot, "feedback"), recover=FEEDBACK_RECOVERY_S
@@ -95,56 +96,31 @@ def run(args: argparse.Namespace) -> int:
         )
         last_save = time.monotonic()
         for event in node.events(tick=1.0):
-            if isinstance(event, Input) and isinstance(event.message, Observation):
-                obs = event.message
-                if obs.episode_step == 0 and learner.s is not None:
-                    learner.interrupt()  # missed the end of the last episode
-                decision = learner.step(obs)
-                progress.step = obs.step
-                book.record(obs, decision)
-                if decision is None and initial:
-                    initial.replay_if_due(learner)
-                if decision is not None:
-                    act.put(
-                        Action(
-                            robot=robot,
-                            episode=obs.episode,
-                            step=obs.step,
-                            discrete=decision.discrete,
-                            v=decision.v,
-                            omega=decision.omega,
-                            chooser=decision.chooser,
-                        )
-                    )
-                summary.put(_summary(learner, obs))
-            elif isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
-                _take(learner, progress, event.message, node)
+            match event:
+                case Input(message=Observation() as obs):
+                    action, learnt = online.observe(obs)
+                    if action is not None:
+                        act.put(action)
+                    summary.put(learnt)
+                case Input(message=CreditedFeedback() as feedback):
+                    _log_dropped(node, feedback, online.take(feedback))
             if time.monotonic() - last_save >= args.checkpoint_every:
-                checkpoint.save(learner, path, progress)
+                checkpoint.save(learner, path, bookmark)
                 last_save = time.monotonic()
         for _ in range(MAX_PENDING):  # feedback that arrived before the stop is taken too
-            event = node.poll(0)
-            if event is None:
-                break
-            if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
-                _take(learner, progress, event.message, node)
-        checkpoint.save(learner, path, progress)
-        if book.episodes:
-            book.save(path.with_name(f"traces-{robot}.npz"))
+            match node.poll(0):
+                case None:
+                    break
+                case Input(message=CreditedFeedback() as feedback):
+                    _log_dropped(node, feedback, online.take(feedback))
+        checkpoint.save(learner, path, bookmark)
+        if online.book.episodes:
+            online.book.save(path.with_name(f"traces-{robot}.npz"))
         node.counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
     return 0
 
 
-def _take(
-    learner: Learner, progress: checkpoint.Progress, feedback: CreditedFeedback, node: Node
-) -> None:
-    """Feedback taken once: a copy delivered again (after a restart) is skipped."""
-    if not progress.take(feedback.id):
-        node.counters["learner.feedback_taken_before"] += 1
-        return
-    dropped = learner.take(feedback)
-    if dropped:
-        node.counters["learner.feedback_partly_dropped"] += 1
+def _log_dropped(node: Node, feedback: CreditedFeedback, dropped: list[int]) -> None:
     if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
         node.log.warning(
             "feedback for steps outside the window dropped",
@@ -154,20 +130,3 @@ def _take(
                 teachers=",".join(feedback.teachers),
             ),
         )
-
-
-def _summary(learner: Learner, obs: Observation) -> LearningSummary:
-    """After a terminal step the robot is in no state: state 0 and no Q-values."""
-    s = learner.s
-    return LearningSummary(
-        robot=obs.robot,
-        episode=obs.episode,
-        step=obs.step,
-        state=s if s is not None else 0,
-        states=len(learner.states),
-        q_values=tuple(float(q) for q in learner.value(s)) if s is not None else (),
-        td_error=learner.td_error,
-        epsilon=learner.config.epsilon(learner.episode),
-        reward=obs.reward,
-        episode_return=learner.episode_return,
-    )

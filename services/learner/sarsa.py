@@ -1,40 +1,35 @@
 """SARSA(lambda) with dynamic rewards: the paper's Algorithm 1, with eligibility traces.
 
-At every control step, with s the previous state and a the action taken in it:
+One control step (`Learner.step`), with s the previous state and a the action taken in it:
 
-    observe r, s'                    r = R_RL, the simulator's reward for the step
-    (while s' == s, and for its first min_hold steps, the policy's action goes on: r
-    accumulates as G = sum gamma^i r_i over the k steps, and the update below uses G and
-    gamma^k: SARSA over the states' changes)
-    if the teacher selected a:       r <- h(r, a)          (h: + command_reward, bounded)
-    select a' from s'                the teacher's command if one is pending, else the
-                                     policy derived from Q (epsilon-greedy, or the blend),
-                                     never the turn that undoes a policy's turn a
-    delta = r + gamma Q(s', a') - Q(s, a)         Q(s', a') = 0 when s' is terminal
-    e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
-    Q <- Q + alpha delta e;  e <- gamma lambda e;  s <- s', a <- a'
-
-With goal_prior, Q(s, .) is the sum of two tilings, the state's own values and its goal cell's
-(bearing and distance bins alone), each updated with alpha / 2; what is learnt about heading
-for the goal then holds in every state of that cell at once.
+    observe r, s'              r = R_RL, the simulator's reward for the step; if the teacher
+                               selected a, r <- h(r, a) = r + command_reward (bounded)
+    hold a?                    while s' == s, and for a's first min_hold steps, a goes on:
+                               r accumulates as G = sum gamma^i r_i over its k steps, and
+                               the update below uses G and gamma^k (SARSA over the states'
+                               changes), `_holds`
+    choose a' from s'          the teacher's command if one is pending, else the policy
+                               derived from Q (epsilon-greedy, or the blend), never the turn
+                               that undoes the policy's own turn a, `_select`
+    update                     delta = G + gamma^k Q(s', a') - Q(s, a)   (0 for Q(s', a')
+                               when s' is terminal; a timeout is a truncation: it bootstraps)
+                               e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
+                               Q <- Q + alpha delta e;  e <- gamma^k lambda e,  `_update`
+    s <- s', a <- a'
 
 With the blend, a is a mix of the discrete actions with weights w: Q(s, a) is w . Q(s, .)
 and each action's trace grows by its weight, so each is credited in proportion to its share.
 
 "If the user provides feedback f on state s', r <- g(r, f)": spoken feedback arrives late,
-so the arbiter credits it to the past steps it was about, with weights, and `credit` adds
-g's bounded f to those steps' rewards after the fact: Q <- Q + alpha w f e_k, where e_k are
-the traces as they stood at step k (the same change the update would have made had f
-arrived in time). Feedback on steps that left the window is counted and dropped.
+so the arbiter credits it to past steps with weights, and `credit` applies g's bounded f
+after the fact (late credit, which approximates on-time feedback: see its docstring).
 
 That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
 action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
 policy ranks Q + beta H and Q learns from R_RL alone, on the robot's own steps (a replayed
-trace, `replay=True`, teaches H alone, unless trace_values). H changes only when the teacher
-speaks, so what it taught is not unlearnt as it falls silent (config.py has the measurements).
-With advice_generalization the policy's H(s) is the mean of H[s] and the sums of H over the
-state's advice tiles (coarser tilings, states.py): tile coding, each tiling credited in full,
-so what was said in a state also speaks for the states that share a tile with it.
+trace, `replay=True`, teaches H alone). With advice_generalization the policy's H(s) is the
+mean of H[s] and the sums of H over the state's advice tiles (coarser tilings, states.py), so
+what was said in a state also speaks for the states that share a tile with it.
 """
 
 from __future__ import annotations
@@ -73,14 +68,10 @@ class Learner:
         self.config = c = config or LearnerConfig()
         self.states = StateSpace(c)
         self.actions = ActionSet(c)
-        self.Q = np.zeros((0, N_ACTIONS))  # action values of the states (the fine tiling)
+        self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per state
+        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
         self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
         self.H_tiles = np.zeros((0, N_ACTIONS))  # H summed over each advice tile
-        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
-        # The coarse tiling (goal_prior): action values of the goal cells alone, added to Q.
-        self.tilings = 2 if c.goal_prior and c.goal_features else 1
-        self.Q_goal = np.zeros((self.states.n_cells, N_ACTIONS))
-        self.e_goal = np.zeros_like(self.Q_goal)
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
         self.s: int | None = None  # the previous state ...
@@ -96,49 +87,23 @@ class Learner:
     def step(
         self, p: LearnerPercept, forced: Decision | None = None, replay: bool = False
     ) -> Decision | None:
-        """Learns from the step that led to `p` and decides the next action (None when the
-        episode ended). `forced` imposes the action; `replay`: the step is a teacher's trace
-        replayed, not the robot's own."""
-        c = self.config
-        learns_q = not replay or c.trace_values or c.shaping == "additive"
-        s_next = self._state_of(p)
+        """Learns from the step that led to `p` and returns the action to take next (None
+        when the episode ended). `forced` imposes a'; `replay`: the step is a teacher's
+        trace replayed, not the robot's own (with the action bias it teaches H alone)."""
+        s_next = self._state_of(p)  # observe s'
         ended = p.outcome != "running"
-        terminal = ended and p.outcome != "timeout"  # a timeout cuts the episode short: s'
-        # still has a future, so the update bootstraps from it (truncation, not termination)
-        if self.s is None:  # the first step of an episode
+        if self.s is None:  # the first step of an episode: nothing to learn yet
             self.episode_return = 0.0
         else:
-            r = p.reward
-            if self.a.chooser == "teacher":
-                r = self._h(r, self.s, self.a)
-            self.G += self.discount * r  # the reward of the action so far, discounted
-            self.episode_return += r
-            self.discount *= c.gamma
-            self.held += 1
-            if (
-                (s_next == self.s or self.held < c.min_hold)
-                and not ended
-                and forced is None
-                and not self.commands
-                and self.a.chooser == "policy"
-                and self.held < c.max_hold
-            ):
-                self.recent[-1].last = p.step  # same state: the action goes on
+            self._accumulate(p.reward)  # r, and h's bonus, into the action's return G
+            if self._holds(s_next, ended, forced):  # a goes on: no decision this step
+                self.recent[-1].last = p.step
                 return self.a
+        terminal = ended and p.outcome != "timeout"  # a timeout truncates: s' has a future
+        # choose a' (on a timeout too: the update bootstraps from Q(s', a'), then a' is dropped)
         a_next = None if terminal else (forced or self._select(s_next))
-        if self.s is not None and learns_q:
-            q_next = 0.0 if terminal else a_next.weights @ self.value(s_next)
-            if ended:
-                a_next = None
-            delta = self.G + self.discount * q_next - self.a.weights @ self.value(self.s)
-            self._mark(self.e, self.s)
-            self._mark(self.e_goal, self.states.cells[self.s])
-            self.Q += c.alpha / self.tilings * delta * self.e
-            self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
-            if self.tilings == 2:
-                self.Q_goal += c.alpha / self.tilings * delta * self.e_goal
-                self.e_goal *= self.discount * c.lam
-            self.td_error = float(delta)
+        if self.s is not None and (not replay or self.config.shaping == "additive"):
+            self._update(s_next, a_next)
         self.G, self.discount, self.held = 0.0, 1.0, 0
         if ended:
             self._end_episode()
@@ -148,18 +113,56 @@ class Learner:
         self.counters["decisions"] += 1
         return a_next
 
-    def value(self, s: int) -> np.ndarray:
-        """Q(s, .): the state's own values, plus its goal cell's with the goal prior."""
-        if self.tilings == 2:
-            return self.Q[s] + self.Q_goal[self.states.cells[s]]
-        return self.Q[s]
+    def _update(self, s_next: int, a_next: Decision | None) -> None:
+        """The SARSA(lambda) update for (s, a), held k steps for a return G (discount is
+        gamma^k); a_next is None when s' is terminal."""
+        c = self.config
+        q_next = 0.0 if a_next is None else a_next.weights @ self.Q[s_next]
+        delta = self.G + self.discount * q_next - self.a.weights @ self.Q[self.s]
+        if c.traces == "replacing":  # e(s, a) <- 1, by each action's weight in a
+            self.e[self.s] = np.maximum(self.e[self.s], self.a.weights)
+        else:  # e(s, a) <- e(s, a) + 1
+            self.e[self.s] += self.a.weights
+        self.Q += c.alpha * delta * self.e
+        self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
+        self.td_error = float(delta)
 
-    def _mark(self, e: np.ndarray, row: int) -> None:
-        """e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating), weighted by the blend."""
-        if self.config.traces == "replacing":
-            e[row] = np.maximum(e[row], self.a.weights)
-        else:
-            e[row] += self.a.weights
+    def _accumulate(self, r: float) -> None:
+        """Adds the step's reward r (with h's bonus if the teacher chose a) to the return G
+        of the action in progress, discounted by gamma per step it has been held."""
+        if self.a.chooser == "teacher":
+            r = self._h(r, self.s, self.a)
+        self.G += self.discount * r
+        self.episode_return += r
+        self.discount *= self.config.gamma
+        self.held += 1
+
+    def _holds(self, s_next: int, ended: bool, forced: Decision | None) -> bool:
+        """Action holding: the policy's action goes on while the state stays the same, and
+        for its first min_hold steps, at most max_hold steps; a teacher's action, a forced
+        one, a pending command or the episode's end make a decision at once."""
+        c = self.config
+        return (
+            (s_next == self.s or self.held < c.min_hold)
+            and not ended
+            and forced is None
+            and not self.commands
+            and self.a.chooser == "policy"
+            and self.held < c.max_hold
+        )
+
+    def _select(self, s: int) -> Decision:
+        """a' from s': a pending command, else epsilon-greedy (or the blend) over Q, plus
+        beta H with the action bias, never the turn that undoes the policy's own turn."""
+        if self.commands:
+            return self.actions.one_hot(self.commands.popleft(), "teacher")
+        q = self.Q[s]
+        if self.config.shaping == "action_bias":
+            q = q + self.config.bias_weight * self.advice(s)
+        barred = None
+        if self.a is not None and self.a.chooser == "policy":
+            barred = self.actions.undoing.get(self.a.discrete)
+        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
 
     def _h(self, r: float, s: int, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
@@ -173,10 +176,17 @@ class Learner:
             return r
         return r + bonus
 
+    # -- late credit --------------------------------------------------------------------
     def credit(self, step: int, weight: float, f: float) -> bool:
         """Teacher feedback f about the action taken at observation `step`, with the weight
-        the arbiter gave it: g(r, f) = r + clip(f), applied after the fact. False (counted)
-        if that step is no longer in the window."""
+        the arbiter gave it: g(r, f) = r + clip(f), applied after the fact as
+        Q <- Q + alpha w f e_k, the change on-time feedback would have made through delta.
+        It approximates that: e_k is rebuilt from the recent decisions, (gamma lambda)^j for
+        the j-th decision back in the episode (a held action decayed by gamma^k lambda in
+        the update; a revisited state counts once per visit, as accumulating traces do),
+        and what the change would have done to the updates since is ignored. With the
+        action bias the change goes to H instead of Q. False (counted) if that step is no
+        longer in the window."""
         c = self.config
         f = float(np.clip(f, -c.feedback_bound, c.feedback_bound))
         index = next(
@@ -192,7 +202,6 @@ class Learner:
             why = "too_old" if oldest is not None and step < oldest else "unknown_step"
             self.counters[f"feedback_dropped.{why}"] += 1
             return False
-        bias = c.shaping == "action_bias"
         credited = self.recent[index]
         trace = 1.0  # e_k(s_j, a_j) = (gamma lambda)^(k - j) along the episode, back from k
         for j in range(index, -1, -1):
@@ -200,12 +209,10 @@ class Learner:
             if visit.episode != credited.episode or trace < 1e-4:
                 break
             change = c.alpha * weight * f * trace * visit.weights
-            if bias:
+            if c.shaping == "action_bias":
                 self._advise(visit.state, change)
             else:
-                self.Q[visit.state] += change / self.tilings
-                if self.tilings == 2:
-                    self.Q_goal[self.states.cells[visit.state]] += change / self.tilings
+                self.Q[visit.state] += change
             trace *= c.gamma * c.lam
         self.counters["feedback_credited"] += 1
         return True
@@ -227,18 +234,7 @@ class Learner:
         self.commands.extend([index] * self.config.command_steps)
         self.counters["commands"] += 1
 
-    # -- helpers --------------------------------------------------------------------------
-    def _select(self, s: int) -> Decision:
-        if self.commands:
-            return self.actions.one_hot(self.commands.popleft(), "teacher")
-        q = self.value(s)
-        if self.config.shaping == "action_bias":
-            q = q + self.config.bias_weight * self.config.bias_decay**self.episode * self.advice(s)
-        barred = None
-        if not self.config.turn_back and self.a is not None and self.a.chooser == "policy":
-            barred = self.actions.undoing.get(self.a.discrete)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
-
+    # -- the teacher's advice (shaping="action_bias") ---------------------------------------
     def advice(self, s: int) -> np.ndarray:
         """H(s, .) as the policy weighs it: the state's own, with its tiles' (if any)."""
         tiles = self.states.tiles[s]
@@ -254,6 +250,7 @@ class Learner:
         for s, tiles in enumerate(self.states.tiles):
             self.H_tiles[tiles] += self.H[s]
 
+    # -- states and episodes ------------------------------------------------------------
     def _state_of(self, p: Percept) -> int:
         s, parent = self.states.classify(p)
         if s == len(self.Q):  # a new state: a new row, from its nearest neighbour if asked
@@ -273,7 +270,6 @@ class Learner:
         """Forgets the episode in progress without counting it (a gap in the observations,
         a replay that stops mid-episode)."""
         self.e[:] = 0.0
-        self.e_goal[:] = 0.0
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0

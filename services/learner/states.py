@@ -49,11 +49,9 @@ class StateSpace:
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
         # (prototype, near, bearing, distance, sector)
         self.keys: dict[tuple[int, int, int, int, int], int] = {}
-        self.cells: list[int] = []  # each state's goal cell (bearing and distance bins)
         self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
         self.tile_ids: dict[tuple[int, ...], int] = {}  # (tiling, key without its field)
         self.tiles: list[list[int]] = []  # each state's advice tile in every tiling (an index)
-        self.n_cells = config.bearing_bins * (len(config.distance_edges) + 1)
         self._matrix = np.zeros((0, 0))
 
     def __len__(self) -> int:
@@ -103,7 +101,7 @@ class StateSpace:
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
-        self._add_cells(key)
+        self._add_tiles(key)
         # The nearest existing state: same bits and bins, best-matching prototype.
         parent = (
             self.keys.get((neighbour_prototype, *key[1:]))
@@ -112,8 +110,7 @@ class StateSpace:
         )
         return self.keys[key], parent
 
-    def _add_cells(self, key: tuple[int, int, int, int, int]) -> None:
-        self.cells.append(key[2] * (len(self.config.distance_edges) + 1) + key[3])
+    def _add_tiles(self, key: tuple[int, int, int, int, int]) -> None:
         coarse = ((t, *key[:i], *key[i + 1 :]) for t, i in enumerate(self.ignored))
         self.tiles.append([self.tile_ids.setdefault(k, len(self.tile_ids)) for k in coarse])
 
@@ -137,6 +134,6 @@ class StateSpace:
         self.keys = {
             (*(int(v) for v in k), *(0,) * (width - len(k))): i for i, k in enumerate(keys)
         }
-        self.cells, self.tile_ids, self.tiles = [], {}, []
+        self.tile_ids, self.tiles = {}, []
         for key in self.keys:
-            self._add_cells(key)
+            self._add_tiles(key)

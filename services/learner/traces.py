@@ -3,9 +3,8 @@
 An episode in which the teacher gave at least one command is kept whole (the percepts, the
 action taken at each step and who chose it). Replaying it runs the learner over it with
 those actions imposed, so the learner learns the teacher's route before (and, replayed again,
-during) its own episodes: as advice, h's bonus for each command (with additive shaping, or
-trace_values, through the very SARSA(lambda) update too: sarsa.py). Files are .npz arrays,
-no pickle.
+during) its own episodes: as advice, h's bonus for each command (with additive shaping,
+through the very SARSA(lambda) update too: sarsa.py). Files are .npz arrays, no pickle.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, Episode
+from services.learner.convergence import Convergence, EpisodeResult
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.sim.maps import Map, load_map
@@ -25,7 +25,7 @@ class TrainResult:
     learning_time: float  # simulated seconds until convergence
     steps: int
     states: int
-    history: list[Episode]
+    history: list[EpisodeResult]
 
 
 def train(
@@ -34,7 +34,7 @@ def train(
     config: LearnerConfig | None = None,
     max_episodes: int = 500,
     sim_config: SimConfig | None = None,
-    on_episode: Callable[[Episode, Learner], None] | None = None,
+    on_episode: Callable[[EpisodeResult, Learner], None] | None = None,
     traces: TraceBook | None = None,
 ) -> TrainResult:
     """SARSA(lambda) without a live teacher until convergence or `max_episodes`; with
@@ -56,7 +56,7 @@ def train(
                 reading = sim.step({"robot": (decision.v, decision.omega)})["robot"]
                 decision = learner.step(reading)
             steps += reading.episode_step
-            episode = Episode(
+            episode = EpisodeResult(
                 reading.outcome,
                 reading.episode_step,
                 reading.episode_step * sim.config.control_period,

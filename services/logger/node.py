@@ -170,14 +170,14 @@ def run(args: argparse.Namespace) -> int:
                 "cut off an incomplete last record a killed logger left",
                 extra=fields(file=writer.path, bytes=writer.repaired_bytes),
             )
-        samples = node.session.declare_subscriber(
+        samples = node.zenoh.declare_subscriber(
             session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE)
         )
         drainer = threading.Thread(
             target=receiver.drain, args=(samples,), name="event-log", daemon=True
         )
         drainer.start()
-        presence = node.session.liveliness().declare_subscriber(  # rare: a callback will do
+        presence = node.zenoh.liveliness().declare_subscriber(  # rare: a callback will do
             presence_key(bus.session), receiver.record, history=True
         )
         renderer = None if args.no_recording else _start_renderer(args, run_dir, bus.session, port)

@@ -47,7 +47,7 @@ MOVING_AVERAGE = 10
 
 
 @dataclass
-class Episode:
+class EpisodeSummary:
     number: int
     outcome: str = "running"  # goal, collision, timeout, or running (no end seen)
     steps: int = 0
@@ -62,7 +62,7 @@ class Episode:
 @dataclass
 class RobotSummary:
     robot: str
-    episodes: dict[int, Episode] = field(default_factory=dict)
+    episodes: dict[int, EpisodeSummary] = field(default_factory=dict)
     steps: list[int] = field(default_factory=list)  # every observed step
     rewards: list[float] = field(default_factory=list)  # R_RL of each observed step
     episode_of_step: list[int] = field(default_factory=list)
@@ -72,13 +72,13 @@ class RobotSummary:
     actions: dict[str, int] = field(default_factory=lambda: {"policy": 0, "teacher": 0})
     states: int = 0
 
-    def episode(self, number: int) -> Episode:
+    def episode(self, number: int) -> EpisodeSummary:
         if number not in self.episodes:
-            self.episodes[number] = Episode(number)
+            self.episodes[number] = EpisodeSummary(number)
         return self.episodes[number]
 
     @property
-    def ended(self) -> list[Episode]:
+    def ended(self) -> list[EpisodeSummary]:
         return [e for e in self.episodes.values() if e.outcome != "running"]
 
 
@@ -149,7 +149,7 @@ def summarize(records: Iterable[EventRecord], session: str = "") -> SessionSumma
     return summary
 
 
-def pick_episodes(robot: RobotSummary, wanted: Sequence[int] | None = None) -> list[Episode]:
+def pick_episodes(robot: RobotSummary, wanted: Sequence[int] | None = None) -> list[EpisodeSummary]:
     """The episodes to draw: those asked for, else the first, the best, a middle one and the
     last that ended (at most MAX_EPISODES_DRAWN)."""
     if wanted:
@@ -196,7 +196,7 @@ def draw_map(ax: Axes, m: Map) -> None:
     ax.set_ylabel("y (m)")
 
 
-def draw_trajectories(m: Map, episodes: Sequence[Episode], robot: str, path: Path) -> None:
+def draw_trajectories(m: Map, episodes: Sequence[EpisodeSummary], robot: str, path: Path) -> None:
     scale = 6.0 / max(m.width, m.height)
     fig, ax = plt.subplots(figsize=(m.width * scale + 2.6, m.height * scale + 0.6), dpi=100)
     try:

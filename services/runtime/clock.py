@@ -66,11 +66,12 @@ def sync_clock(
         with contextlib.suppress(ProtocolError):
             replies.put((decode(sample.payload.to_bytes(), ClockReply), t3))
 
-    session = node.session
+    session = node.zenoh
     probe_key = teacher_key(node.session_id, teacher, "clock")
-    subscriber = session.declare_subscriber(
-        teacher_key(node.session_id, teacher, "clock-reply"), on_reply
-    )
+    reply_key = teacher_key(node.session_id, teacher, "clock-reply")
+    node.declare("publishes", probe_key)
+    node.declare("subscribes", reply_key)
+    subscriber = session.declare_subscriber(reply_key, on_reply)
     publisher = session.declare_publisher(
         probe_key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
     )

@@ -43,6 +43,7 @@ from zenoh.ext import (
 )
 
 from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
+from protocol.dataflow import Direction, check
 from services.runtime.config import BusConfig
 from services.runtime.logs import fields, worth_logging
 
@@ -147,8 +148,10 @@ class Node:
         self._queue: queue.Queue = queue.Queue()
         self._stopping = threading.Event()
         self._declared: list = []
-        self.session = open_session(config)
-        self._token = self.session.liveliness().declare_token(
+        # The keys it publishes and subscribes to, checked against protocol/dataflow.py.
+        self.declared: dict[str, set[str]] = {"publishes": set(), "subscribes": set()}
+        self.zenoh = open_session(config)
+        self._token = self.zenoh.liveliness().declare_token(
             presence_key(self.session_id, role, self.id)
         )
         self.log.info(
@@ -163,6 +166,13 @@ class Node:
         )
 
     # -- declarations -------------------------------------------------------------------
+    def declare(self, direction: Direction, key: str) -> None:
+        """Checks `key` against this role's row of protocol/dataflow.py (DataflowError if it
+        is not there) and notes it; `output` and `input` call it, as must other publishers
+        and subscribers of the node's session (the clock exchange)."""
+        check(self.role, direction, key)
+        self.declared[direction].add(key)
+
     def output(self, name: str, key: str, *, must_arrive: bool = True, keep: int = 0) -> Output:
         """A publisher. `must_arrive` (default) blocks instead of dropping under congestion.
         `keep` > 0 keeps the last `keep` messages for recovering inputs that missed them (a
@@ -171,10 +181,11 @@ class Node:
         Express: each message leaves at once rather than waiting to be batched. Every
         voxshape message is small and latency-bound; `voxshape bench sim` measured no
         difference in lockstep speed either way (the round trip is Python-bound)."""
+        self.declare("publishes", key)
         congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
         if keep > 0:
             publisher = declare_advanced_publisher(
-                self.session,
+                self.zenoh,
                 key,
                 congestion_control=congestion,
                 express=True,
@@ -185,7 +196,7 @@ class Node:
                 publisher_detection=True,
             )
         else:
-            publisher = self.session.declare_publisher(
+            publisher = self.zenoh.declare_publisher(
                 key, congestion_control=congestion, express=True
             )
         self._declared.append(publisher)
@@ -198,6 +209,7 @@ class Node:
         fetched from them (their sequence numbers show the gaps), and on joining, what they
         published in the last `recover` seconds; messages that were lost for good anyway are
         counted as `missed.<input>`. Copies can arrive: tell them apart by message id."""
+        self.declare("subscribes", key)
 
         def on_sample(sample: zenoh.Sample) -> None:
             key_text = str(sample.key_expr)
@@ -214,7 +226,7 @@ class Node:
             self._queue.put(Input(name, key_text, message))
 
         if recover <= 0:
-            self._declared.append(self.session.declare_subscriber(key, on_sample))
+            self._declared.append(self.zenoh.declare_subscriber(key, on_sample))
             return
 
         def on_miss(miss: Miss) -> None:
@@ -222,7 +234,7 @@ class Node:
             self.log.warning("messages lost for good", extra=fields(input=name, count=miss.nb))
 
         subscriber = declare_advanced_subscriber(
-            self.session,
+            self.zenoh,
             key,
             on_sample,
             history=HistoryConfig(detect_late_publishers=True, max_age=recover),
@@ -241,7 +253,7 @@ class Node:
 
         key = presence_key(self.session_id, role, node)
         self._declared.append(
-            self.session.liveliness().declare_subscriber(key, on_token, history=True)
+            self.zenoh.liveliness().declare_subscriber(key, on_token, history=True)
         )
 
     def _reject(self, name: str, key: str, error: ProtocolError) -> None:
@@ -323,10 +335,15 @@ class Node:
             declared.undeclare()
         self._declared.clear()
         self._token.undeclare()
-        self.session.close()
+        self.zenoh.close()
         if self.counters:
             self.log_stats()
-        self.log.info("left the bus", extra=fields(node=self.id))
+        # What it declared, without the `voxshape/<session>/` of every key: robot/r1/obs
+        declared = {
+            d: " ".join(sorted(k.split("/", 2)[-1] for k in keys))
+            for d, keys in self.declared.items()
+        }
+        self.log.info("left the bus", extra=fields(node=self.id, **declared))
 
     def __enter__(self) -> Node:
         return self

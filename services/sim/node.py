@@ -11,7 +11,7 @@ import argparse
 import os
 import time
 
-from protocol import Action, EpisodeEvent, check_id, robot_key
+from protocol import Action, EpisodeEvent, check_id, parse_key, robot_key
 from services.runtime import (
     ConfigError,
     Input,
@@ -113,10 +113,13 @@ def run(args: argparse.Namespace) -> int:
             publish(stepper.start())
             for event in node.events(tick=period):
                 now = time.monotonic()
-                if isinstance(event, Input) and isinstance(event.message, Action):
-                    stepper.on_action(event.key.split("/")[-2], event.message)
-                due = isinstance(event, Tick) if args.clock == "paced" else stepper.ready(now)
-                if due:
+                ticked = False
+                match event:
+                    case Input(message=Action() as action, key=key):
+                        stepper.on_action(parse_key(key).owner, action)
+                    case Tick():
+                        ticked = True
+                if ticked if args.clock == "paced" else stepper.ready(now):
                     publish(stepper.step(now))
                     if args.max_steps and stepper.counters["steps"] >= args.max_steps:
                         break

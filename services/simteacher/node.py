@@ -26,20 +26,9 @@ flood and credits them with a person's delays.
 from __future__ import annotations
 
 import argparse
-import heapq
-import io
-import math
 import os
 import random
-import shutil
-import subprocess
 import time
-import wave
-from bisect import bisect_left
-from collections import Counter, deque
-from dataclasses import dataclass
-
-import numpy as np
 
 from protocol import (
     Message,
@@ -51,8 +40,6 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from protocol.messages import SAMPLE_RATE
-from services.arbiter.hygiene import TokenBucket
 from services.runtime import (
     ConfigError,
     Input,
@@ -63,21 +50,15 @@ from services.runtime import (
 )
 from services.runtime.clock import ClockSync
 from services.sim.maps import TASKS, load_map
-from services.sim.task import SimConfig
+from services.simteacher.display import DisplayTeacher, Spoken
 from services.simteacher.teacher import (
     Confusion,
     FeedbackSchedule,
-    Look,
     SimulatedTeacher,
     TeacherProfile,
-    path_command,
 )
+from services.speech.synthesis import LEAD_S, VOICE, Voice
 from services.teacher.sources import wav_stream
-
-COMMAND_EVERY_S = 0.5  # robot seconds between dictated commands (a command steers 5 steps)
-DISPLAY_MEMORY = 4096  # steps whose display time is remembered
-LEAD_S, TRAIL_S = 0.3, 0.5  # synthesized speech: silence before (onset at its end) and after
-VOICE = "en-us"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -119,12 +100,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=profile.repeat_after,
         help="robot seconds before it says the same judgement again while nothing changes "
         "(0: at every look)",
-    )
-    parser.add_argument(
-        "--attentive",
-        action="store_true",
-        help="after an episode without the goal, or over twice the robot's best time, comment "
-        "on everything again (else the schedule decides)",
     )
     parser.add_argument(
         "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
@@ -190,142 +165,9 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
             jitter=args.jitter,
             stuck_after=args.stuck_after,
             repeat_after=args.repeat_after,
-            attentive=args.attentive,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None
-
-
-@dataclass(frozen=True)
-class Spoken:
-    """Words to send: the text and when the teacher started and stopped saying it (own clock)."""
-
-    text: str
-    onset: float
-    end: float
-    kind: str  # "judgement" or "command"
-
-
-class DisplayClock:
-    """When each step of the robot was displayed, on the teacher's clock."""
-
-    def __init__(self, memory: int = DISPLAY_MEMORY) -> None:
-        self._robot: deque[float] = deque(maxlen=memory)
-        self._shown: deque[float] = deque(maxlen=memory)
-
-    def shown(self, robot_time: float, at: float) -> None:
-        if self._robot and robot_time < self._robot[-1]:  # the simulator started over
-            self._robot.clear()
-            self._shown.clear()
-        self._robot.append(robot_time)
-        self._shown.append(at)
-
-    def at(self, robot_time: float) -> float:
-        """The display time of the first step at or after `robot_time` (the latest if none)."""
-        i = bisect_left(self._robot, robot_time)
-        return self._shown[min(i, len(self._shown) - 1)]
-
-
-class BusTeacher:
-    """The teacher between the bus and the core: observations and its own clock in, words to
-    say out (pure: no bus). Dictates the first `traces` episodes it sees start, then judges."""
-
-    def __init__(
-        self,
-        teacher: SimulatedTeacher,
-        traces: int = 0,
-        max_rate: float = 3.0,
-        control_period: float = SimConfig.control_period,
-        counters: Counter[str] | None = None,
-    ) -> None:
-        self.teacher = teacher
-        self.traces = traces
-        self.control_period = control_period
-        self.counters: Counter[str] = Counter() if counters is None else counters
-        self.display = DisplayClock()
-        self.max_rate = max_rate
-        self._bucket: TokenBucket | None = None
-        self._pending: list[tuple[float, int, str, float]] = []  # (end, order, text, onset)
-        self._order = 0
-        self._started = 0  # episodes seen from their start
-        self._episode: int | None = None  # the simulator's episode being watched
-        self._dictating = False
-        self._next_command = -math.inf
-
-    def on_observation(self, obs: Observation, now: float) -> list[Spoken]:
-        t = obs.step * self.control_period  # robot seconds
-        self.display.shown(t, now)
-        if obs.episode != self._episode:
-            self._episode = obs.episode
-            seen_start = obs.episode_step == 0
-            self._started += seen_start
-            self._dictating = seen_start and self._started <= self.traces
-            self._next_command = -math.inf
-        out: list[Spoken] = []
-        if self._dictating:
-            if obs.outcome == "running" and t >= self._next_command - 1e-9:
-                self._next_command = t + COMMAND_EVERY_S
-                text = self.teacher.phrase(path_command(self.teacher.map, obs.x, obs.y, obs.theta))
-                out.append(Spoken(text, now, now, "command"))
-        else:
-            episode = max(0, self._started - self.traces - 1)  # of the episodes it judges
-            look = Look(t, episode, obs.x, obs.y, obs.collided, obs.outcome, obs.theta)
-            for speech in self.teacher.watch(look):
-                heapq.heappush(self._pending, (speech.end, self._order, speech.said, speech.onset))
-                self._order += 1
-        while self._pending and self._pending[0][0] <= t + 1e-9:
-            end, _, text, onset = heapq.heappop(self._pending)
-            out.append(Spoken(text, self.display.at(onset), self.display.at(end), "judgement"))
-        return [s for s in out if self._may_say(s, t)]
-
-    def _may_say(self, spoken: Spoken, t: float) -> bool:
-        if self._bucket is None or t < self._bucket.updated:  # none yet, or a new simulator
-            self._bucket = TokenBucket(self.max_rate, max(1.0, self.max_rate), t)
-        if self._bucket.take(t):
-            self.counters[f"said.{spoken.kind}"] += 1
-            return True
-        self.counters[f"unsaid.{spoken.kind}.too_fast"] += 1
-        return False
-
-
-class Voice:
-    """Phrases synthesized by espeak-ng, as 16 kHz mono int16 samples with silence around."""
-
-    def __init__(self, voice: str = VOICE) -> None:
-        missing = [tool for tool in ("espeak-ng", "sox") if shutil.which(tool) is None]
-        if missing:
-            raise ConfigError(
-                f"--audio needs {' and '.join(missing)} (Debian: apt-get install espeak-ng sox); "
-                "without them, run the speech service's mock engine and leave out --audio"
-            )
-        self.voice = voice
-        self._cache: dict[str, np.ndarray] = {}
-
-    def __call__(self, text: str) -> np.ndarray:
-        if text not in self._cache:
-            self._cache[text] = synthesize(text, self.voice)
-        return self._cache[text]
-
-
-def synthesize(text: str, voice: str = VOICE) -> np.ndarray:
-    """`text` spoken by espeak-ng, trimmed, normalized and padded (LEAD_S, TRAIL_S) by sox."""
-    speech = _run(["espeak-ng", "-v", voice, "-s", "150", "--stdout", text])
-    trim = ["silence", "1", "0.01", "0.1%", "reverse", "silence", "1", "0.01", "0.1%", "reverse"]
-    fmt = ["-r", str(SAMPLE_RATE), "-c", "1", "-b", "16", "-e", "signed-integer"]
-    pad = ["pad", f"{LEAD_S}", f"{TRAIL_S}"]
-    wav = _run(
-        ["sox", "-R", "-t", "wav", "-", *fmt, "-t", "wav", "-", *trim, "gain", "-n", "-3", *pad],
-        speech,
-    )
-    with wave.open(io.BytesIO(wav)) as w:
-        return np.frombuffer(w.readframes(w.getnframes()), dtype="<i2")
-
-
-def _run(argv: list[str], stdin: bytes | None = None) -> bytes:
-    try:
-        return subprocess.run(argv, input=stdin, capture_output=True, check=True, timeout=30).stdout
-    except (subprocess.CalledProcessError, subprocess.TimeoutExpired) as e:
-        raise ConfigError(f"{argv[0]} failed: {getattr(e, 'stderr', b'') or e}") from None
 
 
 def said_messages(spoken: Spoken, teacher: str, robot: str) -> list[Message]:
@@ -367,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
 
     with Node("simteacher", bus_config("simteacher", args)) as node:
         core = SimulatedTeacher(m, load_vocabulary(), profile, seed=seed)
-        teacher = BusTeacher(core, args.traces, args.max_rate, counters=node.counters)
+        teacher = DisplayTeacher(core, args.traces, args.max_rate, counters=node.counters)
         session = node.session_id
         node.input("obs", robot_key(session, robot, "obs"))
         node.input("notice", teacher_key(session, teacher_id, "notice"))
@@ -396,18 +238,15 @@ def run(args: argparse.Namespace) -> int:
             clock=clock,
         ):
             for event in node.events(tick=1.0):
-                if not isinstance(event, Input):
-                    continue
-                message = event.message
-                if isinstance(message, Observation):
-                    for spoken in teacher.on_observation(message, clock()):
-                        messages = (
-                            audio_messages(spoken, teacher_id, robot, voice)
-                            if voice
-                            else said_messages(spoken, teacher_id, robot)
-                        )
-                        for said in messages:
-                            out.put(said)
-                elif isinstance(message, TeacherNotice):
-                    node.counters[f"notice.{message.kind}"] += 1
+                match event:
+                    case Input(message=Observation() as obs):
+                        for spoken in teacher.on_observation(obs, clock()):
+                            for said in (
+                                audio_messages(spoken, teacher_id, robot, voice)
+                                if voice
+                                else said_messages(spoken, teacher_id, robot)
+                            ):
+                                out.put(said)
+                    case Input(message=TeacherNotice() as notice):
+                        node.counters[f"notice.{notice.kind}"] += 1
     return 0

@@ -5,15 +5,13 @@ obstacles, never the straight line) and watches the robot:
 
 - every `interval` seconds of robot time it compares the distance now with the distance at
   its previous look: progress of at least `small_change` metres is "good", of at least
-  `large_change` "excellent"; regress the same way is "bad" or "terrible" (with
-  `turn_progress`, turning towards the way on counts as progress); a smaller change
+  `large_change` "excellent"; regress the same way is "bad" or "terrible"; a smaller change
   (turning on the spot, or a standstill) gets no comment, unless the robot has made no
   progress for `stuck_after` seconds (pinned to a wall, or turning back and forth): then it is
   "bad" at every look until it gets going again, as a person watching would say;
 - a bump (the first step of a run of collided steps) is "terrible", the goal is "goal";
 - it does not always speak: the chance it comments on what it saw follows the paper's
   teacher, permanent during the first episodes and sporadic later (`FeedbackSchedule`);
-  an `attentive` teacher comments on everything again after an episode that went badly;
 - it leans to praise with `positive_bias`: that share of its scolding is left unsaid;
 - it errs with probability `noise`, the kind of error drawn by the `Confusion` weights: a
   wrong qualifier (the opposite judgement of the same strength, its own slip) or a misheard
@@ -48,7 +46,6 @@ BERTHS = (0.45, 0.35, PASSAGE_RADIUS)
 RETURN_CELLS = 20  # nearer a wall than the berth: head for a cell with it at most this near
 FACING = math.radians(20)  # dictating: "forward" when the path is within this of the heading
 NEAREST_FREE_CELLS = 10  # a pose too near a wall takes the distance of a free cell this near
-PAUSE = 0.2  # seconds between two utterances in a row
 OPPOSITE = {"good": "bad", "bad": "good", "excellent": "terrible", "terrible": "excellent"}
 OPPOSITE.update(goal="terrible", left="right", right="left", forward="back")
 
@@ -90,41 +87,23 @@ class TeacherProfile:
     interval: float = 1.0  # seconds of robot time between looks
     small_change: float = 0.1  # metres of geodesic progress (regress) for good (bad) ...
     large_change: float = 0.35  # ... and for excellent (terrible); 0.5 m/s at most
-    # Turning to face the way on counts as progress too, this many metres per radian (the
-    # way: the shortest path's direction where the robot was at the previous look), as a
-    # person praises a robot turning the right way before it moves. 0.48 = forward speed /
-    # turn rate (0.5 m/s, 60 deg/s): a second spent turning the right way counts as a
-    # second spent driving it. 0 (default): turning on the spot gets no comment. Measured at
-    # 0.48 (10 seeds, four tasks, mean robot minutes): perfect advice 12.2 instead of 15.5,
-    # but with 20% noise (rl+f) 25.4 instead of 22.4: a wrong word about a turn misleads
-    # where the robot has nothing else to go by. (With the learner deciding at every state
-    # change, min_hold=1, it was worse for both: 20.8 against 19.6 and 27.8 against 22.7;
-    # one task 1 run circled among praised turns and never converged.)
-    turn_progress: float = 0.0
     schedule: FeedbackSchedule = field(default_factory=FeedbackSchedule)
     noise: float = 0.0  # probability an utterance comes out wrong
     confusion: Confusion = field(default_factory=Confusion)
     positive_bias: float = 0.0  # share of the scolding left unsaid
-    # After a bump or a regress it judged, the chance the teacher also says which way to go:
-    # the command along the shortest path ("left", "right" or "forward").
-    steer: float = 0.0
     # Seconds without progress (of small_change) after which each look is "bad"; 0: never.
     stuck_after: float = 3.0
     # Seconds before the teacher says the same judgement again (praise, or scolding) while
     # nothing changes: a person says "good" once as the robot sets off on the right way, not
     # every second it keeps going. Bumps and the goal are always said. 0: says every one.
     repeat_after: float = 0.0
-    # Attentive: after an episode the robot failed (no goal) or took more than twice its best
-    # time, the teacher comments on everything again (the schedule's `permanent`), whatever
-    # the episode: feedback fades as the robot gets it right, not by the calendar.
-    attentive: bool = False
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
     recognition: float = 0.3  # seconds from the end of speech to the utterance
 
     def __post_init__(self) -> None:
-        for name in ("noise", "positive_bias", "steer"):
+        for name in ("noise", "positive_bias"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} {getattr(self, name)} is not within [0, 1]")
         if (
@@ -148,7 +127,7 @@ class Look:
     y: float
     collided: bool
     outcome: str  # running, goal, collision, timeout
-    heading: float = 0.0  # radians (for steering)
+    heading: float = 0.0  # radians, world frame
 
 
 @dataclass(frozen=True)
@@ -241,7 +220,6 @@ class SimulatedTeacher:
         self._bumping = False
         self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
         self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
-        self._episode_start, self._best, self._struggling = 0.0, math.inf, True
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -257,17 +235,13 @@ class SimulatedTeacher:
         self._bumping = look.collided
         if new_episode or distance <= self._progress[0] - p.small_change:
             self._progress = (distance, look.time)
-        if new_episode:
-            self._episode_start = look.time
-        if look.outcome != "running":
-            self._judge_episode(look.outcome == "goal", look.time - self._episode_start)
         meaning = None
         if look.outcome == "goal":
             meaning = "goal"
         elif bump:
             meaning = "terrible"
         elif not new_episode and look.time - previous.time >= p.interval - 1e-9:
-            meaning = self.judge(self._last_distance - distance + self._turned(previous, look))
+            meaning = self.judge(self._last_distance - distance)
             stuck = p.stuck_after and look.time - self._progress[1] >= p.stuck_after
             if meaning is None and stuck:
                 meaning = "bad"
@@ -278,11 +252,7 @@ class SimulatedTeacher:
         if not self._speaks(look.episode, meaning):
             return []
         self._judged = (self._valence(meaning), look.time)
-        said = [self._say(meaning, look.time + self._reaction())]
-        if p.steer and meaning in ("bad", "terrible") and self.rng.random() < p.steer:
-            command = self.command(look.x, look.y, look.heading)
-            said.append(self._say(command, said[0].end + PAUSE))
-        return said
+        return [self._say(meaning, look.time + self._reaction())]
 
     def judge(self, progress: float) -> str | None:
         """The qualifier for `progress` metres towards the goal (negative: away from it)."""
@@ -294,18 +264,6 @@ class SimulatedTeacher:
             return "excellent" if size >= p.large_change else "good"
         return "terrible" if size >= p.large_change else "bad"
 
-    def _turned(self, before: Look, now: Look) -> float:
-        """Metres of progress the turn from `before` to `now` is worth: radians turned towards
-        the way on from where the robot was `before` (away: negative)."""
-        way = downhill_heading(self.map, before.x, before.y) if self.profile.turn_progress else None
-        if way is None:
-            return 0.0
-
-        def off(theta: float) -> float:
-            return abs(math.remainder(way - theta, math.tau))
-
-        return self.profile.turn_progress * (off(before.heading) - off(now.heading))
-
     def _valence(self, meaning: str) -> float:
         return math.copysign(1.0, self.vocabulary.meanings[meaning].reward or 0.0)
 
@@ -316,16 +274,9 @@ class SimulatedTeacher:
             not event and self._valence(meaning) == said and now - when < self.profile.repeat_after
         )
 
-    def _judge_episode(self, reached: bool, seconds: float) -> None:
-        if reached:
-            self._best = min(self._best, seconds)
-        self._struggling = not reached or seconds > 2 * self._best
-
     def _speaks(self, episode: int, meaning: str) -> bool:
         p = self.profile
-        attending = p.attentive and self._struggling
-        chance = p.schedule.permanent if attending else p.schedule.probability(episode)
-        if self.rng.random() >= chance:
+        if self.rng.random() >= p.schedule.probability(episode):
             return False
         negative = self._valence(meaning) < 0
         return not (negative and self.rng.random() < p.positive_bias)

@@ -74,7 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=defaults.distractors,
         help="dictionary words competing with the vocabulary (0: no rejection; more rejects "
-        "more and loses more of the vocabulary, see the README)",
+        "more and loses more of the vocabulary, docs/speech.md#accuracy)",
     )
     ps.add_argument("--distractor-weight", type=float, default=defaults.distractor_weight)
     mock = parser.add_argument_group("mock engine")
@@ -169,15 +169,15 @@ def run(args: argparse.Namespace) -> int:
 
         for event in node.events(tick=TICK_S):
             now = time.time()
-            if isinstance(event, Input):
-                teacher = parse_key(event.key).owner
-                message = event.message
-                if isinstance(core, AudioTranscriber) and isinstance(message, AudioChunk):
-                    publish(core.on_audio(teacher, message, now))
-                elif isinstance(core, MockTranscriber) and isinstance(message, Said):
-                    publish(core.on_said(teacher, message, now))
-            elif isinstance(event, Tick):
-                publish(core.on_tick(now))
+            match event:
+                case Input(message=AudioChunk() as chunk, key=key):
+                    assert isinstance(core, AudioTranscriber)  # the only one that subscribes
+                    publish(core.on_audio(parse_key(key).owner, chunk, now))
+                case Input(message=Said() as said, key=key):
+                    assert isinstance(core, MockTranscriber)
+                    publish(core.on_said(parse_key(key).owner, said, now))
+                case Tick():
+                    publish(core.on_tick(now))
         publish(core.close(time.time()))
     return 0
 

@@ -8,7 +8,7 @@ vocabulary word is not lost to its own near-homophones. Tried on synthesized
 speech while building this (one-off scripts, not kept): keyword spotting with per-phrase
 thresholds, a free phone loop as garbage path, and score ratios against a phone decoder all
 rejected worse at the same accuracy; the phone loop was also 2-7x slower. The trade-off of
-the number of distractors is measured by `benchmarks/speech.py` (see the README).
+the number of distractors is measured by `benchmarks/speech.py` (docs/speech.md#accuracy).
 
 Digital silence (exact zeros, as synthesized or gated audio has) derails pocketsphinx's
 feature normalization: recognition of the fixtures fell from 85% to 51% with it. A seeded

@@ -242,21 +242,19 @@ def _wait_for_speech(
 
 
 def _show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen) -> None:
-    if isinstance(event, Presence) and event.role == "speech":
-        screen.show(speech.change(event.node, event.alive))
-    if not isinstance(event, Input):
-        return
-    message = event.message
-    if isinstance(message, Utterance):
-        screen.show(board.understood(message))
-    elif isinstance(message, Observation):
-        screen.show(board.observation(message, time.monotonic()))
-    elif isinstance(message, EpisodeEvent):
-        screen.show(board.episode(message))
-    elif isinstance(message, CreditedFeedback):
-        screen.show(board.feedback(message))
-    elif isinstance(message, TeacherNotice):
-        screen.show(board.notice(message))
+    match event:
+        case Presence(role="speech", node=node, alive=alive):
+            screen.show(speech.change(node, alive))
+        case Input(message=Utterance() as utterance):
+            screen.show(board.understood(utterance))
+        case Input(message=Observation() as obs):
+            screen.show(board.observation(obs, time.monotonic()))
+        case Input(message=EpisodeEvent() as episode):
+            screen.show(board.episode(episode))
+        case Input(message=CreditedFeedback() as feedback):
+            screen.show(board.feedback(feedback))
+        case Input(message=TeacherNotice() as notice):
+            screen.show(board.notice(notice))
 
 
 def _loop(

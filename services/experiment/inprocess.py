@@ -26,7 +26,7 @@ from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.learner.config import replaced, with_settings
-from services.learner.convergence import Episode
+from services.learner.convergence import EpisodeResult
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.learner.train import convergence_on
@@ -140,7 +140,9 @@ def run(spec: RunSpec) -> RunResult:
             interventions += deliver(heard, now, arbiter, learner)
             seconds = reading.episode_step * sim.config.control_period
             durations.append(seconds)
-            if progress.add(Episode(reading.outcome, reading.episode_step, seconds, interventions)):
+            if progress.add(
+                EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
+            ):
                 break
     finally:
         sim.close()

@@ -1,0 +1,188 @@
+"""Who publishes and subscribes to what: the session's dataflow, declared once.
+
+Each node role (the role a service gives its `Node`) runs under an access role, the router's
+unit of permission (`services/deploy/access.py` builds the access control from this table),
+and publishes and subscribes to topics (protocol/keys.py) of robots or of teachers: its own
+(a simulator's robots, a teacher's own id) or any of the session's ("*"). A node announces
+its presence as its node role, so an access role may announce as each of its node roles.
+Nodes check what they declare against their row (`check`), `voxshape status` uses the table
+to name inputs nobody publishes, and `voxshape dataflow --markdown` prints the table
+docs/architecture.md shows.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+from protocol.keys import ROOT, SCOPES
+
+ANY = "*"
+Direction = Literal["publishes", "subscribes"]
+DIRECTIONS: tuple[Direction, Direction] = ("publishes", "subscribes")
+FlowScope = Literal["robot", "teacher"]
+Owner = Literal["own", "*"]
+
+
+class DataflowError(ValueError):
+    """A node declared a key its role's row of the dataflow does not list."""
+
+
+@dataclass(frozen=True)
+class Flow:
+    """A topic of robots or teachers: its own ("own") or any of the session's ("*")."""
+
+    scope: FlowScope
+    owner: Owner
+    topic: str
+
+    def __str__(self) -> str:
+        return f"{self.scope}/{'<own>' if self.owner == 'own' else ANY}/{self.topic}"
+
+
+@dataclass(frozen=True)
+class NodeRole:
+    access: str  # the access role it runs under (deploy/access.toml); "*": under any
+    summary: str
+    publishes: tuple[Flow, ...] = ()
+    subscribes: tuple[Flow, ...] = ()
+    everything: bool = False  # every key of the session, unchecked (logger, launcher, tools)
+
+    def flows(self, direction: Direction) -> tuple[Flow, ...]:
+        return self.publishes if direction == "publishes" else self.subscribes
+
+
+def _flows(scope: FlowScope, owner: Owner, *topics: str) -> tuple[Flow, ...]:
+    return tuple(Flow(scope, owner, topic) for topic in topics)
+
+
+DATAFLOW: dict[str, NodeRole] = {
+    "sim": NodeRole(
+        "simulator",
+        "steps its robots: observations and episode events out, actions in",
+        publishes=_flows("robot", "own", "obs", "episode"),
+        subscribes=_flows("robot", "own", "action"),
+    ),
+    "learner": NodeRole(
+        "learner",
+        "learns from its robot's observations and credited feedback; decides its actions",
+        publishes=_flows("robot", "own", "action", "learning"),
+        subscribes=_flows("robot", "own", "obs", "feedback"),
+    ),
+    "arbiter": NodeRole(
+        "arbiter",
+        "turns every teacher's utterances into credited feedback on the robots' step clocks",
+        publishes=(
+            *_flows("robot", ANY, "feedback", "teaching"),
+            *_flows("teacher", ANY, "notice", "clock-reply"),
+        ),
+        subscribes=(*_flows("robot", ANY, "obs"), *_flows("teacher", ANY, "utterance", "clock")),
+    ),
+    "speech": NodeRole(
+        "speech",
+        "recognizes every teacher's audio (or a mock's said text) as utterances",
+        publishes=_flows("teacher", ANY, "utterance"),
+        subscribes=_flows("teacher", ANY, "audio", "said"),
+    ),
+    "teacher": NodeRole(
+        "teacher",
+        "a person's client (voxshape teach): speaks or types as itself, watches a robot",
+        publishes=_flows("teacher", "own", "audio", "utterance", "said", "clock"),
+        subscribes=(
+            *_flows("teacher", "own", "utterance", "notice", "clock-reply"),
+            *_flows("robot", ANY, "obs", "episode", "feedback"),
+        ),
+    ),
+    "simteacher": NodeRole(
+        "teacher",
+        "the simulated teacher: watches a robot and speaks as itself",
+        publishes=_flows("teacher", "own", "audio", "said", "clock"),
+        subscribes=(
+            *_flows("teacher", "own", "notice", "clock-reply"),
+            *_flows("robot", ANY, "obs"),
+        ),
+    ),
+    "logger": NodeRole("admin", "records every message of the session", everything=True),
+    "launcher": NodeRole("admin", "voxshape up and the demo: watch the session", everything=True),
+    "listen": NodeRole("admin", "voxshape listen: prints every message", everything=True),
+    "bench": NodeRole(
+        "admin", "benchmarks: play the other roles on a session of their own", everything=True
+    ),
+    "equivalence": NodeRole(
+        "admin", "the distributed experiment: watches a session of its own", everything=True
+    ),
+    "router": NodeRole("admin", "the router's own node: logs who joins and leaves"),
+    "status": NodeRole(ANY, "voxshape status: who is present (every user may look)"),
+}
+
+
+def topic_of(key: str) -> str:
+    """`scope/topic` of a key of the bus (the key itself if it is not one)."""
+    parts = key.split("/")
+    return f"{parts[2]}/{parts[4]}" if len(parts) == 5 and parts[0] == ROOT else key
+
+
+def _covers(flow: Flow, key: str) -> bool:
+    # An own flow is of a concrete robot or teacher: a wildcard there would reach others'.
+    if topic_of(key) != f"{flow.scope}/{flow.topic}":
+        return False
+    return flow.owner == ANY or "*" not in key.split("/")[3]
+
+
+def check(role: str, direction: Direction, key: str) -> None:
+    """Raises DataflowError if a node of `role` may not publish (subscribe to) `key`; roles
+    outside the table (tests) and those with everything are not checked."""
+    row = DATAFLOW.get(role)
+    if row is None or row.everything:
+        return
+    if not any(_covers(flow, key) for flow in row.flows(direction)):
+        listed = ", ".join(map(str, row.flows(direction))) or "nothing"
+        raise DataflowError(
+            f"the {role} node {direction.removesuffix('s')}s {key!r}, which is not declared "
+            f"in protocol/dataflow.py (its {role} row {direction}: {listed}); declare it there "
+            "(the router's access control follows) or drop it"
+        )
+
+
+def publishers_of(scope: str, topic: str) -> list[str]:
+    """The node roles that publish `scope`/`topic` (those with everything aside)."""
+    return [
+        role
+        for role, row in DATAFLOW.items()
+        if any(f.scope == scope and f.topic == topic for f in row.publishes)
+    ]
+
+
+def _cells(row: NodeRole, quote: str = "") -> list[str]:
+    if row.everything:
+        return ["everything in the session"] * 2
+    return [", ".join(f"{quote}{f}{quote}" for f in row.flows(d)) or "-" for d in DIRECTIONS]
+
+
+def markdown() -> str:
+    """The table as markdown (docs/architecture.md shows it)."""
+    lines = ["| node role | access role | publishes | subscribes to |", "|---|---|---|---|"]
+    for role, row in DATAFLOW.items():
+        access = "any" if row.access == ANY else row.access
+        lines.append(f"| {role} | {access} | {' | '.join(_cells(row, '`'))} |")
+    return "\n".join(lines)
+
+
+def text() -> str:
+    """The table as plain text, a paragraph a node role."""
+    out = []
+    for role, row in DATAFLOW.items():
+        access = "any" if row.access == ANY else row.access
+        out.append(f"{role} (access role {access}): {row.summary}")
+        for direction, cell in zip(DIRECTIONS, _cells(row), strict=True):
+            out.append(f"  {direction:<10} {cell}")
+    return "\n".join(out)
+
+
+def _check_table() -> None:
+    for role, row in DATAFLOW.items():
+        for flow in (*row.publishes, *row.subscribes):
+            assert flow.topic in SCOPES[flow.scope], f"{role}: unknown topic {flow}"
+
+
+_check_table()

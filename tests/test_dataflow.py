@@ -1,0 +1,227 @@
+"""The dataflow declared once (protocol/dataflow.py): the table is consistent, the router's
+access control, `voxshape status` and the docs come from it, nodes refuse keys outside their
+row, and the real services declare exactly their rows."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+
+import pytest
+
+from protocol import CreditedFeedback, TeacherNotice, TeachingStats, robot_key, teacher_key
+from protocol.dataflow import ANY, DATAFLOW, DataflowError, check, markdown, publishers_of
+from protocol.keys import SCOPES
+from services.cli import main
+from services.deploy.access import ROLES, User, access_control
+from services.runtime import Node
+from services.tools import unfed_inputs
+from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
+
+ARCHITECTURE = ROOT / "docs" / "architecture.md"
+BEGIN = "<!-- dataflow:begin"
+END = "<!-- dataflow:end -->"
+
+
+def test_every_flow_names_a_topic_and_every_subscription_has_a_publisher():
+    for role, row in DATAFLOW.items():
+        flows = (*row.publishes, *row.subscribes)
+        assert len(set(row.publishes)) == len(row.publishes), role
+        assert len(set(row.subscribes)) == len(row.subscribes), role
+        assert not (row.everything and flows), f"{role}: everything lists no flows"
+        for flow in flows:
+            assert flow.topic in SCOPES[flow.scope], (role, flow)
+            assert flow.owner in ("own", ANY), (role, flow)
+        for flow in row.subscribes:
+            assert publishers_of(flow.scope, flow.topic), (role, flow)
+
+
+def test_the_drift_is_gone():
+    """What the services really do (their node files), not what the old ROLES said."""
+    assert ("robot", "robots", "episode") not in ROLES["learner"].subscribe
+    assert ("robot", ANY, "episode") not in ROLES["arbiter"].subscribe
+    assert ("robot", ANY, "teaching") not in ROLES["teacher"].subscribe
+
+
+def test_the_access_roles_are_what_the_table_implies():
+    own = {"robot": "robots", "teacher": "self"}
+    assert list(ROLES) == list(
+        dict.fromkeys(row.access for row in DATAFLOW.values() if row.access != ANY)
+    )
+    for access, role in ROLES.items():
+        rows = {name: row for name, row in DATAFLOW.items() if row.access in (access, ANY)}
+
+        def union(direction: str, rows=rows) -> set[tuple[str, str, str]]:
+            flows = [f for row in rows.values() for f in row.flows(direction)]
+            return {(f.scope, own[f.scope] if f.owner == "own" else ANY, f.topic) for f in flows}
+
+        assert set(role.publish) == union("publishes"), access
+        assert set(role.subscribe) == union("subscribes"), access
+        assert set(role.announce) == set(rows), access
+        assert role.everything == any(row.everything for row in rows.values()), access
+        assert role.takes_robots == any(o == "robots" for _, o, _ in role.publish), access
+    assert set(ROLES["teacher"].announce) == {"teacher", "simteacher", "status"}
+    assert ROLES["admin"].everything and not ROLES["speech"].everything
+
+
+def test_a_users_router_rules_are_its_rows_keys():
+    users = {"learner": User("learner", "learner", ("r1",)), "ana": User("ana", "teacher")}
+    rules = {r["id"]: r for r in access_control("s1", users)["rules"]}
+    assert rules["learner:subscribe"]["key_exprs"] == sorted(
+        robot_key("s1", "r1", t) for t in ("obs", "feedback")
+    )
+    assert rules["learner:publish"]["key_exprs"] == sorted(
+        robot_key("s1", "r1", t) for t in ("action", "learning")
+    )
+    assert set(rules["ana:publish"]["key_exprs"]) == {
+        teacher_key("s1", "ana", t) for t in ("audio", "utterance", "said", "clock")
+    }
+    assert set(rules["ana:announce"]["key_exprs"]) == {
+        f"voxshape/s1/presence/{r}/*" for r in ("teacher", "simteacher", "status")
+    }
+
+
+def test_check_follows_the_rows():
+    check("learner", "subscribes", robot_key("s1", "r1", "obs"))
+    check("arbiter", "subscribes", robot_key("s1", "*", "obs"))
+    check("simteacher", "subscribes", robot_key("s1", "r7", "obs"))  # any robot's
+    check("logger", "subscribes", "voxshape/s1/**")  # everything
+    check("a-tool", "publishes", robot_key("s1", "r1", "feedback"))  # not in the table
+    with pytest.raises(DataflowError, match=r"not declared in protocol/dataflow\.py"):
+        check("learner", "subscribes", robot_key("s1", "*", "obs"))  # its own robot's only
+    with pytest.raises(DataflowError, match="router row publishes: nothing"):
+        check("router", "publishes", robot_key("s1", "r1", "obs"))
+
+
+def test_voxshape_dataflow_prints_the_table(capsys):
+    assert main(["dataflow", "--markdown"]) == 0
+    assert capsys.readouterr().out.strip() == markdown()
+    assert main(["dataflow"]) == 0
+    text = capsys.readouterr().out
+    assert "learner (access role learner)" in text and "robot/<own>/feedback" in text
+
+
+@pytest.mark.skipif(not ARCHITECTURE.exists(), reason="no docs/architecture.md")
+def test_the_docs_show_the_table():
+    text = ARCHITECTURE.read_text()
+    begin, end = text.index(BEGIN), text.index(END)
+    shown = text[text.index("\n", begin) + 1 : end].strip()
+    assert shown == markdown(), "paste `voxshape dataflow --markdown` between the markers"
+
+
+def test_status_names_inputs_nobody_present_publishes():
+    present = [
+        {"role": "learner", "node": "learner-r1"},
+        {"role": "sim", "node": "sim"},
+        {"role": "logger", "node": "logger"},
+        {"role": "status", "node": "health"},
+    ]
+    assert unfed_inputs(present) == [
+        "learner learner-r1 subscribes to robot/*/feedback: no arbiter present"
+    ]
+    assert unfed_inputs([*present, {"role": "arbiter", "node": "arbiter"}]) == [
+        "arbiter arbiter subscribes to teacher/*/utterance: no speech or teacher present",
+        "arbiter arbiter subscribes to teacher/*/clock: no teacher or simteacher present",
+    ]
+
+
+def test_a_node_declaring_a_key_outside_its_row_is_refused(client_config, session_id):
+    with Node("learner", client_config("learner-test")) as node:
+        node.input("obs", robot_key(session_id, "r1", "obs"))
+        with pytest.raises(DataflowError) as refused:
+            node.input("episode", robot_key(session_id, "r1", "episode"))
+        message = str(refused.value)
+        assert "learner" in message and robot_key(session_id, "r1", "episode") in message
+        assert "declared in protocol/dataflow.py" in message
+        with pytest.raises(DataflowError, match="learner row publishes"):
+            node.output("feedback", robot_key(session_id, "r1", "feedback"))
+        assert node.declared == {
+            "publishes": set(),
+            "subscribes": {robot_key(session_id, "r1", "obs")},
+        }
+    with Node("logger", client_config("logger-test")) as logger:  # everything: not checked
+        logger.output("feedback", robot_key(session_id, "r1", "feedback"))
+    with Node("a-tool", client_config("tool")) as tool:  # not in the table: not checked
+        tool.input("episode", robot_key(session_id, "r1", "episode"))
+
+
+def declared(stderr: str) -> dict[str, set[str]]:
+    """The `scope/topic`s a service said it declared, in its "left the bus" log line (JSON
+    logs: `publishes="robot/r1/obs robot/r1/episode"`)."""
+    for line in stderr.splitlines():
+        try:
+            record = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if record.get("message") == "left the bus":
+            return {
+                d: {f"{k.split('/')[0]}/{k.split('/')[2]}" for k in record[d].split()}
+                for d in ("publishes", "subscribes")
+            }
+    raise AssertionError(f"no 'left the bus' line in:\n{stderr[-3000:]}")
+
+
+# Flows a service declares only with other options than the ones run here.
+WITH_OTHER_OPTIONS = {
+    ("simteacher", "publishes"): {"teacher/audio"},  # --audio: speech, not text for the mock
+    ("teacher", "publishes"): {"teacher/audio"},  # --wav or --mic
+    ("speech", "subscribes"): {"teacher/audio"},  # a real engine, not the mock
+}
+
+
+def test_the_real_services_declare_exactly_their_rows(
+    spawn, router, session_id, tmp_path, client_config
+):
+    """Every service of a session a process, taught by a simulated teacher until the learner
+    has credited feedback, a person's client (voxshape teach) beside it; then each says, as it
+    leaves, what it declared: exactly its row."""
+    env = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
+
+    def start(role: str, *argv: str, **kwargs: object) -> subprocess.Popen:
+        command, *rest = argv
+        kwargs.setdefault("env", env)
+        with (tmp_path / f"{role}.log").open("w") as log:  # a file: a full pipe would block
+            return spawn(
+                [VOXSHAPE, command, *bus_args(router, session_id, role), *rest],
+                stdout=subprocess.DEVNULL,
+                stderr=log,
+                cwd=tmp_path,
+                **kwargs,
+            )
+
+    services = {
+        "arbiter": start("arbiter", "arbiter", "--robot-time", "ana"),
+        "speech": start("speech", "speech", "--engine", "mock", "--seed", "1"),
+        "learner": start("learner", "learner", "--robot", "r1", "--seed", "1"),
+        "simteacher": start("simteacher", "sim-teacher", "--teacher", "ana", "--robot", "r1"),
+        # a quiet node: its "left the bus" line shows at debug level; stdin open, typing nothing
+        "teacher": start(
+            "teacher",
+            *("teach", "--teacher", "bob", "--robot", "r1", "--through-speech", "--json"),
+            env={**env, "VOXSHAPE_LOG_LEVEL": "debug"},
+            stdin=subprocess.PIPE,
+        ),
+    }
+    with Node("test", client_config("observer")) as node:
+        node.watch_presence()
+        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        node.input("teaching", robot_key(session_id, "r1", "teaching"))
+        node.input("notice", teacher_key(session_id, "ana", "notice"))
+        wait_present(node, set(services), timeout=60.0)
+        services["sim"] = start("sim", "sim", "--rtf", "20", "--seed", "1")
+        # The arbiter declares its outputs as it first uses them.
+        collect(node, 1, CreditedFeedback, timeout=60.0)
+        collect(node, 1, TeacherNotice, timeout=10.0)
+        collect(node, 1, TeachingStats, timeout=10.0)
+    for proc in services.values():
+        proc.send_signal(signal.SIGINT)
+    for role, proc in services.items():
+        proc.wait(timeout=30)
+        got = declared((tmp_path / f"{role}.log").read_text())
+        for direction in ("publishes", "subscribes"):
+            rows = DATAFLOW[role].flows(direction)  # type: ignore[arg-type]
+            want = {f"{f.scope}/{f.topic}" for f in rows}
+            want -= WITH_OTHER_OPTIONS.get((role, direction), set())
+            assert got[direction] == want, (role, direction)
