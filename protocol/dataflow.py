@@ -136,11 +136,12 @@ def check(role: str, direction: Direction, key: str) -> None:
     if row is None or row.everything:
         return
     if not any(_covers(flow, key) for flow in row.flows(direction)):
+        verb = "publishes" if direction == "publishes" else "subscribes to"
         listed = ", ".join(map(str, row.flows(direction))) or "nothing"
         raise DataflowError(
-            f"the {role} node {direction.removesuffix('s')}s {key!r}, which is not declared "
-            f"in protocol/dataflow.py (its {role} row {direction}: {listed}); declare it there "
-            "(the router's access control follows) or drop it"
+            f"the {role} node {verb} {key!r}, which is not declared in protocol/dataflow.py "
+            f"(its {role} row {direction}: {listed}; <own> is one robot or teacher id, not "
+            "a wildcard); declare it there (the router's access control follows) or drop it"
         )
 
 
@@ -156,7 +157,7 @@ def publishers_of(scope: str, topic: str) -> list[str]:
 def _cells(row: NodeRole, quote: str = "") -> list[str]:
     if row.everything:
         return ["everything in the session"] * 2
-    return [", ".join(f"{quote}{f}{quote}" for f in row.flows(d)) or "-" for d in DIRECTIONS]
+    return [", ".join(f"{quote}{f}{quote}" for f in row.flows(d)) or "nothing" for d in DIRECTIONS]
 
 
 def markdown() -> str:

@@ -22,10 +22,13 @@ import pytest
 import zenoh
 
 from protocol import CreditedFeedback, robot_key, session_keys, teacher_key
+from protocol.dataflow import ANY, DATAFLOW
 from protocol.examples import example_messages
 from services.deploy.access import (
+    ROLES,
     AccessError,
     access_control,
+    find_access_file,
     load_access,
     load_credentials,
 )
@@ -307,3 +310,17 @@ def test_credentials_and_secrets_folder(secrets, tmp_path):
     bad.write_text("ana\n")
     with pytest.raises(AccessError, match="line 1: expected user:password"):
         load_credentials(bad)
+
+
+def test_every_role_comes_from_the_dataflow_table():
+    """The access roles are those of protocol/dataflow.py, and each service's user in
+    deploy/access.toml has the access role its node role runs under there."""
+    assert set(ROLES) == {row.access for row in DATAFLOW.values()} - {ANY}
+    for role, row in DATAFLOW.items():
+        access = list(ROLES) if row.access == ANY else [row.access]
+        assert all(role in ROLES[a].announce for a in access), role
+    users = load_access(find_access_file())
+    services = {name: user for name, user in users.items() if name in DATAFLOW}
+    assert {"sim", "learner", "logger", "launcher", "simteacher"} <= set(services)
+    for name, user in services.items():
+        assert user.role == DATAFLOW[name].access, name
