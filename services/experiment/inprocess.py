@@ -32,7 +32,7 @@ from services.learner.traces import TraceBook
 from services.learner.train import convergence_on
 from services.sim.maps import Map, load_map
 from services.sim.stepper import observation
-from services.sim.task import Reading, Simulation
+from services.sim.task import Reading, SimConfig, Simulation
 from services.simteacher.dictation import dictate
 from services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
 
@@ -93,8 +93,11 @@ class RunResult:
         return asdict(self)
 
 
-def run(spec: RunSpec) -> RunResult:
-    """Trains one robot on one task in one setting until convergence or max_episodes."""
+def run(spec: RunSpec, reference: bool = False) -> RunResult:
+    """Trains one robot on one task in one setting until convergence or max_episodes. The
+    simulator senses only as far as the learner reads (SimConfig.sensor_reach), on its fast
+    path; `reference` runs the reference path with full scans instead: the same results,
+    slower (`voxshape bench experiment` compares them)."""
     setting = SETTINGS[spec.setting]
     m = load_map(spec.task)
     vocabulary = load_vocabulary()
@@ -113,7 +116,9 @@ def run(spec: RunSpec) -> RunResult:
         ArbiterConfig(learning=replace(DelayLearning(), enabled=spec.delay_learning)), vocabulary
     )
     heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance), a heap
-    sim = Simulation(m, (ROBOT,), seed=spec.seed)
+    fast = not reference
+    sim_config = SimConfig(sensor_reach=learner.states.reach if fast else None, fast=fast)
+    sim = Simulation(m, (ROBOT,), sim_config, seed=spec.seed)
     now, order = START, 0
     durations: list[float] = []
     try:

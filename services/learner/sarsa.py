@@ -172,7 +172,7 @@ class Learner:
             )
         )
         if self.config.shaping == "action_bias":
-            self._advise(s, self.config.alpha * bonus * a.weights)
+            self._advise([s], (self.config.alpha * bonus * a.weights)[None, :])
             return r
         return r + bonus
 
@@ -203,17 +203,21 @@ class Learner:
             self.counters[f"feedback_dropped.{why}"] += 1
             return False
         credited = self.recent[index]
-        trace = 1.0  # e_k(s_j, a_j) = (gamma lambda)^(k - j) along the episode, back from k
+        visits, scales = [], []  # the decisions back from k, and alpha w f e_k of each
+        trace, scale = 1.0, c.alpha * weight * f  # e_k(s_j, a_j) = (gamma lambda)^(k - j)
         for j in range(index, -1, -1):
             visit = self.recent[j]
             if visit.episode != credited.episode or trace < 1e-4:
                 break
-            change = c.alpha * weight * f * trace * visit.weights
-            if c.shaping == "action_bias":
-                self._advise(visit.state, change)
-            else:
-                self.Q[visit.state] += change
+            visits.append(visit)
+            scales.append(scale * trace)
             trace *= c.gamma * c.lam
+        changes = np.array(scales)[:, None] * np.array([v.weights for v in visits])
+        states = [v.state for v in visits]
+        if c.shaping == "action_bias":
+            self._advise(states, changes)
+        else:
+            np.add.at(self.Q, states, changes)  # in order, as one update after another
         self.counters["feedback_credited"] += 1
         return True
 
@@ -240,9 +244,13 @@ class Learner:
         tiles = self.states.tiles[s]
         return (self.H[s] + self.H_tiles[tiles].sum(axis=0)) / (1 + len(tiles))
 
-    def _advise(self, s: int, change: np.ndarray) -> None:
-        self.H[s] += change
-        self.H_tiles[self.states.tiles[s]] += change
+    def _advise(self, states: list[int], changes: np.ndarray) -> None:
+        """H(s) += change for each state and its change (rows), in order, and its tiles."""
+        np.add.at(self.H, states, changes)
+        tiles = [(t, i) for i, s in enumerate(states) for t in self.states.tiles[s]]
+        if tiles:
+            rows, which = zip(*tiles, strict=True)
+            np.add.at(self.H_tiles, list(rows), changes[list(which)])
 
     def sum_advice_tiles(self) -> None:
         """H_tiles from H (after H was restored)."""

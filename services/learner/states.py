@@ -19,6 +19,8 @@ bearing shares a tile, whatever its distance.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
+from functools import cache
 from typing import Protocol
 
 import numpy as np
@@ -26,6 +28,18 @@ import numpy as np
 from services.learner.config import KEY_FIELDS, LearnerConfig
 
 CLEAR = -1  # the prototype of readings with nothing within clear_range
+
+
+@cache
+def _sector_starts(n: int, sectors: int) -> np.ndarray:
+    """Where each of `sectors` near-equal sectors of n beams starts (as np.array_split)."""
+    sizes = [len(a) for a in np.array_split(np.zeros(n), sectors)]
+    return np.cumsum([0, *sizes[:-1]])
+
+
+def _sector_minima(laser: np.ndarray, sectors: int) -> np.ndarray:
+    """The nearest range in each sector of the laser, right to left."""
+    return np.minimum.reduceat(laser, _sector_starts(len(laser), sectors))
 
 
 def _bin(angle: float, n: int) -> int:
@@ -57,10 +71,17 @@ class StateSpace:
     def __len__(self) -> int:
         return len(self.keys)
 
+    @property
+    def reach(self) -> float | None:
+        """How far the sensors must see for a state: the near range when the near bits are
+        all that reads them (0 when nothing does), else their full range (None)."""
+        if self.config.pearson_threshold is not None:
+            return None
+        return self.config.near_range or 0.0
+
     def sensor_vector(self, p: Percept) -> np.ndarray:
         laser = np.asarray(p.laser, dtype=float)
-        sectors = np.array_split(laser, self.config.laser_sectors)
-        parts = [np.array([s.min() for s in sectors])]
+        parts = [_sector_minima(laser, self.config.laser_sectors)]
         if self.config.use_sonar:
             parts.append(np.asarray(p.sonar, dtype=float))
         return np.concatenate(parts)
@@ -68,9 +89,9 @@ class StateSpace:
     def near_bits(self, p: Percept) -> int:
         if self.config.near_range is None:
             return 0
-        sectors = np.array_split(np.asarray(p.laser, dtype=float), self.config.near_sectors)
+        minima = _sector_minima(np.asarray(p.laser, dtype=float), self.config.near_sectors)
         near = self.config.near_range
-        return sum(1 << i for i, sector in enumerate(sectors) if sector.min() < near)
+        return sum(1 << i for i, m in enumerate(minima.tolist()) if m < near)
 
     def goal_bins(self, p: Percept) -> tuple[int, int, int]:
         """(bearing, distance, sector): where the goal is seen from the robot, how far, and on
@@ -80,7 +101,7 @@ class StateSpace:
         if not c.goal_features:
             return 0, 0, 0
         bearing = _bin(p.goal_bearing, c.bearing_bins)
-        distance = int(np.searchsorted(c.distance_edges, p.goal_distance, "right"))
+        distance = bisect_right(c.distance_edges, p.goal_distance)
         sector = _bin(p.theta + p.goal_bearing + math.pi, c.goal_sectors) if c.goal_sectors else 0
         return bearing, distance, sector
 

@@ -147,12 +147,23 @@ class FreeSpace:
         ys = (np.arange(self.rows) + 0.5) * resolution
         px, py = np.meshgrid(xs, ys)  # [row, col]
         self.clearance = m.clearance(px, py)
+        self._clearance_rows = self.clearance.tolist()  # for one cell at a time, no numpy
+        self._half_diagonal = resolution / math.sqrt(2)
         self._distances: dict[float, np.ndarray] = {}
 
     def cell(self, x: float, y: float) -> tuple[int, int]:
         col = min(self.cols - 1, max(0, int(x / self.resolution)))
         row = min(self.rows - 1, max(0, int(y / self.resolution)))
         return row, col
+
+    def clearance_bound(self, x: float, y: float) -> float:
+        """A lower bound on the clearance at (x, y): its cell's, less the farthest a point of
+        the cell lies from the cell's centre (a distance changes no faster than the point
+        moves); -inf off the grid."""
+        col, row = int(x / self.resolution), int(y / self.resolution)
+        if not (0 <= col < self.cols and 0 <= row < self.rows and x >= 0 and y >= 0):
+            return -math.inf
+        return self._clearance_rows[row][col] - self._half_diagonal
 
     def distances_to_goal(self, robot_radius: float) -> np.ndarray:
         """Geodesic distance (metres) from every cell to the goal region for a robot whose

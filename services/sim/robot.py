@@ -27,6 +27,11 @@ class RobotModel:
     sonar_min: float = 0.1
     sonar_max: float = 5.0
 
+    @property
+    def circumradius(self) -> float:
+        """The farthest a point of the footprint lies from its centre."""
+        return math.hypot(self.length / 2, self.width / 2)
+
     def laser_angles(self) -> np.ndarray:
         """Beam directions in the robot frame, evenly spread over the field of view."""
         step = self.laser_fov / self.laser_beams

@@ -43,6 +43,13 @@ class SimConfig:
     timeout: float | None = None  # seconds of simulated time; None: the map's
     laser_noise: float = 0.0  # standard deviation of Gaussian range noise, metres
     sonar_noise: float = 0.0
+    # Ranges beyond this many metres read as the sensor's maximum (None: full scans): for a
+    # consumer that reads only near ranges, most ray casts are skipped (sensors.py).
+    sensor_reach: float | None = None
+    # A compiled ray cast (sensors.py), PyBullet asked about contacts only near something
+    # (world.py). False: the reference path (numpy cast, a query at every sub-step), slower,
+    # with the same results.
+    fast: bool = True
     rewards: Rewards = field(default_factory=Rewards)
     model: RobotModel = field(default_factory=RobotModel)
 
@@ -99,8 +106,9 @@ class Simulation:
             raise ValueError(f"robot names must be distinct and at least one: {robots}")
         self.map = m
         self.config = config or SimConfig()
-        self.world = World(m, len(robots), self.config.model, self.config.substeps)
-        self.sensors = Sensors(m, self.config.model)
+        c = self.config
+        self.world = World(m, len(robots), c.model, c.substeps, cull=c.fast)
+        self.sensors = Sensors(m, c.model, compiled=c.fast)
         self.robots = {name: _Robot(name, i) for i, name in enumerate(robots)}
         self.rng = np.random.default_rng(seed)
         self.sim_time = 0.0
@@ -200,7 +208,7 @@ class Simulation:
         return readings
 
     def _sense(self) -> tuple[np.ndarray, np.ndarray]:
-        laser, sonar = self.sensors.scan(self.world.poses)
+        laser, sonar = self.sensors.scan(self.world.poses, self.config.sensor_reach)
         m, c = self.config.model, self.config
         if c.laser_noise > 0:
             laser = np.clip(
