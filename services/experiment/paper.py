@@ -109,10 +109,12 @@ def run_all(
     workers: int | None = None,
     progress: bool = True,
     log: Path | None = None,
+    reference: bool = False,
 ) -> list[RunResult]:
     """Every run (in the order of `specs`), in parallel processes, with a progress bar on
     stderr; with `log`, each result is appended to it as a JSON line as soon as it is done
-    (a long experiment cut short keeps what it ran)."""
+    (a long experiment cut short keeps what it ran); `reference`: on the simulator's
+    reference path (`run`)."""
     workers = workers or os.cpu_count() or 1
     results: list[RunResult | None] = [None] * len(specs)
     with (
@@ -121,7 +123,7 @@ def run_all(
     ):
         # The longest runs first (plain RL learns 5-8x slower), so none is left alone at the end.
         order = sorted(range(len(specs)), key=lambda i: specs[i].setting != "rl")
-        futures = {pool.submit(run, specs[i]): i for i in order}
+        futures = {pool.submit(run, specs[i], reference): i for i in order}
         for future in as_completed(futures):
             result = results[futures[future]] = future.result()
             if log is not None:

@@ -1,4 +1,5 @@
-"""`voxshape map` (a picture of a task) and `voxshape bench sim` (the simulator's figures)."""
+"""`voxshape map` (a picture of a task) and `voxshape bench` (the simulator's figures here;
+`bench arbiter` and `bench experiment` in their own modules)."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 
 from protocol import Action, Observation, robot_key
 from services.arbiter import bench as arbiter_bench
+from services.experiment import bench as experiment_bench
 from services.runtime import Input, Node, bus_config, free_loopback_port
 from services.sim.maps import Pose, load_map
 from services.sim.render import render_map
@@ -49,11 +51,12 @@ def map_command(args: argparse.Namespace) -> int:
 
 
 def add_bench_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["sim", "arbiter"], help="what to measure")
+    parser.add_argument("what", choices=["sim", "arbiter", "experiment"], help="what to measure")
     parser.add_argument("--task", default="1")
     parser.add_argument("--steps", type=int, default=3000, help="steps measured per figure")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     arbiter_bench.add_arguments(parser)
+    experiment_bench.add_arguments(parser)
 
 
 def policy(obs_laser: tuple[float, ...] | list[float]) -> tuple[float, float]:
@@ -157,6 +160,8 @@ def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float
 def bench_command(args: argparse.Namespace) -> int:
     if args.what == "arbiter":
         return arbiter_bench.bench_command(args)
+    if args.what == "experiment":
+        return experiment_bench.bench_command(args)
     local = in_process(args.task, args.steps)
     bus, round_trip = bus_lockstep(args.task, args.steps)
     result = {

@@ -34,6 +34,7 @@ build on the same `Map`.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import math
 import tomllib
@@ -147,6 +148,7 @@ class FreeSpace:
         ys = (np.arange(self.rows) + 0.5) * resolution
         px, py = np.meshgrid(xs, ys)  # [row, col]
         self.clearance = m.clearance(px, py)
+        self.clearance.flags.writeable = False
         self._clearance_rows = self.clearance.tolist()  # for one cell at a time, no numpy
         self._half_diagonal = resolution / math.sqrt(2)
         self._distances: dict[float, np.ndarray] = {}
@@ -223,11 +225,18 @@ def load_map(name_or_path: str | Path) -> Map:
             f"unknown map {str(name_or_path)!r}: give a task number ({', '.join(TASKS)}) "
             "or the path of a map file (format: services/sim/maps.py)"
         )
+    return _parsed(path.resolve(), path.stat().st_mtime_ns, str(path))
+
+
+@functools.lru_cache(maxsize=32)
+def _parsed(path: Path, mtime_ns: int, shown: str) -> Map:
+    """A map file read once per version: its grid and geodesic distances, computed on first
+    use, serve every later run in the process (a Map and its grid are read-only)."""
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
-        raise MapError(f"{path}: not valid TOML: {e}") from None
-    return parse_map(data, str(path))
+        raise MapError(f"{shown}: not valid TOML: {e}") from None
+    return parse_map(data, shown)
 
 
 def _number(value: object, where: str, lo: float = -math.inf, hi: float = math.inf) -> float:

@@ -78,6 +78,20 @@ def shape_outline(shape: object) -> list[tuple[float, float]]:
     ]
 
 
+def _drive(
+    x: float, y: float, theta: float, v: float, omega: float, h: float
+) -> tuple[float, float, float]:
+    """The unicycle's exact pose after h seconds at (v, omega)."""
+    if abs(omega) < 1e-9:
+        x, y = x + v * h * math.cos(theta), y + v * h * math.sin(theta)
+    else:
+        x, y = (
+            x + v / omega * (math.sin(theta + omega * h) - math.sin(theta)),
+            y - v / omega * (math.cos(theta + omega * h) - math.cos(theta)),
+        )
+    return x, y, math.remainder(theta + omega * h, math.tau)
+
+
 class World:
     """One PyBullet client with a map's walls and `n_robots` robot bodies."""
 
@@ -152,15 +166,18 @@ class World:
         """Drives robot i at (v, omega) for dt seconds; True if it hit something: it then
         stops at its last free pose and its bumper reflex backs it off (`recoil`)."""
         h = dt / self.substeps
+        p = self.poses[i]
+        x, y, theta = p.x, p.y, p.theta
+        # Free by more than the distance it drives (at most |v| dt): no sub-step can touch.
+        if self.cull and self._settled[i] and self._surely_free(i, p, abs(v) * dt):
+            for _ in range(self.substeps):
+                x, y, theta = _drive(x, y, theta, v, omega, h)
+            self.poses[i] = Pose(x, y, theta)
+            self._stale.add(i)
+            return False
         for _ in range(self.substeps):
-            before = self.poses[i]
-            theta = before.theta
-            if abs(omega) < 1e-9:
-                x, y = before.x + v * h * math.cos(theta), before.y + v * h * math.sin(theta)
-            else:
-                x = before.x + v / omega * (math.sin(theta + omega * h) - math.sin(theta))
-                y = before.y - v / omega * (math.cos(theta + omega * h) - math.cos(theta))
-            if not self._try(i, Pose(x, y, math.remainder(theta + omega * h, math.tau))):
+            x, y, theta = _drive(x, y, theta, v, omega, h)
+            if not self._try(i, Pose(x, y, theta)):
                 self.recoil(i, -1.0 if v >= 0 else 1.0)
                 return True
         return False
@@ -193,9 +210,10 @@ class World:
         self._settled[i] = free
         return True
 
-    def _surely_free(self, i: int, pose: Pose) -> bool:
-        """Whether robot i at `pose` is too far from anything to touch it."""
-        r = self._free_radius
+    def _surely_free(self, i: int, pose: Pose, margin: float = 0.0) -> bool:
+        """Whether robot i at `pose` is too far from anything to touch it, with `margin`
+        metres to spare."""
+        r = self._free_radius + margin
         if self.map.grid.clearance_bound(pose.x, pose.y) <= r:
             return False
         return all(
