@@ -38,6 +38,11 @@ class ActionSet:
             for j, (v2, omega2) in enumerate(self.velocity)
             if v == v2 == 0 and omega != 0 and omega2 == -omega
         }
+        # The actions the policy may choose, all of them or all but a barred one.
+        self._allowed = {
+            barred: np.flatnonzero(self.allowed & (np.arange(N_ACTIONS) != barred))
+            for barred in (None, *range(N_ACTIONS))
+        }
 
     def one_hot(self, index: int, chooser: str = "policy") -> Decision:
         weights = np.zeros(N_ACTIONS)
@@ -53,19 +58,20 @@ class ActionSet:
         barred: int | None = None,
     ) -> Decision:
         """Epsilon-greedy: a random allowed action, else the greedy one or the blend; never
-        the `barred` one."""
-        allowed = np.flatnonzero(self.allowed & (np.arange(N_ACTIONS) != barred))
+        the `barred` one. (A random pick among n is rng.integers(n), as rng.choice draws.)"""
+        allowed = self._allowed[barred]
         if rng.random() < epsilon:
-            return self.one_hot(int(rng.choice(allowed)))
+            return self.one_hot(int(allowed[rng.integers(len(allowed))]))
+        q_allowed = q[allowed]
         if not self.config.blend:
-            best = allowed[np.flatnonzero(q[allowed] == q[allowed].max())]
-            return self.one_hot(int(rng.choice(best)))  # ties broken at random
-        spread = q[allowed].max() - q[allowed].min()
+            best = allowed[q_allowed == q_allowed.max()]
+            return self.one_hot(int(best[rng.integers(len(best))]))  # ties broken at random
+        spread = q_allowed.max() - q_allowed.min()
         if spread < 1e-9:  # nothing learnt here yet: one action, not a mix that cancels out
-            return self.one_hot(int(rng.choice(allowed)))
+            return self.one_hot(int(allowed[rng.integers(len(allowed))]))
         # The temperature is relative to the spread of Q in this state, so the blend has the
         # same sharpness whatever the scale of the rewards.
-        z = (q[allowed] - q[allowed].max()) / (self.config.temperature * spread)
+        z = (q_allowed - q_allowed.max()) / (self.config.temperature * spread)
         weights = np.zeros(N_ACTIONS)
         weights[allowed] = np.exp(z) / np.exp(z).sum()
         v, omega = weights @ self.velocity

@@ -82,10 +82,12 @@ def scan_robot(
     reach: float,
     laser: np.ndarray,
     sonar: np.ndarray,
+    laser_range: tuple[float, float],
+    sonar_range: tuple[float, float],
 ) -> None:
     """One robot's laser (beams) and sonar (sonars, the nearest of each one's rays) ranges
-    at (x, y, theta) into `laser` and `sonar`, inf where nothing is nearer than `reach`
-    (np.inf: anywhere)."""
+    at (x, y, theta) into `laser` and `sonar`, clipped to each sensor's (min, max) range;
+    the maximum where nothing is nearer than `reach` (np.inf: anywhere)."""
     near_segments, near_circles = _within(
         segments, circles, x, y, reach + body_radius + REACH_SLACK
     )
@@ -93,7 +95,7 @@ def scan_robot(
     for i in range(laser_angles.shape[0]):
         a = theta + laser_angles[i]
         r = _cast(lx, ly, math.cos(a), math.sin(a), segments, circles, near_segments, near_circles)
-        laser[i] = r if r < reach else np.inf
+        laser[i] = _clip(r if r < reach else np.inf, laser_range)
     sonar[:] = np.inf
     for j in range(sonar_angles.shape[0]):
         b = theta + sonar_angles[j]
@@ -102,3 +104,11 @@ def scan_robot(
         r = _cast(ox, oy, cb, sb, segments, circles, near_segments, near_circles)
         if r < reach:
             sonar[j // sonar_rays] = min(sonar[j // sonar_rays], r)
+    for k in range(sonar.shape[0]):
+        sonar[k] = _clip(sonar[k], sonar_range)
+
+
+@njit(cache=True)
+def _clip(r: float, limits: tuple[float, float]) -> float:
+    """r within limits (as np.clip)."""
+    return min(max(r, limits[0]), limits[1])

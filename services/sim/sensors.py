@@ -119,11 +119,13 @@ class Sensors:
                     np.inf if reach is None else reach,
                     lasers[i],
                     sonars[i],
+                    (m.laser_min, m.laser_max),
+                    (m.sonar_min, m.sonar_max),
                 )
             else:
-                lasers[i], sonars[i] = self._scan_numpy(pose, segments)
-        np.clip(lasers, m.laser_min, m.laser_max, out=lasers)
-        np.clip(sonars, m.sonar_min, m.sonar_max, out=sonars)
+                laser, sonar = self._scan_numpy(pose, segments)
+                lasers[i] = np.clip(laser, m.laser_min, m.laser_max)
+                sonars[i] = np.clip(sonar, m.sonar_min, m.sonar_max)
         return lasers, sonars
 
     def _scan_numpy(self, pose: Pose, segments: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
