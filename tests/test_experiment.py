@@ -8,10 +8,11 @@ import json
 import pytest
 
 from services.cli import main
-from services.experiment import distributed
+from services.experiment import bench, distributed
 from services.experiment.inprocess import RunResult, RunSpec, run
 from services.experiment.paper import mean_ci, speedup_interval
 from services.learner.config import SettingsError, replaced
+from services.sim.task import Simulation
 from services.simteacher.teacher import TeacherProfile
 
 
@@ -43,6 +44,22 @@ def test_runs_are_deterministic_and_plain_rl_has_no_teacher():
     first, again = run(spec), run(spec)
     assert first == again
     assert first.interventions == 0 and "arbiter.judgements" not in first.counters
+
+
+def test_the_reference_path_gives_the_same_runs():
+    # full numpy scans and a PyBullet query at every sub-step, against the fast path
+    for spec in (RunSpec("3", "rl+t+f", 0, max_episodes=2), RunSpec("2", "rl+f", 1, 2)):
+        assert run(spec).to_json() == run(spec, reference=True).to_json()
+
+
+def test_the_experiment_benchmark_shares_the_time_among_the_cores():
+    figures = bench.steps_per_second([RunSpec("1", "rl+f", 0, max_episodes=1)], False)
+    assert figures["steps"] > 0 and figures["steps_per_s"] > 0
+    shares = figures["shares"]
+    assert set(shares) == {"simulator", "learner", "arbiter", "teacher", "rest"}
+    assert all(shares[core] > 0 for core in ("simulator", "learner", "arbiter", "teacher"))
+    assert sum(shares.values()) == pytest.approx(1, abs=0.01)
+    assert Simulation.step.__name__ == "step"  # the timing wrappers are gone
 
 
 def test_experiment_paper_end_to_end(tmp_path, capsys):

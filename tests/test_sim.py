@@ -249,6 +249,28 @@ def test_compiled_scan_equals_the_numpy_reference_to_the_bit(task):
 
 
 @pytest.mark.parametrize("task", sorted(TASKS))
+def test_footprint_clearance_is_the_distance_from_the_robots_outline(task):
+    from services.sim.planar import footprint_clearance
+
+    m = load_map(task)
+    rng = np.random.default_rng(int(task))
+    hl, hw = MODEL.length / 2, MODEL.width / 2
+    edge = np.linspace(-1, 1, 201)
+    outline = np.concatenate(  # points along the footprint's edges, in the robot frame
+        [np.stack([hl * edge, np.full_like(edge, s * hw)], 1) for s in (-1, 1)]
+        + [np.stack([np.full_like(edge, s * hl), hw * edge], 1) for s in (-1, 1)]
+    )
+    for pose in random_poses(m, rng, 300):
+        c, s = math.cos(pose.theta), math.sin(pose.theta)
+        px = pose.x + c * outline[:, 0] - s * outline[:, 1]
+        py = pose.y + s * outline[:, 0] + c * outline[:, 1]
+        sampled = max(float(m.clearance(px, py).min()), 0.0)
+        ours = footprint_clearance(pose.x, pose.y, pose.theta, hl, hw, *m.outlines())
+        assert ours <= sampled + 1e-9  # never more room than there is
+        assert ours >= sampled - 0.005  # the samples lie 4 mm apart
+
+
+@pytest.mark.parametrize("task", sorted(TASKS))
 def test_culled_contacts_drive_exactly_as_a_query_at_every_substep(task):
     m = load_map(task)
     rng = np.random.default_rng(int(task))

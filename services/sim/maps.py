@@ -122,6 +122,17 @@ class Map:
         px, py = np.asarray(px, float), np.asarray(py, float)
         return np.min([shape.distance(px, py) for shape in self.shapes], axis=0)
 
+    def outlines(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box outlines as segments (m, 4: x1 y1 x2 y2) and cylinders as circles (k, 3: x y r)."""
+        segments, circles = [], []
+        for shape in self.shapes:
+            if isinstance(shape, Box):
+                pts = shape.corners()
+                segments += [(*pts[i], *pts[(i + 1) % 4]) for i in range(4)]
+            else:
+                circles.append((shape.x, shape.y, shape.radius))
+        return np.array(segments, float).reshape(-1, 4), np.array(circles, float).reshape(-1, 3)
+
     def in_goal(self, x: float, y: float) -> bool:
         return math.hypot(x - self.goal_x, y - self.goal_y) <= self.goal_radius
 

@@ -4,7 +4,7 @@ Every map is a vertical extrusion (walls, boxes and cylinders taller than the se
 2D cast against their outlines and the other robots' footprints gives the same ranges as a 3D
 ray test; tests check it against PyBullet's rayTestBatch on the same world.
 
-The scan is compiled (numba, `services/sim/raycast.py`) with the same arithmetic as the numpy
+The scan is compiled (numba, `services/sim/planar.py`) with the same arithmetic as the numpy
 reference (`Sensors(compiled=False)`), so the same ranges to the bit (a test compares them),
 6x faster; numba is imported only where a compiled scan is made. A scan
 with a `reach` measures only what lies within it (farther ranges read as the sensor's
@@ -19,20 +19,8 @@ import math
 
 import numpy as np
 
-from services.sim.maps import Box, Map, Pose
+from services.sim.maps import Map, Pose
 from services.sim.robot import RobotModel
-
-
-def _outline_segments(shapes: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Box outlines as segments (m, 4: x1 y1 x2 y2) and cylinders as circles (k, 3: x y r)."""
-    segments, circles = [], []
-    for shape in shapes:
-        if isinstance(shape, Box):
-            pts = shape.corners()
-            segments += [(*pts[i], *pts[(i + 1) % 4]) for i in range(4)]
-        else:
-            circles.append((shape.x, shape.y, shape.radius))
-    return np.array(segments, float).reshape(-1, 4), np.array(circles, float).reshape(-1, 3)
 
 
 def _footprint_segments(corners: np.ndarray) -> np.ndarray:
@@ -80,10 +68,10 @@ class Sensors:
         self.model = model
         self.compiled = compiled  # False: the numpy reference, full scans only
         if compiled:
-            from services.sim.raycast import scan_robot  # numba: not for every process
+            from services.sim.planar import scan_robot  # numba: not for every process
 
             self._scan_robot = scan_robot
-        self.segments, self.circles = _outline_segments(m.shapes)
+        self.segments, self.circles = m.outlines()
         self.laser_angles = model.laser_angles()
         sonar = model.sonar_ray_angles()
         self.sonar_angles = sonar.ravel()

@@ -7,9 +7,10 @@ kinematic ~2500 steps/s, base velocity ~1650, wheel URDF ~600 with a 0.2 s lag).
 hidden physics state: a pose is all there is to a robot, and a reset is one teleport,
 bit-identical every time (no saveState/restoreState needed, nor its ~156 KB per state).
 
-PyBullet is asked about contacts only near something: a pose whose clearance (the map's grid
-bound, and the other robots) exceeds the robot's circumradius by `SURELY_FREE` cannot touch
-anything, so the robot moves there without a query. The first such pose after a query is
+PyBullet is asked about contacts only near something: at a pose more than `SURELY_FREE` from
+touching anything (the map's clearance grid, else the footprint's exact clearance from the
+walls and obstacles, compiled in `planar.py`; and the other robots) the robot moves without
+a query. The first such pose after a query is
 still asked once, which empties PyBullet's contact cache as asking at every step would: the
 runs are the same, step for step, as with a query at every sub-step (`cull=False`).
 """
@@ -126,7 +127,11 @@ class World:
             self.bodies.append(body)
         self.poses = [Pose(-10.0 - 2 * i, -10.0, 0.0) for i in range(n_robots)]
         self.cull = cull
-        self._free_radius = self.model.circumradius + SURELY_FREE
+        if cull:
+            from services.sim.planar import footprint_clearance  # numba: only where culled
+
+            self._footprint_clearance = footprint_clearance
+            self._outlines = m.outlines()
         self._settled = [False] * n_robots  # asked at a free pose since the last contact
         self._stale: set[int] = set()  # robots moved without their body being placed
 
@@ -168,8 +173,10 @@ class World:
         h = dt / self.substeps
         p = self.poses[i]
         x, y, theta = p.x, p.y, p.theta
-        # Free by more than the distance it drives (at most |v| dt): no sub-step can touch.
-        if self.cull and self._settled[i] and self._surely_free(i, p, abs(v) * dt):
+        # Free by more than any point of it moves (|v| dt, and R |omega| dt turning): no
+        # sub-step can touch.
+        reach = (abs(v) + self.model.circumradius * abs(omega)) * dt
+        if self.cull and self._settled[i] and self._surely_free(i, p, reach):
             for _ in range(self.substeps):
                 x, y, theta = _drive(x, y, theta, v, omega, h)
             self.poses[i] = Pose(x, y, theta)
@@ -211,13 +218,18 @@ class World:
         return True
 
     def _surely_free(self, i: int, pose: Pose, margin: float = 0.0) -> bool:
-        """Whether robot i at `pose` is too far from anything to touch it, with `margin`
-        metres to spare."""
-        r = self._free_radius + margin
-        if self.map.grid.clearance_bound(pose.x, pose.y) <= r:
-            return False
+        """Whether robot i at `pose` is more than SURELY_FREE (plus `margin`) metres from
+        touching anything: the map's clearance grid, else its footprint's exact clearance,
+        and the other robots' circles."""
+        free, m = SURELY_FREE + margin, self.model
+        if self.map.grid.clearance_bound(pose.x, pose.y) <= m.circumradius + free:
+            clearance = self._footprint_clearance(
+                pose.x, pose.y, pose.theta, m.length / 2, m.width / 2, *self._outlines
+            )
+            if clearance <= free:
+                return False
         return all(
-            math.hypot(p.x - pose.x, p.y - pose.y) > 2 * r
+            math.hypot(p.x - pose.x, p.y - pose.y) > 2 * m.circumradius + free
             for j, p in enumerate(self.poses)
             if j != i
         )

@@ -1,6 +1,8 @@
-"""The compiled ray cast of `services/sim/sensors.py` (numba, cached on disk after the first
-compilation): the arithmetic of its numpy reference, `sensors.cast_numpy`, in the same
-order, so the same ranges to the bit."""
+"""Compiled planar geometry (numba, cached on disk after the first compilation): the ray
+cast of `services/sim/sensors.py`, with the arithmetic of its numpy reference
+(`sensors.cast_numpy`) in the same order, so the same ranges to the bit; and the clearance
+of a robot's footprint, which tells `services/sim/world.py` when PyBullet need not be asked
+about contacts."""
 
 from __future__ import annotations
 
@@ -112,3 +114,62 @@ def scan_robot(
 def _clip(r: float, limits: tuple[float, float]) -> float:
     """r within limits (as np.clip)."""
     return min(max(r, limits[0]), limits[1])
+
+
+@njit(cache=True)
+def _point_segment(px: float, py: float, ax: float, ay: float, bx: float, by: float) -> float:
+    """The distance from point p to segment ab."""
+    ex, ey = bx - ax, by - ay
+    length2 = ex * ex + ey * ey
+    s = 0.0 if length2 == 0.0 else ((px - ax) * ex + (py - ay) * ey) / length2
+    s = min(1.0, max(0.0, s))
+    return math.hypot(ax + s * ex - px, ay + s * ey - py)
+
+
+@njit(cache=True)
+def _cross(ax: float, ay: float, bx: float, by: float, cx: float, cy: float) -> float:
+    return (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
+
+
+@njit(cache=True)
+def footprint_clearance(
+    x: float,
+    y: float,
+    theta: float,
+    half_length: float,
+    half_width: float,
+    segments: np.ndarray,
+    circles: np.ndarray,
+) -> float:
+    """The distance from a robot's rectangle at (x, y, theta) to the nearest segment or
+    circle, 0 where they cross or the rectangle holds a circle's centre."""
+    c, s = math.cos(theta), math.sin(theta)
+    corners = np.empty((4, 2))
+    for k, (lx, ly) in enumerate(
+        ((-half_length, -half_width), (half_length, -half_width),
+         (half_length, half_width), (-half_length, half_width))
+    ):  # fmt: skip
+        corners[k, 0], corners[k, 1] = x + c * lx - s * ly, y + s * lx + c * ly
+    best = np.inf
+    for k in range(segments.shape[0]):
+        px, py, qx, qy = segments[k, 0], segments[k, 1], segments[k, 2], segments[k, 3]
+        for e in range(4):
+            ax, ay = corners[e, 0], corners[e, 1]
+            bx, by = corners[(e + 1) % 4, 0], corners[(e + 1) % 4, 1]
+            d1, d2 = _cross(ax, ay, bx, by, px, py), _cross(ax, ay, bx, by, qx, qy)
+            d3, d4 = _cross(px, py, qx, qy, ax, ay), _cross(px, py, qx, qy, bx, by)
+            if d1 * d2 <= 0 and d3 * d4 <= 0:
+                return 0.0  # they cross (or touch)
+            best = min(
+                best,
+                _point_segment(px, py, ax, ay, bx, by),
+                _point_segment(qx, qy, ax, ay, bx, by),
+                _point_segment(ax, ay, px, py, qx, qy),
+                _point_segment(bx, by, px, py, qx, qy),
+            )
+    for k in range(circles.shape[0]):
+        cx, cy, r = circles[k, 0], circles[k, 1], circles[k, 2]
+        lx, ly = c * (cx - x) + s * (cy - y), -s * (cx - x) + c * (cy - y)  # in the robot frame
+        dx, dy = max(abs(lx) - half_length, 0.0), max(abs(ly) - half_width, 0.0)
+        best = min(best, max(math.hypot(dx, dy) - r, 0.0))
+    return best
