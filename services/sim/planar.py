@@ -15,19 +15,33 @@ REACH_SLACK = 0.01  # metres added to the culling distance of a reach, against r
 
 
 @njit(cache=True)
-def _within(segments: np.ndarray, circles: np.ndarray, x: float, y: float, d: float) -> tuple:
-    """The indices of the segments and of the circles within d metres of (x, y)."""
+def _within(
+    segments: np.ndarray,
+    circles: np.ndarray,
+    x: float,
+    y: float,
+    d: float,
+    hx: float = 0.0,
+    hy: float = 0.0,
+) -> tuple:
+    """The indices of the segments and of the circles within d metres of (x, y) and, for a
+    direction h other than (0, 0), not wholly behind (x, y) as seen along h."""
     near_segments, near_circles = [], []
     for k in range(segments.shape[0]):
         px, py = segments[k, 0], segments[k, 1]
         ex, ey = segments[k, 2] - px, segments[k, 3] - py
+        if (px - x) * hx + (py - y) * hy < 0 and (px + ex - x) * hx + (py + ey - y) * hy < 0:
+            continue
         length2 = ex * ex + ey * ey
         s = 0.0 if length2 == 0.0 else ((x - px) * ex + (y - py) * ey) / length2
         s = min(1.0, max(0.0, s))
         if math.hypot(px + s * ex - x, py + s * ey - y) <= d:
             near_segments.append(k)
     for k in range(circles.shape[0]):
-        if math.hypot(circles[k, 0] - x, circles[k, 1] - y) - circles[k, 2] <= d:
+        cx, cy, r = circles[k, 0], circles[k, 1], circles[k, 2]
+        if (cx - x) * hx + (cy - y) * hy < -r:
+            continue
+        if math.hypot(cx - x, cy - y) - r <= d:
             near_circles.append(k)
     return near_segments, near_circles
 
@@ -86,18 +100,25 @@ def scan_robot(
     sonar: np.ndarray,
     laser_range: tuple[float, float],
     sonar_range: tuple[float, float],
+    frontal: bool,
 ) -> None:
     """One robot's laser (beams) and sonar (sonars, the nearest of each one's rays) ranges
     at (x, y, theta) into `laser` and `sonar`, clipped to each sensor's (min, max) range;
-    the maximum where nothing is nearer than `reach` (np.inf: anywhere)."""
+    the maximum where nothing is nearer than `reach` (np.inf: anywhere). Each ray is cast
+    only against what lies within reach of its origin: for the laser, of its one origin and
+    ahead of it (`frontal`: its beams all point ahead); for the sonars, of the body."""
+    lx, ly = x + laser_x * math.cos(theta), y + laser_x * math.sin(theta)
+    hx, hy = (math.cos(theta), math.sin(theta)) if frontal else (0.0, 0.0)
+    ahead_segments, ahead_circles = _within(segments, circles, lx, ly, reach + REACH_SLACK, hx, hy)
+    for i in range(laser_angles.shape[0]):
+        a = theta + laser_angles[i]
+        r = _cast(
+            lx, ly, math.cos(a), math.sin(a), segments, circles, ahead_segments, ahead_circles
+        )
+        laser[i] = _clip(r if r < reach else np.inf, laser_range)
     near_segments, near_circles = _within(
         segments, circles, x, y, reach + body_radius + REACH_SLACK
     )
-    lx, ly = x + laser_x * math.cos(theta), y + laser_x * math.sin(theta)
-    for i in range(laser_angles.shape[0]):
-        a = theta + laser_angles[i]
-        r = _cast(lx, ly, math.cos(a), math.sin(a), segments, circles, near_segments, near_circles)
-        laser[i] = _clip(r if r < reach else np.inf, laser_range)
     sonar[:] = np.inf
     for j in range(sonar_angles.shape[0]):
         b = theta + sonar_angles[j]

@@ -109,6 +109,7 @@ class Sensors:
                     sonars[i],
                     (m.laser_min, m.laser_max),
                     (m.sonar_min, m.sonar_max),
+                    m.laser_fov <= math.pi,
                 )
             else:
                 laser, sonar = self._scan_numpy(pose, segments)
