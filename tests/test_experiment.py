@@ -213,6 +213,31 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
                    ("rl+f", None, 1.5, True), ("rl+f", None, 1.5, False)}  # fmt: skip
 
 
+def test_the_budget_sweep_runs_both_feedback_settings_at_each_rate(tmp_path):
+    out = tmp_path / "budget"
+    code = main(
+        ["experiment", "sweep", "--tasks", "1", "--seeds", "1", "--max-episodes", "2",
+         "--rate", "0,4", "--out", str(out), "--no-progress"]
+    )  # fmt: skip
+    assert code == 0
+    points = json.loads((out / "sweep.json").read_text())["points"]
+    assert [(p["axis"], p["value"], p["setting"]) for p in points] == [
+        ("rl", 0.0, "rl"),
+        ("rate", 0.0, "rl+f"),
+        ("rate", 4.0, "rl+f"),
+        ("rate", 0.0, "rl+t+f"),
+        ("rate", 4.0, "rl+t+f"),
+    ]
+    assert all(p["words_per_minute"] >= 0 for p in points)
+    budgeted = [p for p in points if p["value"] == 4.0]
+    assert all(
+        p["words_per_minute"] <= 4.0 + 2 / (p["mean_learning_time_s"] / 60) for p in budgeted
+    )
+    runs = [json.loads(line)["spec"] for line in (out / "runs.jsonl").read_text().splitlines()]
+    assert {tuple(r["teacher"]) for r in runs} == {(), ("rate=4", "salient=true")}
+    assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+
+
 def test_sweep_needs_something_to_sweep(capsys):
     assert main(["experiment", "sweep", "--tasks", "1", "--seeds", "1"]) == 2
     assert "give --noise" in capsys.readouterr().err

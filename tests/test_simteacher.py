@@ -81,6 +81,44 @@ def test_a_robot_making_no_progress_is_told_bad_at_every_look_until_it_moves_on(
     assert all(not never.watch(look(float(s), 1.0, 1.0)) for s in range(10))
 
 
+def test_a_person_speaks_where_the_course_changes_not_at_every_look():
+    t = teacher(replace(QUIET, salient=True))  # task 1: the goal up and to the right
+    t.watch(look(0.0, 1.0, 1.0))
+    course = [(1.2, 1.2), (1.4, 1.4), (1.6, 1.6), (1.45, 1.45), (1.3, 1.3), (1.5, 1.5)]
+    said = [meanings(t.watch(look(1.0 + s, x, y))) for s, (x, y) in enumerate(course)]
+    # sets off the right way; keeps going (silence); turns away; keeps away; back on course
+    assert said == [["good"], [], [], ["bad"], [], ["good"]]
+    # no nearer than its best (1.6, 1.6) for 3 s and more: stuck, said once, not at every look
+    pinned = [meanings(t.watch(look(7.0 + s, 1.5, 1.5))) for s in range(6)]
+    assert pinned == [["bad"], [], [], [], [], []]
+    assert meanings(t.watch(look(13.0, 1.5, 1.5, collided=True))) == ["terrible"]
+    near = t.distance.distance  # within near_goal of the goal along the way: "excellent"
+    x, y = t.map.goal_x - 1.0, t.map.goal_y - 0.5
+    assert near is not None and meanings(t.watch(look(14.0, x, y))) == ["excellent"]
+    assert meanings(t.watch(look(15.0, x + 0.3, y))) == []  # said once per episode
+    goal = t.watch(look(15.5, t.map.goal_x, t.map.goal_y, outcome="goal"))
+    assert meanings(goal) == ["goal"]
+
+
+def test_a_persons_budget_bounds_the_words_a_minute_bumps_included():
+    rate = 4.0
+    t = teacher(replace(QUIET, rate=rate, burst=2.0))
+    said = 0
+    for s in range(600):  # ten robot minutes of a robot bumping every second
+        t.watch(look(2.0 * s, 1.0, 1.0))
+        said += len(t.watch(look(2.0 * s + 1.0, 1.0, 1.0, collided=True)))
+    assert 10 * rate <= said <= 10 * rate + 2  # the rate, plus the burst at the start
+    unbounded = teacher(replace(QUIET, stuck_after=0.0))
+    bumps = [unbounded.watch(look(s + 1.0, 1.0, 1.0, collided=s % 2 == 0)) for s in range(20)]
+    assert sum(map(len, bumps)) == 10  # without a budget every bump is said
+
+
+def test_the_tireless_teacher_is_the_default_profile():
+    assert TeacherProfile().rate == 0 and not TeacherProfile().salient
+    with pytest.raises(ValueError, match="rate"):
+        TeacherProfile(rate=-1)
+
+
 def test_turning_on_the_spot_gets_no_comment():
     silent = teacher(replace(QUIET, stuck_after=0.0))
     silent.watch(look(0.0, 1.0, 1.0, heading=-math.pi / 2))

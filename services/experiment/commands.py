@@ -104,6 +104,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=[],
         help="sporadic feedback probability, e.g. 0.05,0.2,0.5",
     )
+    sweeping.add_argument(
+        "--rate",
+        type=_values,
+        default=[],
+        help="the teacher's word budget, words a robot minute at salient moments, for rl+f "
+        "and rl+t+f (0: the tireless teacher), e.g. 0,1,2,4,8,16",
+    )
 
     pooling = sub.add_parser(
         "pool",
@@ -192,8 +199,11 @@ def run_pool(args: argparse.Namespace) -> int:
 
 
 def run_sweep(args: argparse.Namespace) -> int:
-    if not (args.noise or args.delay or args.frequency):
-        print("voxshape experiment sweep: give --noise, --delay or --frequency", file=sys.stderr)
+    if not (args.noise or args.delay or args.frequency or args.rate):
+        print(
+            "voxshape experiment sweep: give --noise, --delay, --frequency or --rate",
+            file=sys.stderr,
+        )
         return 2
     sweep(
         args.out,
@@ -203,6 +213,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         args.noise,
         args.delay,
         args.frequency,
+        args.rate,
         workers=args.workers,
         progress=not args.no_progress,
         learner=tuple(args.set),

@@ -1,9 +1,12 @@
 """`voxshape experiment sweep`: how the speedup of feedback (`rl+f`) over plain RL changes with
 the recognition noise, the teacher's reaction delay (with and without the arbiter's delay
-correction) and how often the teacher speaks later on: the paper's open questions 1-3.
+correction) and how often the teacher speaks later on: the paper's open questions 1-3; and
+with the teacher's word budget (`--rate`: how much talking buys how much speedup).
 
 Every point is `rl+f` on the chosen tasks and seeds with one thing changed from the paper's
-setting (20% noise, 0.5 s delay, delay correction on, sporadic feedback 20%); its speedup is
+setting (20% noise, 0.5 s delay, delay correction on, sporadic feedback 20%); a rate point
+is `rl+f` and `rl+t+f` with a teacher speaking at salient moments within a budget of that
+many words a robot minute (0: the tireless teacher, every look). Its speedup is
 the mean RL learning time over the tasks divided by its own (the paper's ratio), with a 95%
 bootstrap interval (seeds resampled within each task). Writes sweep.json, sweep.md and
 sweep.png (speedup curves with those intervals) to the output directory.
@@ -17,22 +20,26 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec
-from services.experiment.paper import run_all, speedup_interval, task_means
+from services.experiment.paper import LABELS, run_all, speedup_interval, task_means
 from services.simteacher.teacher import TeacherProfile
 
-FEEDBACK = "rl+f"
+FEEDBACK, TRACES = "rl+f", "rl+t+f"
 
 
 @dataclass(frozen=True)
 class Point:
-    axis: str  # noise, delay, frequency (or rl: the baseline)
+    axis: str  # noise, delay, frequency, rate (or rl: the baseline)
     value: float
     correction: bool = True  # the arbiter learns the teacher's delay
+    setting: str = FEEDBACK
 
     @property
     def label(self) -> str:
         if self.axis == "delay":
             return f"delay {self.value:g} s, correction {'on' if self.correction else 'off'}"
+        if self.axis == "rate":
+            rate = f"{self.value:g} words/min" if self.value else "tireless"
+            return f"{rate}, {LABELS[self.setting]}"
         return f"{self.axis} {self.value:g}"
 
 
@@ -46,6 +53,11 @@ def spec_of(
 ) -> RunSpec:
     if point.axis == "rl":
         return RunSpec(task, "rl", seed, max_episodes, learner=learner)
+    if point.axis == "rate":
+        budget = (f"rate={point.value:g}", "salient=true") if point.value else ()
+        return RunSpec(
+            task, point.setting, seed, max_episodes, learner=learner, teacher=teacher + budget
+        )
     spec = RunSpec(
         task,
         FEEDBACK,
@@ -63,12 +75,15 @@ def spec_of(
     return replace(spec, profile=replace(TeacherProfile(), schedule=schedule))
 
 
-def points_of(noise: list[float], delay: list[float], frequency: list[float]) -> list[Point]:
+def points_of(
+    noise: list[float], delay: list[float], frequency: list[float], rate: list[float] = ()
+) -> list[Point]:
     return [
         Point("rl", 0.0),
         *(Point("noise", v) for v in noise),
         *(Point("delay", v, correction) for v in delay for correction in (True, False)),
         *(Point("frequency", v) for v in frequency),
+        *(Point("rate", v, setting=s) for s in (FEEDBACK, TRACES) for v in rate),
     ]
 
 
@@ -86,12 +101,15 @@ def summarize_points(
                 "axis": point.axis,
                 "value": point.value,
                 "correction": point.correction,
+                "setting": point.setting if point.axis != "rl" else "rl",
                 "label": point.label,
                 "runs": len(runs),
                 "mean_learning_time_s": learning_time,
                 "speedup": rl / learning_time,
                 "speedup_ci95": speedup_interval(rl_runs, runs, tasks),
                 "interventions": statistics.fmean(r.interventions for r in runs),
+                "words_per_minute": sum(r.interventions for r in runs)
+                / (sum(r.learning_time_s for r in runs) / 60),
                 "converged_fraction": sum(r.converged for r in runs) / len(runs),
                 "delay_learned_fraction": sum(r.delay_learned for r in runs) / len(runs),
             }
@@ -102,8 +120,8 @@ def summarize_points(
 def table(rows: list[dict]) -> str:
     lines = [
         "| point | speedup over RL | 95% interval | learning time min (mean over tasks) "
-        "| interventions | converged | delay learnt |",
-        "|---|---|---|---|---|---|---|",
+        "| interventions | words per robot minute | converged | delay learnt |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for row in rows:
         learnt = f"{row['delay_learned_fraction']:.2f}" if row["axis"] != "rl" else "-"
@@ -112,7 +130,8 @@ def table(rows: list[dict]) -> str:
             f"| {row['label'] if row['axis'] != 'rl' else 'RL (baseline)'} | "
             f"{row['speedup']:.2f} | {low:.2f}-{high:.2f} | "
             f"{row['mean_learning_time_s'] / 60:.1f} | "
-            f"{row['interventions']:.0f} | {row['converged_fraction']:.2f} | {learnt} |"
+            f"{row['interventions']:.0f} | {row['words_per_minute']:.1f} | "
+            f"{row['converged_fraction']:.2f} | {learnt} |"
         )
     return "\n".join(lines)
 
@@ -123,11 +142,14 @@ def figure(rows: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    axes = [a for a in ("noise", "delay", "frequency") if any(r["axis"] == a for r in rows)]
+    axes = [a for a in ("noise", "delay", "frequency", "rate") if any(r["axis"] == a for r in rows)]
     fig, plots = plt.subplots(1, len(axes), figsize=(4.5 * len(axes), 3.6), squeeze=False)
     names = {"noise": "noise rate", "delay": "reaction delay (s)", "frequency": "late feedback"}
+    names["rate"] = "words understood per robot minute"
     for plot, axis in zip(plots[0], axes, strict=True):
-        for correction in (True, False):
+        if axis == "rate":
+            _budget_curve(plot, [r for r in rows if r["axis"] == "rate"])
+        for correction in (True, False) if axis != "rate" else ():
             line = [r for r in rows if r["axis"] == axis and r["correction"] == correction]
             if line:
                 label = None if axis != "delay" else f"correction {'on' if correction else 'off'}"
@@ -138,11 +160,28 @@ def figure(rows: list[dict], path: Path) -> None:
         plot.axhline(1.0, color="grey", linewidth=0.8)
         plot.set_xlabel(names[axis])
         plot.set_ylabel("speedup over RL")
-        if axis == "delay":
+        if axis in ("delay", "rate"):
             plot.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _budget_curve(plot: object, rows: list[dict]) -> None:
+    """Speedup against the words the teacher said per robot minute, a line per setting,
+    each point labelled with its budget."""
+    for setting in (FEEDBACK, TRACES):
+        line = sorted(
+            (r for r in rows if r["setting"] == setting),
+            key=lambda r: r["words_per_minute"],
+        )
+        xs, ys = [r["words_per_minute"] for r in line], [r["speedup"] for r in line]
+        low = [y - r["speedup_ci95"][0] for y, r in zip(ys, line, strict=True)]
+        high = [r["speedup_ci95"][1] - y for y, r in zip(ys, line, strict=True)]
+        plot.errorbar(xs, ys, yerr=[low, high], marker="o", capsize=3, label=LABELS[setting])
+        for x, y, r in zip(xs, ys, line, strict=True):
+            plot.annotate(f"{r['value']:g}" if r["value"] else "tireless", (x, y), fontsize=7)
+    plot.set_xscale("log")
 
 
 def sweep(
@@ -153,6 +192,7 @@ def sweep(
     noise: list[float],
     delay: list[float],
     frequency: list[float],
+    rate: list[float] = (),
     workers: int | None = None,
     progress: bool = True,
     learner: tuple[str, ...] = (),
@@ -160,7 +200,7 @@ def sweep(
 ) -> list[dict]:
     """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`."""
     assert SETTINGS[FEEDBACK].feedback
-    points = points_of(noise, delay, frequency)
+    points = points_of(noise, delay, frequency, rate)
     jobs = [
         (p, spec_of(p, t, s, max_episodes, learner, teacher))
         for p in points

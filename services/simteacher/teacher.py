@@ -97,6 +97,15 @@ class TeacherProfile:
     # nothing changes: a person says "good" once as the robot sets off on the right way, not
     # every second it keeps going. Bumps and the goal are always said. 0: says every one.
     repeat_after: float = 0.0
+    # A person's budget: at most `rate` words a robot minute on average (bumps and the goal
+    # included), at most `burst` at once; 0: no budget.
+    rate: float = 0.0
+    burst: float = 2.0
+    # Speak at salient moments only, as a person watching does: a bump, the goal, nearing
+    # it (within `near_goal` metres of the way), getting going the right way after standing,
+    # turning or regressing, turning away after progress, being stuck; not at every look.
+    salient: bool = False
+    near_goal: float = 1.5
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -115,6 +124,8 @@ class TeacherProfile:
             )
         if not 0 < self.small_change <= self.large_change:
             raise ValueError("need 0 < small_change <= large_change (metres)")
+        if self.rate < 0 or self.burst < 1:
+            raise ValueError("rate must be >= 0 words a minute and burst >= 1 word")
 
 
 @dataclass(frozen=True)
@@ -220,6 +231,8 @@ class SimulatedTeacher:
         self._bumping = False
         self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
         self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
+        self._budget = (profile.burst, 0.0)  # (words left, when counted): a token bucket
+        self._trend, self._stuck_said, self._neared = 0, False, False  # salient moments
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -233,26 +246,61 @@ class SimulatedTeacher:
         new_episode = previous is None or previous.episode != look.episode
         bump = look.collided and not self._bumping
         self._bumping = look.collided
+        if new_episode:
+            self._trend, self._stuck_said, self._neared = 0, False, False
         if new_episode or distance <= self._progress[0] - p.small_change:
             self._progress = (distance, look.time)
+        looks = not new_episode and look.time - previous.time >= p.interval - 1e-9
         meaning = None
         if look.outcome == "goal":
             meaning = "goal"
         elif bump:
             meaning = "terrible"
-        elif not new_episode and look.time - previous.time >= p.interval - 1e-9:
-            meaning = self.judge(self._last_distance - distance)
-            stuck = p.stuck_after and look.time - self._progress[1] >= p.stuck_after
-            if meaning is None and stuck:
-                meaning = "bad"
-        if new_episode or meaning is not None or look.time - previous.time >= p.interval - 1e-9:
+        elif looks:
+            stuck = bool(p.stuck_after) and look.time - self._progress[1] >= p.stuck_after
+            progress = self._last_distance - distance
+            meaning = (self._salient if p.salient else self._every_look)(progress, distance, stuck)
+        if new_episode or meaning is not None or looks:
             self._last_look, self._last_distance = look, distance
         if meaning is None or self._repeats(meaning, look.time, bump or meaning == "goal"):
             return []
-        if not self._speaks(look.episode, meaning):
+        if not self._speaks(look.episode, meaning) or not self._afford(look.time):
             return []
         self._judged = (self._valence(meaning), look.time)
         return [self._say(meaning, look.time + self._reaction())]
+
+    def _every_look(self, progress: float, distance: float, stuck: bool) -> str | None:
+        """The tireless teacher: its judgement of every look's progress, "bad" when stuck."""
+        meaning = self.judge(progress)
+        return "bad" if meaning is None and stuck else meaning
+
+    def _salient(self, progress: float, distance: float, stuck: bool) -> str | None:
+        """A person's teacher: a word only where the robot's course changes."""
+        sign = 0 if abs(progress) < self.profile.small_change else (1 if progress > 0 else -1)
+        previous, self._trend = self._trend, sign or self._trend
+        if sign > 0:
+            self._stuck_said = False
+            if not self._neared and distance <= self.profile.near_goal:
+                self._neared = True
+                return "excellent"  # nearly there
+            return "good" if previous <= 0 else None  # set off the right way
+        if sign < 0:
+            return "bad" if previous > 0 else None  # turned away after progress
+        if stuck and not self._stuck_said:
+            self._stuck_said = True
+            self._trend = 0
+            return "bad"  # standing, turning on the spot or pinned
+        return None
+
+    def _afford(self, now: float) -> bool:
+        """Whether the word budget has a word left (and spends it)."""
+        p = self.profile
+        if not p.rate:
+            return True
+        tokens, since = self._budget
+        tokens = min(p.burst, tokens + max(0.0, now - since) * p.rate / 60)
+        self._budget = (tokens - 1, now) if tokens >= 1 else (tokens, now)
+        return tokens >= 1
 
     def judge(self, progress: float) -> str | None:
         """The qualifier for `progress` metres towards the goal (negative: away from it)."""
