@@ -12,6 +12,7 @@ from services.experiment import bench, distributed
 from services.experiment.inprocess import RunResult, RunSpec, run
 from services.experiment.paper import mean_ci, speedup_interval
 from services.learner.config import SettingsError, replaced
+from services.sim.maps import TASKS
 from services.sim.task import Simulation
 from services.simteacher.teacher import TeacherProfile
 
@@ -60,6 +61,25 @@ def test_the_experiment_benchmark_shares_the_time_among_the_cores():
     assert all(shares[core] > 0 for core in ("simulator", "learner", "arbiter", "teacher"))
     assert sum(shares.values()) == pytest.approx(1, abs=0.01)
     assert Simulation.step.__name__ == "step"  # the timing wrappers are gone
+
+
+def test_experiments_run_on_a_users_own_map_file(tmp_path, capsys):
+    room = tmp_path / "my-room.toml"
+    room.write_text(TASKS["1"].read_text().replace("Task 1: open room", "my room"))
+    out = tmp_path / "paper"
+    code = main(
+        ["experiment", "paper", "--tasks", f"2,{room}", "--settings", "rl+f", "--seeds", "1",
+         "--max-episodes", "2", "--out", str(out), "--no-progress"]
+    )  # fmt: skip
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["tasks"]) == {"2", str(room)}
+    assert "| my-room.toml |" in (out / "report.md").read_text()  # named by its file
+    broken = tmp_path / "broken.toml"
+    broken.write_text("size = [6.0]\n")
+    with pytest.raises(SystemExit):
+        main(["experiment", "sweep", "--tasks", f"1,{broken}", "--rate", "4"])
+    assert "broken.toml" in capsys.readouterr().err  # the loader's reason, naming the file
 
 
 def test_experiment_paper_end_to_end(tmp_path, capsys):

@@ -18,6 +18,7 @@ from services.learner.config import (
     replaced,
     with_settings,
 )
+from services.sim.maps import MapError, load_map
 from services.simteacher.teacher import TeacherProfile
 
 
@@ -30,6 +31,23 @@ def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
             f"unknown {what} {given}; choose from {', '.join(allowed)}"
         )
     return names
+
+
+def _tasks(text: str) -> list[str]:
+    """Built-in task numbers and map files, comma-separated; a map that does not load is
+    refused with the loader's reason."""
+    tasks = [t.strip() for t in text.split(",") if t.strip()]
+    if not tasks:
+        raise argparse.ArgumentTypeError(
+            f"no task given; choose from {', '.join(TASKS)} or map files"
+        )
+    for task in tasks:
+        if task not in TASKS:
+            try:
+                load_map(task)
+            except MapError as e:
+                raise argparse.ArgumentTypeError(str(e)) from None
+    return tasks
 
 
 def _values(text: str) -> list[float]:
@@ -55,9 +73,9 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     parser.add_argument("--max-episodes", type=int, default=150, help="then a run is censored")
     parser.add_argument(
         "--tasks",
-        type=lambda t: _names(t, TASKS, "task"),
+        type=_tasks,
         default=list(TASKS),
-        help="comma-separated, e.g. 1,2",
+        help="comma-separated task numbers and map files, e.g. 1,2,my-office.toml",
     )
     parser.add_argument("--out", type=Path, default=Path(out))
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")

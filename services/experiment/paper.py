@@ -195,6 +195,11 @@ def _seed_range(summary: dict) -> str:
     return "seeds " + ", ".join(f"{a}-{b}" if a < b else f"{a}" for a, b in spans)
 
 
+def task_label(task: str) -> str:
+    """T1..T4 for the built-in tasks, a map file by its name (`--tasks 1,my-office.toml`)."""
+    return f"T{task}" if task in TASKS else Path(task).name
+
+
 def _paper(table: dict, setting: str, task: str) -> str:
     value = table.get(setting, {}).get(task)
     return "-" if value is None else f"{value:g}"
@@ -238,12 +243,12 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     for task in tasks:
         row = [f"{_cell(summary, task, s, 'episodes')} | {_paper(PAPER_EPISODES, s, task)}"
                for s in settings]  # fmt: skip
-        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
     lines += ["", "Learning time (minutes):", "", head, rule]
     for task in tasks:
         row = [f"{_cell(summary, task, s, 'learning_time_s', 60)} | "
                f"{_paper(PAPER_MINUTES, s, task)}" for s in settings]  # fmt: skip
-        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
     average = [
         f"{summary['mean_learning_time_s'][s] / 60:.1f} | {PAPER_AVERAGE['minutes'].get(s, '-')}"
         for s in settings
@@ -273,7 +278,7 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     for task in tasks:
         row = [f"{_cell(summary, task, s, 'interventions')} | "
                f"{_paper(PAPER_INTERVENTIONS, s, task)}" for s in feedback]  # fmt: skip
-        lines.append(f"| T{task} | " + " | ".join(row) + " |")
+        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
     average = [
         f"{summary['interventions'][s]:.1f} | {PAPER_AVERAGE['interventions'].get(s, '-')}"
         for s in feedback
