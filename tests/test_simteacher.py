@@ -230,3 +230,16 @@ def test_dictated_traces_follow_the_shortest_path_to_the_goal(task):
     # to the berth from the walls, take time).
     length = GeodesicDistance(m)(m.start.x, m.start.y)
     assert len(episode) * 0.1 < 3 * length / 0.5
+
+
+def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
+    from services.cli import parser
+    from services.runtime import ConfigError
+    from services.simteacher.node import profile_from
+
+    person = profile_from(parser().parse_args(["sim-teacher", "--rate", "4", "--salient"]))
+    assert (person.rate, person.salient) == (4.0, True)
+    tireless = profile_from(parser().parse_args(["sim-teacher"]))
+    assert (tireless.rate, tireless.salient) == (0.0, False)
+    with pytest.raises(ConfigError, match="rate must be >= 0"):
+        profile_from(parser().parse_args(["sim-teacher", "--rate", "-1"]))

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import statistics
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -76,7 +77,7 @@ def spec_of(
 
 
 def points_of(
-    noise: list[float], delay: list[float], frequency: list[float], rate: list[float] = ()
+    noise: list[float], delay: list[float], frequency: list[float], rate: Sequence[float] = ()
 ) -> list[Point]:
     return [
         Point("rl", 0.0),
@@ -192,7 +193,7 @@ def sweep(
     noise: list[float],
     delay: list[float],
     frequency: list[float],
-    rate: list[float] = (),
+    rate: Sequence[float] = (),
     workers: int | None = None,
     progress: bool = True,
     learner: tuple[str, ...] = (),

@@ -102,6 +102,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(0: at every look)",
     )
     parser.add_argument(
+        "--rate",
+        type=float,
+        default=profile.rate,
+        help="a person's budget: words a robot minute at most, bumps included (0: no budget)",
+    )
+    parser.add_argument(
+        "--salient",
+        action="store_true",
+        help="speak where the robot's course changes (a bump, setting off the right way, "
+        "turning away, stuck, near the goal), not at every look",
+    )
+    parser.add_argument(
         "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
     )
     parser.add_argument("--jitter", type=float, default=profile.jitter, help="its std dev")
@@ -165,6 +177,8 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
             jitter=args.jitter,
             stuck_after=args.stuck_after,
             repeat_after=args.repeat_after,
+            rate=args.rate,
+            salient=args.salient,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None
