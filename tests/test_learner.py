@@ -373,7 +373,30 @@ def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_p
     assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
 
 
-@pytest.mark.parametrize("config", [EXACT, ADVISED])
+def test_the_words_potential_is_learnt_by_place_and_shapes_every_update():
+    config = replace(ADVISED, potential_rate=0.5, min_hold=1, max_hold=1, traces="replacing")
+    learner = Learner(config, seed=0)
+    far, near = P(WALL_LEFT, goal_distance=3.0, step=0), P(WALL_LEFT, goal_distance=0.5, step=1)
+    learner.step(far, forced=learner.actions.one_hot(FORWARD))
+    s_far = learner.s
+    learner.step(near, forced=learner.actions.one_hot(FORWARD))  # the decision at step 1
+    s_near = learner.s
+    assert learner._place(s_far) != learner._place(s_near)
+    assert learner.credit(step=1, weight=1.0, f=10.0)  # "good" there
+    assert learner.Phi[learner._place(s_near)] == pytest.approx(0.5 * 10.0)  # share 1
+    decay = config.gamma * config.lam  # the far decision, one back: e = gamma lambda
+    assert learner.Phi[learner._place(s_far)] == pytest.approx(0.5 * decay * 10.0)
+    before = learner.Q.copy()
+    q_near = learner.Q[s_near].copy()
+    learner.step(P(WALL_LEFT, goal_distance=0.5, step=2), forced=learner.actions.one_hot(FORWARD))
+    # the update of (near, forward) gained F = gamma Phi(s') - Phi(s) with s' = s: (gamma-1) Phi
+    r, gamma, alpha = -1.0, config.gamma, config.alpha
+    shaping = (gamma - 1) * learner.Phi[learner._place(s_near)]
+    delta = r + shaping + gamma * q_near[FORWARD] - q_near[FORWARD]
+    assert learner.Q[s_near][FORWARD] - before[s_near][FORWARD] == pytest.approx(alpha * delta)
+
+
+@pytest.mark.parametrize("config", [EXACT, ADVISED, replace(ADVISED, potential_rate=0.5)])
 def test_checkpoint_round_trip(tmp_path, config):
     learner = Learner(config, seed=3)
     run_episode(learner, TraceBook())
@@ -387,6 +410,7 @@ def test_checkpoint_round_trip(tmp_path, config):
     assert back.states.keys == learner.states.keys and back.episode == learner.episode
     assert np.allclose(np.array(back.states.prototypes), np.array(learner.states.prototypes))
     assert back.rng.random() == learner.rng.random()  # the random stream goes on
+    assert back.Phi == learner.Phi
 
 
 def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):

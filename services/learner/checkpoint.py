@@ -50,7 +50,8 @@ UNNAMED = {"goal_sectors": 0}
 # learnt with another value is refused.
 DROPPED = {"goal_prior": False}
 ARRAYS = ("Q", "H", "prototypes", "keys", "meta")
-OPTIONAL_ARRAYS = ("visits", "visit_weights")  # the recent visits (not in older checkpoints)
+# The recent visits and the potential by place (not in older checkpoints).
+OPTIONAL_ARRAYS = ("visits", "visit_weights", "potential")
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.learner")
 
@@ -115,6 +116,9 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
                 [(v.first, v.last, v.episode, v.state) for v in visits], dtype=np.int64
             ).reshape(len(visits), 4),
             visit_weights=np.array([v.weights for v in visits]).reshape(len(visits), N_ACTIONS),
+            potential=np.array(
+                [(*place, phi) for place, phi in learner.Phi.items()], dtype=float
+            ).reshape(len(learner.Phi), 3),
         )
         f.flush()
         os.fsync(f.fileno())
@@ -172,6 +176,8 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]
+    for distance, sector, phi in arrays.get("potential", np.zeros((0, 3))):
+        learner.Phi[(int(distance), int(sector))] = float(phi)
     visits, weights = arrays.get("visits"), arrays.get("visit_weights")
     if visits is not None and weights is not None and weights.shape == (len(visits), N_ACTIONS):
         learner.recent.extend(

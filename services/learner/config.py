@@ -83,6 +83,11 @@ class LearnerConfig:
     # ignoring it; the policy's H(s) is the mean of the state's own and its tiles'. (): off.
     advice_generalization: tuple[str, ...] = ("distance", "sector")
 
+    # The potential the teacher's words imply (experimental): Phi over the state's goal
+    # distance and sector, moved towards each word's reward at this rate (0: off); every
+    # update's reward gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping).
+    potential_rate: float = 0.0
+
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
     converge_margin: float = 0.25  # ... the slowest within (1 + margin) x the fastest ...

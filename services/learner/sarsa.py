@@ -72,6 +72,7 @@ class Learner:
         self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
         self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
         self.H_tiles = np.zeros((0, N_ACTIONS))  # H summed over each advice tile
+        self.Phi: dict[tuple[int, int], float] = {}  # potential by place (potential_rate)
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
         self.s: int | None = None  # the previous state ...
@@ -118,7 +119,8 @@ class Learner:
         gamma^k); a_next is None when s' is terminal."""
         c = self.config
         q_next = 0.0 if a_next is None else a_next.weights @ self.Q[s_next]
-        delta = self.G + self.discount * q_next - self.a.weights @ self.Q[self.s]
+        shaping = (0.0 if a_next is None else self.discount * self._phi(s_next)) - self._phi(self.s)
+        delta = self.G + shaping + self.discount * q_next - self.a.weights @ self.Q[self.s]
         if c.traces == "replacing":  # e(s, a) <- 1, by each action's weight in a
             self.e[self.s] = np.maximum(self.e[self.s], self.a.weights)
         else:  # e(s, a) <- e(s, a) + 1
@@ -212,6 +214,11 @@ class Learner:
             visits.append(visit)
             scales.append(scale * trace)
             trace *= c.gamma * c.lam
+        if c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
+            for visit, scale in zip(visits, scales, strict=True):
+                place, share = self._place(visit.state), scale / (c.alpha * f) if f else 0.0
+                phi = self.Phi.get(place, 0.0)
+                self.Phi[place] = phi + c.potential_rate * share * (f - phi)
         changes = np.array(scales)[:, None] * np.array([v.weights for v in visits])
         states = [v.state for v in visits]
         if c.shaping == "action_bias":
@@ -257,6 +264,15 @@ class Learner:
         self.H_tiles = np.zeros((len(self.states.tile_ids), N_ACTIONS))
         for s, tiles in enumerate(self.states.tiles):
             self.H_tiles[tiles] += self.H[s]
+
+    # -- the potential the teacher's words imply (potential_rate) -------------------------
+    def _place(self, s: int) -> tuple[int, int]:
+        """Where state s is relative to the goal: its distance bin and goal sector."""
+        key = self.states.key_of[s]
+        return key[3], key[4]
+
+    def _phi(self, s: int) -> float:
+        return self.Phi.get(self._place(s), 0.0) if self.config.potential_rate else 0.0
 
     # -- states and episodes ------------------------------------------------------------
     def _state_of(self, p: Percept) -> int:

@@ -63,6 +63,7 @@ class StateSpace:
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
         # (prototype, near, bearing, distance, sector)
         self.keys: dict[tuple[int, int, int, int, int], int] = {}
+        self.key_of: list[tuple[int, int, int, int, int]] = []  # each state's key
         self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
         self.tile_ids: dict[tuple[int, ...], int] = {}  # (tiling, key without its field)
         self.tiles: list[list[int]] = []  # each state's advice tile in every tiling (an index)
@@ -122,6 +123,7 @@ class StateSpace:
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
+        self.key_of.append(key)
         self._add_tiles(key)
         # The nearest existing state: same bits and bins, best-matching prototype.
         parent = (
@@ -155,6 +157,7 @@ class StateSpace:
         self.keys = {
             (*(int(v) for v in k), *(0,) * (width - len(k))): i for i, k in enumerate(keys)
         }
+        self.key_of = list(self.keys)
         self.tile_ids, self.tiles = {}, []
         for key in self.keys:
             self._add_tiles(key)
