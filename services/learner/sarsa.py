@@ -205,21 +205,24 @@ class Learner:
             self.counters[f"feedback_dropped.{why}"] += 1
             return False
         credited = self.recent[index]
-        visits, scales = [], []  # the decisions back from k, and alpha w f e_k of each
-        trace, scale = 1.0, c.alpha * weight * f  # e_k(s_j, a_j) = (gamma lambda)^(k - j)
+        visits, traces = [], []  # the decisions back from k, and e_k of each
+        trace = 1.0  # e_k(s_j, a_j) = (gamma lambda)^(k - j) along the episode, back from k
         for j in range(index, -1, -1):
             visit = self.recent[j]
             if visit.episode != credited.episode or trace < 1e-4:
                 break
             visits.append(visit)
-            scales.append(scale * trace)
+            traces.append(trace)
             trace *= c.gamma * c.lam
         if c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
-            for visit, scale in zip(visits, scales, strict=True):
-                place, share = self._place(visit.state), scale / (c.alpha * f) if f else 0.0
+            for visit, trace in zip(visits, traces, strict=True):
+                place = self._place(visit.state)
                 phi = self.Phi.get(place, 0.0)
-                self.Phi[place] = phi + c.potential_rate * share * (f - phi)
-        changes = np.array(scales)[:, None] * np.array([v.weights for v in visits])
+                self.Phi[place] = phi + c.potential_rate * weight * trace * (f - phi)
+        scale = c.alpha * weight * f
+        changes = np.array([scale * t for t in traces])[:, None] * np.array(
+            [v.weights for v in visits]
+        )
         states = [v.state for v in visits]
         if c.shaping == "action_bias":
             self._advise(states, changes)

@@ -6,11 +6,10 @@ ray test; tests check it against PyBullet's rayTestBatch on the same world.
 
 The scan is compiled (numba, `services/sim/planar.py`) with the same arithmetic as the numpy
 reference (`Sensors(compiled=False)`), so the same ranges to the bit (a test compares them),
-6x faster; numba is imported only where a compiled scan is made. A scan
-with a `reach` measures only what lies within it (farther ranges read as the sensor's
-maximum) and casts only against the segments and circles within reach of the robot's body:
-the ranges within reach are the full scan's, and a learner that reads only near ranges pays
-for a handful of segments.
+8x faster; numba is imported only where a compiled scan is made. A scan with a `reach`
+measures only what lies within it (farther ranges read as the sensor's maximum) and casts
+only against the segments and circles within reach: the ranges within reach are the full
+scan's, and a learner that reads only near ranges pays for a handful of segments.
 """
 
 from __future__ import annotations

@@ -10,9 +10,9 @@ bit-identical every time (no saveState/restoreState needed, nor its ~156 KB per 
 PyBullet is asked about contacts only near something: at a pose more than `SURELY_FREE` from
 touching anything (the map's clearance grid, else the footprint's exact clearance from the
 walls and obstacles, compiled in `planar.py`; and the other robots) the robot moves without
-a query. The first such pose after a query is
-still asked once, which empties PyBullet's contact cache as asking at every step would: the
-runs are the same, step for step, as with a query at every sub-step (`cull=False`).
+a query. The first such pose after a query is still asked once, which empties PyBullet's
+contact cache as asking at every step would: the runs are the same, step for step, as with
+a query at every sub-step (`cull=False`).
 """
 
 from __future__ import annotations
