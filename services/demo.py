@@ -31,6 +31,7 @@ from services.logger.report import write_report
 from services.logger.run import RunDir, RunError
 from services.runtime import BusError, Input, Tick
 from services.sim.maps import load_map
+from services.simteacher.teacher import PERSON, PROFILES, TIRELESS
 from services.topology import ServiceSpec
 
 ROBOT, TEACHER = "r1", "simteacher"
@@ -55,6 +56,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "engine; auto: audio when espeak-ng and sox are installed",
     )
     parser.add_argument("--seed", type=int, default=1, help="the simulated teacher's")
+    parser.add_argument(
+        "--teacher-profile",
+        choices=tuple(PROFILES),
+        default="person",
+        help=f"the simulated teacher: person ({PERSON.describe()}) or tireless "
+        f"({TIRELESS.describe()})",
+    )
     parser.add_argument(
         "--stall-timeout",
         type=float,
@@ -184,11 +192,13 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     return os.environ["VOXSHAPE_SESSION"]
 
 
-def teacher_spec(session: launcher.LocalSession, mode: str, seed: int) -> ServiceSpec:
+def teacher_spec(
+    session: launcher.LocalSession, mode: str, seed: int, profile: str = "person"
+) -> ServiceSpec:
     """The simulated teacher as one more service of the session (on the learner's bus
     settings), started last."""
     bus = next(s for s in session.specs if s.name == "learner").environment
-    command = ["voxshape", "sim-teacher", "--seed", str(seed)]
+    command = ["voxshape", "sim-teacher", "--seed", str(seed), "--teacher-profile", profile]
     if mode == "audio":
         command.append("--audio")
     environment = {
@@ -211,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
     if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
         session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
         return 2
-    session.specs.append(teacher_spec(session, mode, args.seed))
+    session.specs.append(teacher_spec(session, mode, args.seed, args.teacher_profile))
     # The robot starts once its learner and teacher listen: at 20x, a start slowed by a busy
     # machine would otherwise run minutes of robot time untaught.
     session.specs.sort(key=lambda spec: spec.name == "sim")
@@ -222,7 +232,8 @@ def run(args: argparse.Namespace) -> int:
     )
     session.say(
         f"voxshape demo: session {session_id!r}, task 1, robot {ROBOT} at {args.rtf:g}x real "
-        f"time, taught by a simulated teacher speaking {speaks}"
+        f"time, taught by a simulated {args.teacher_profile} "
+        f"({PROFILES[args.teacher_profile].describe()}) speaking {speaks}"
     )
     progress = ConvergenceWatch(ROBOT, args.max_episodes)
     session.input("episode", robot_key(session_id, ROBOT, "episode"))  # from the first one

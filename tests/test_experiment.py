@@ -14,7 +14,7 @@ from services.experiment.paper import mean_ci, speedup_interval
 from services.learner.config import SettingsError, replaced
 from services.sim.maps import TASKS
 from services.sim.task import Simulation
-from services.simteacher.teacher import TeacherProfile
+from services.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
 
 
 def test_mean_and_95_percent_interval():
@@ -25,7 +25,7 @@ def test_mean_and_95_percent_interval():
 
 
 def test_feedback_goes_through_the_arbiter_into_the_learner():
-    result = run(RunSpec("1", "rl+f", seed=0, max_episodes=3))
+    result = run(RunSpec("1", "rl+f", seed=0, max_episodes=3, profile=TIRELESS))
     c = result.counters
     assert result.episodes == 3 and not result.converged  # censored: too few episodes
     assert result.learning_time_s == pytest.approx(sum(result.durations_s), abs=0.1)
@@ -38,6 +38,13 @@ def test_feedback_goes_through_the_arbiter_into_the_learner():
     assert c["arbiter.rejected.low_confidence"] > 0
     assert c["arbiter.commands"] == c["learner.commands"] > 0
     assert result.interventions == c["arbiter.notices.understood"]
+
+
+def test_the_default_teacher_keeps_to_a_persons_budget():
+    result = run(RunSpec("1", "rl+f", seed=0, max_episodes=4))
+    minutes = result.learning_time_s / 60
+    assert 0 < result.interventions <= PERSON.rate * minutes + PERSON.burst
+    assert result.spec["profile"]["rate"] == PERSON.rate  # the results say who taught
 
 
 def test_runs_are_deterministic_and_plain_rl_has_no_teacher():
@@ -184,11 +191,17 @@ def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     assert "repeat_after >= 0" in capsys.readouterr().err and not out.exists()
     assert main([*argv, "--teacher", "shedule=3"]) == 2
     assert "KEY one of" in capsys.readouterr().err and not out.exists()
-    assert main([*argv, "--teacher", "repeat_after=3"]) == 0
+    tireless = [*argv, "--teacher-profile", "tireless"]
+    assert main([*tireless, "--teacher", "repeat_after=3"]) == 0
     results = json.loads((out / "results.json").read_text())
     assert results["teacher_settings"] == ["repeat_after=3"]
+    assert results["teacher_profile"] == "tireless"
+    assert (
+        "The simulated teacher: tireless (no budget, judging every 1 s), with repeat_after=3."
+        in (out / "report.md").read_text()
+    )
     patient = results["runs"][0]
-    chatty = run(RunSpec("1", "rl+f", 0, max_episodes=2))
+    chatty = run(RunSpec("1", "rl+f", 0, max_episodes=2, profile=TIRELESS))
     per_second = [r["interventions"] / sum(r["durations_s"]) for r in (patient, chatty.to_json())]
     assert 0 < per_second[0] < 0.8 * per_second[1]  # no praise a second on a steady way
 
@@ -254,7 +267,10 @@ def test_the_budget_sweep_runs_both_feedback_settings_at_each_rate(tmp_path):
         p["words_per_minute"] <= 4.0 + 2 / (p["mean_learning_time_s"] / 60) for p in budgeted
     )
     runs = [json.loads(line)["spec"] for line in (out / "runs.jsonl").read_text().splitlines()]
-    assert {tuple(r["teacher"]) for r in runs} == {(), ("rate=4", "salient=true")}
+    profiles = {
+        (r["profile"]["rate"], r["profile"]["salient"]) for r in runs if r["setting"] != "rl"
+    }
+    assert profiles == {(0.0, False), (4.0, True)}  # the tireless teacher, and a person
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
 
 

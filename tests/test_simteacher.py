@@ -11,6 +11,9 @@ from protocol.vocabulary import load_vocabulary
 from services.sim.maps import load_map
 from services.simteacher.dictation import dictate
 from services.simteacher.teacher import (
+    PERSON,
+    PROFILES,
+    TIRELESS,
     Confusion,
     FeedbackSchedule,
     GeodesicDistance,
@@ -20,7 +23,7 @@ from services.simteacher.teacher import (
 )
 
 VOCABULARY = load_vocabulary()
-QUIET = TeacherProfile(jitter=0.0)  # always speaks, never errs, a steady 0.5 s delay
+QUIET = replace(TIRELESS, jitter=0.0)  # judges every look, never errs, a steady 0.5 s delay
 
 
 def teacher(profile: TeacherProfile = QUIET, task: str = "1", seed: int = 0) -> SimulatedTeacher:
@@ -113,8 +116,11 @@ def test_a_persons_budget_bounds_the_words_a_minute_bumps_included():
     assert sum(map(len, bumps)) == 10  # without a budget every bump is said
 
 
-def test_the_tireless_teacher_is_the_default_profile():
-    assert TeacherProfile().rate == 0 and not TeacherProfile().salient
+def test_a_person_is_the_default_profile_and_the_tireless_teacher_a_named_one():
+    assert TeacherProfile() == PERSON == PROFILES["person"]
+    assert (PERSON.rate, PERSON.salient) == (4.0, True)
+    assert (TIRELESS.rate, TIRELESS.salient) == (0.0, False) and PROFILES["tireless"] == TIRELESS
+    assert "at most 4 words a robot minute" in PERSON.describe()
     with pytest.raises(ValueError, match="rate"):
         TeacherProfile(rate=-1)
 
@@ -210,7 +216,7 @@ def test_the_noise_rate_is_the_share_of_errors():
 
 
 def test_seeded_and_deterministic():
-    profile = replace(TeacherProfile(), noise=0.3, positive_bias=0.2)
+    profile = replace(QUIET, noise=0.3, positive_bias=0.2)
     first = steps_toward_and_away(teacher(profile, seed=7), 200)
     again = steps_toward_and_away(teacher(profile, seed=7), 200)
     other = steps_toward_and_away(teacher(profile, seed=8), 200)
@@ -237,9 +243,11 @@ def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
     from services.runtime import ConfigError
     from services.simteacher.node import profile_from
 
-    person = profile_from(parser().parse_args(["sim-teacher", "--rate", "4", "--salient"]))
-    assert (person.rate, person.salient) == (4.0, True)
-    tireless = profile_from(parser().parse_args(["sim-teacher"]))
-    assert (tireless.rate, tireless.salient) == (0.0, False)
+    person = profile_from(parser().parse_args(["sim-teacher"]))
+    assert person == replace(PERSON, confusion=person.confusion)
+    chatty = profile_from(parser().parse_args(["sim-teacher", "--rate", "8", "--no-salient"]))
+    assert (chatty.rate, chatty.salient, chatty.schedule) == (8.0, False, PERSON.schedule)
+    tireless = profile_from(parser().parse_args(["sim-teacher", "--teacher-profile", "tireless"]))
+    assert tireless == replace(TIRELESS, confusion=tireless.confusion)
     with pytest.raises(ConfigError, match="rate must be >= 0"):
         profile_from(parser().parse_args(["sim-teacher", "--rate", "-1"]))

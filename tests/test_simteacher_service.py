@@ -15,7 +15,7 @@ from services.arbiter.scripted import observation
 from services.runtime import Input, Node, Presence
 from services.sim.maps import load_map
 from services.simteacher.display import DisplayClock, DisplayTeacher
-from services.simteacher.teacher import SimulatedTeacher, TeacherProfile
+from services.simteacher.teacher import TIRELESS, SimulatedTeacher
 from services.speech.synthesis import synthesize
 from tests.conftest import VOXSHAPE, bus_args
 
@@ -29,7 +29,7 @@ def obs(step: int, x: float, episode: int = 0, episode_step: int | None = None) 
 
 
 def teacher(**profile: float) -> SimulatedTeacher:
-    return SimulatedTeacher(TASK, load_vocabulary(), TeacherProfile(**profile), seed=1)
+    return SimulatedTeacher(TASK, load_vocabulary(), replace(TIRELESS, **profile), seed=1)
 
 
 def test_the_display_clock_gives_the_time_each_step_was_shown():
@@ -117,6 +117,8 @@ def _teach_through_speech(spawn, router, session_id, client_config, tmp_path, en
             *args("simteacher"),
             "--teacher",
             "ana",
+            "--teacher-profile",
+            "tireless",  # a word at every look: enough to see in 8 s
             *audio,
             "--clock-skew",
             skew,

@@ -19,7 +19,7 @@ from services.learner.config import (
     with_settings,
 )
 from services.sim.maps import MapError, load_map
-from services.simteacher.teacher import TeacherProfile
+from services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 
 def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -82,12 +82,20 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_settings_argument(parser)
     parser.add_argument(
+        "--teacher-profile",
+        choices=tuple(PROFILES),
+        default="person",
+        help=f"the simulated teacher: person ({PERSON.describe()}) or tireless "
+        f"({TIRELESS.describe()}, the teacher of earlier experiments)",
+    )
+    parser.add_argument(
         "--teacher",
         action="append",
         default=[],
         metavar="KEY=VALUE",
         help="a field of the simulated teacher's TeacherProfile "
-        "(services/simteacher/teacher.py), e.g. repeat_after=3; its noise is the setting's",
+        "(services/simteacher/teacher.py) changed from --teacher-profile, e.g. rate=2; its "
+        "noise is the setting's",
     )
 
 
@@ -196,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         learner=tuple(args.set),
         teacher=tuple(args.teacher),
+        profile=args.teacher_profile,
     )
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
@@ -236,6 +245,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         learner=tuple(args.set),
         teacher=tuple(args.teacher),
+        profile=args.teacher_profile,
     )
     print((args.out / "sweep.md").read_text())
     print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")

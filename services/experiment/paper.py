@@ -36,6 +36,7 @@ from tqdm import tqdm
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence
+from services.simteacher.teacher import PROFILES
 
 TASKS = ("1", "2", "3", "4")
 LABELS = {"rl": "RL", "rl+f": "RL + F", "rl+t+f": "RL + T + F", "rl+t+f-perfect": "RL + T + F (PF)"}
@@ -200,6 +201,14 @@ def task_label(task: str) -> str:
     return f"T{task}" if task in TASKS else Path(task).name
 
 
+def _teacher(summary: dict) -> str:
+    """Who taught: the simulated teacher's profile and the changes made to it."""
+    name = summary.get("teacher_profile", "tireless")  # results from before the profiles
+    changes = summary.get("teacher_settings") or []
+    changed = f", with {', '.join(changes)}" if changes else ""
+    return f"The simulated teacher: {name} ({PROFILES[name].describe()}){changed}."
+
+
 def _paper(table: dict, setting: str, task: str) -> str:
     value = table.get(setting, {}).get(task)
     return "-" if value is None else f"{value:g}"
@@ -218,7 +227,7 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         "",
         f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting, "
         f"{_seed_range(summary)}), "
-        f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores.",
+        f"{wall_seconds / 60:.1f} min of wall time on {os.cpu_count()} cores. " + _teacher(summary),
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
         "Learning time is the robot's simulated time until convergence ("
@@ -357,16 +366,25 @@ def experiment(
     clock: Callable[[], float] | None = None,
     learner: tuple[str, ...] = (),
     teacher: tuple[str, ...] = (),
+    profile: str = "person",
 ) -> dict:
     """Runs the experiment and writes results.json, report.md and figure2.png to `out`;
     `learner` changes the learner's configuration (`--set KEY=VALUE`) in every run, and
-    `teacher` the simulated teacher's profile (`--teacher KEY=VALUE`)."""
+    `teacher` the simulated teacher's `profile` (`--teacher KEY=VALUE`)."""
     import time
 
     clock = clock or time.monotonic
     began = clock()
     specs = [
-        RunSpec(task, setting, seed, max_episodes, learner=learner, teacher=teacher)
+        RunSpec(
+            task,
+            setting,
+            seed,
+            max_episodes,
+            profile=PROFILES[profile],
+            learner=learner,
+            teacher=teacher,
+        )
         for task in tasks
         for setting in settings
         for seed in seeds
@@ -379,6 +397,7 @@ def experiment(
     summary["first_seed"] = seeds.start
     summary.update(command=command, wall_time_s=round(wall, 1), max_episodes=max_episodes)
     summary.update(learner_settings=list(learner), teacher_settings=list(teacher))
+    summary["teacher_profile"] = profile
     _write(out, summary, results)
     return summary
 
@@ -394,7 +413,7 @@ class PoolError(ValueError):
     """Results that cannot be pooled; the message names the directory and why."""
 
 
-POOLED_ALIKE = ("max_episodes", "learner_settings", "teacher_settings")
+POOLED_ALIKE = ("max_episodes", "learner_settings", "teacher_settings", "teacher_profile")
 
 
 def pool(dirs: list[Path], out: Path, command: str) -> dict:

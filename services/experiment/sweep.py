@@ -4,9 +4,10 @@ correction) and how often the teacher speaks later on: the paper's open question
 with the teacher's word budget (`--rate`: how much talking buys how much speedup).
 
 Every point is `rl+f` on the chosen tasks and seeds with one thing changed from the paper's
-setting (20% noise, 0.5 s delay, delay correction on, sporadic feedback 20%); a rate point
-is `rl+f` and `rl+t+f` with a teacher speaking at salient moments within a budget of that
-many words a robot minute (0: the tireless teacher, every look). Its speedup is
+setting (20% noise, 0.5 s delay, delay correction on) taught by the `--teacher-profile` teacher
+(a person, by default); a rate point is `rl+f` and `rl+t+f` with a person speaking at
+salient moments within a budget of that many words a robot minute (0: the tireless
+teacher, every look). Its speedup is
 the mean RL learning time over the tasks divided by its own (the paper's ratio), with a 95%
 bootstrap interval (seeds resampled within each task). Writes sweep.json, sweep.md and
 sweep.png (speedup curves with those intervals) to the output directory.
@@ -22,7 +23,7 @@ from pathlib import Path
 
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec
 from services.experiment.paper import LABELS, run_all, speedup_interval, task_means
-from services.simteacher.teacher import TeacherProfile
+from services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 FEEDBACK, TRACES = "rl+f", "rl+t+f"
 
@@ -51,20 +52,25 @@ def spec_of(
     max_episodes: int,
     learner: tuple[str, ...] = (),
     teacher: tuple[str, ...] = (),
+    profile: TeacherProfile = PERSON,
 ) -> RunSpec:
+    """The run of a point: `profile` with the point's change, then `teacher`'s changes; a
+    rate point is a person with that budget (0: the tireless teacher)."""
     if point.axis == "rl":
         return RunSpec(task, "rl", seed, max_episodes, learner=learner)
     if point.axis == "rate":
-        budget = (f"rate={point.value:g}", "salient=true") if point.value else ()
+        budget = replace(PERSON, rate=point.value) if point.value else TIRELESS
         return RunSpec(
-            task, point.setting, seed, max_episodes, learner=learner, teacher=teacher + budget
-        )
+            task, point.setting, seed, max_episodes, profile=budget, learner=learner,
+            teacher=teacher,
+        )  # fmt: skip
     spec = RunSpec(
         task,
         FEEDBACK,
         seed,
         max_episodes,
         delay_learning=point.correction,
+        profile=profile,
         learner=learner,
         teacher=teacher,
     )
@@ -72,8 +78,8 @@ def spec_of(
         return replace(spec, noise=point.value)
     if point.axis == "delay":
         return replace(spec, delay=point.value)
-    schedule = replace(TeacherProfile().schedule, sporadic=point.value)
-    return replace(spec, profile=replace(TeacherProfile(), schedule=schedule))
+    schedule = replace(profile.schedule, sporadic=point.value)
+    return replace(spec, profile=replace(profile, schedule=schedule))
 
 
 def points_of(
@@ -198,12 +204,14 @@ def sweep(
     progress: bool = True,
     learner: tuple[str, ...] = (),
     teacher: tuple[str, ...] = (),
+    profile: str = "person",
 ) -> list[dict]:
-    """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`."""
+    """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`; points but the
+    rate's change the simulated teacher's `profile`."""
     assert SETTINGS[FEEDBACK].feedback
     points = points_of(noise, delay, frequency, rate)
     jobs = [
-        (p, spec_of(p, t, s, max_episodes, learner, teacher))
+        (p, spec_of(p, t, s, max_episodes, learner, teacher, PROFILES[profile]))
         for p in points
         for t in tasks
         for s in seeds
@@ -224,6 +232,7 @@ def sweep(
                 "max_episodes": max_episodes,
                 "learner_settings": list(learner),
                 "teacher_settings": list(teacher),
+                "teacher_profile": profile,
                 "points": rows,
             },
             indent=1,

@@ -29,6 +29,7 @@ import argparse
 import os
 import random
 import time
+from dataclasses import replace
 
 from protocol import (
     Message,
@@ -52,8 +53,9 @@ from services.runtime.clock import ClockSync
 from services.sim.maps import TASKS, load_map
 from services.simteacher.display import DisplayTeacher, Spoken
 from services.simteacher.teacher import (
+    PERSON,
+    PROFILES,
     Confusion,
-    FeedbackSchedule,
     SimulatedTeacher,
     TeacherProfile,
 )
@@ -64,7 +66,6 @@ from services.teacher.sources import wav_stream
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     env = os.environ.get
-    profile, schedule = TeacherProfile(), FeedbackSchedule()
     parser.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="(VOXSHAPE_ROBOT)")
     parser.add_argument(
         "--teacher", default=env("VOXSHAPE_TEACHER", "simteacher"), help="(VOXSHAPE_TEACHER)"
@@ -83,57 +84,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "errors are the speech service's",
     )
     parser.add_argument(
-        "--positive-bias",
-        type=float,
-        default=profile.positive_bias,
-        help="share of scolding unsaid",
+        "--teacher-profile",
+        choices=tuple(PROFILES),
+        default="person",
+        help="person: at most --rate words a robot minute, at salient moments; tireless: "
+        "judges every look (about 50 words a minute); the options below change it",
     )
+    parser.add_argument("--positive-bias", type=float, help="share of scolding unsaid")
     parser.add_argument(
         "--stuck-after",
         type=float,
-        default=profile.stuck_after,
-        help="robot seconds without progress after which each look is 'bad' (0: never)",
+        help="robot seconds without progress after which the robot is 'bad' (0: never)",
     )
     parser.add_argument(
         "--repeat-after",
         type=float,
-        default=profile.repeat_after,
         help="robot seconds before it says the same judgement again while nothing changes "
         "(0: at every look)",
     )
     parser.add_argument(
         "--rate",
         type=float,
-        default=profile.rate,
-        help="a person's budget: words a robot minute at most, bumps included (0: no budget)",
+        help=f"a person's budget: words a robot minute at most, bumps included (0: no "
+        f"budget; person: {PERSON.rate:g})",
     )
     parser.add_argument(
         "--salient",
-        action="store_true",
+        action=argparse.BooleanOptionalAction,
         help="speak where the robot's course changes (a bump, setting off the right way, "
-        "turning away, stuck, near the goal), not at every look",
+        "turning away, stuck, near the goal), not at every look (person: yes)",
     )
-    parser.add_argument(
-        "--delay", type=float, default=profile.delay, help="reaction delay, robot seconds"
-    )
-    parser.add_argument("--jitter", type=float, default=profile.jitter, help="its std dev")
-    parser.add_argument(
-        "--interval", type=float, default=profile.interval, help="robot seconds between looks"
-    )
+    parser.add_argument("--delay", type=float, help="reaction delay, robot seconds")
+    parser.add_argument("--jitter", type=float, help="its std dev")
+    parser.add_argument("--interval", type=float, help="robot seconds between looks")
     parser.add_argument(
         "--always-for",
         type=int,
-        default=schedule.permanent_episodes,
         help="feedback schedule: it comments on everything it judges for this many episodes...",
     )
-    parser.add_argument(
-        "--fade-over", type=int, default=schedule.fade_episodes, help="...then fades over these..."
-    )
+    parser.add_argument("--fade-over", type=int, help="...then fades over these...")
     parser.add_argument(
         "--sporadic",
         type=float,
-        default=schedule.sporadic,
-        help="...to commenting on this share",
+        help="...to commenting on this share (person: 1, tireless: 0.2)",
     )
     parser.add_argument(
         "--traces",
@@ -161,24 +154,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def profile_from(args: argparse.Namespace) -> TeacherProfile:
+    """The --teacher-profile with the options given changed."""
+    profile = PROFILES[args.teacher_profile]
+    schedule = {
+        name: value
+        for name, value in (
+            ("permanent_episodes", args.always_for),
+            ("fade_episodes", args.fade_over),
+            ("sporadic", args.sporadic),
+        )
+        if value is not None
+    }
+    options = ("interval", "positive_bias", "delay", "jitter", "stuck_after", "repeat_after")
+    changes = {
+        name: getattr(args, name)
+        for name in (*options, "rate", "salient")
+        if getattr(args, name) is not None
+    }
     try:
-        return TeacherProfile(
-            interval=args.interval,
-            schedule=FeedbackSchedule(
-                permanent_episodes=args.always_for,
-                fade_episodes=args.fade_over,
-                sporadic=args.sporadic,
-            ),
+        return replace(
+            profile,
+            **changes,
+            schedule=replace(profile.schedule, **schedule),
             noise=args.noise,
             # Over the bus the speech service mishears: the teacher's own errors are slips.
             confusion=Confusion(wrong_qualifier=1.0, misheard=0.0),
-            positive_bias=args.positive_bias,
-            delay=args.delay,
-            jitter=args.jitter,
-            stuck_after=args.stuck_after,
-            repeat_after=args.repeat_after,
-            rate=args.rate,
-            salient=args.salient,
         )
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None

@@ -10,8 +10,11 @@ obstacles, never the straight line) and watches the robot:
   progress for `stuck_after` seconds (pinned to a wall, or turning back and forth): then it is
   "bad" at every look until it gets going again, as a person watching would say;
 - a bump (the first step of a run of collided steps) is "terrible", the goal is "goal";
-- it does not always speak: the chance it comments on what it saw follows the paper's
-  teacher, permanent during the first episodes and sporadic later (`FeedbackSchedule`);
+- it does not always speak: the chance it comments on what it saw follows a
+  `FeedbackSchedule` (the paper's teacher: permanent during the first episodes and sporadic
+  later), and a person's budget (`rate`) and eye for salient moments (`salient`) leave most
+  looks unsaid: `PERSON`, the default, says at most 4 words a robot minute, where the
+  `TIRELESS` teacher of earlier experiments said about 50;
 - it leans to praise with `positive_bias`: that share of its scolding is left unsaid;
 - it errs with probability `noise`, the kind of error drawn by the `Confusion` weights: a
   wrong qualifier (the opposite judgement of the same strength, its own slip) or a misheard
@@ -84,10 +87,15 @@ class Confusion:
 
 @dataclass(frozen=True)
 class TeacherProfile:
+    """How the simulated teacher watches and speaks. The defaults are a person's (`PERSON`):
+    at most `rate` words a robot minute, at salient moments; `TIRELESS` is the teacher of
+    earlier experiments, who judges every look (docs/experiments.md gives both word rates)."""
+
     interval: float = 1.0  # seconds of robot time between looks
     small_change: float = 0.1  # metres of geodesic progress (regress) for good (bad) ...
     large_change: float = 0.35  # ... and for excellent (terrible); 0.5 m/s at most
-    schedule: FeedbackSchedule = field(default_factory=FeedbackSchedule)
+    # A person keeps commenting as long as the budget allows: the budget thins the words.
+    schedule: FeedbackSchedule = field(default_factory=lambda: FeedbackSchedule(sporadic=1.0))
     noise: float = 0.0  # probability an utterance comes out wrong
     confusion: Confusion = field(default_factory=Confusion)
     positive_bias: float = 0.0  # share of the scolding left unsaid
@@ -99,12 +107,12 @@ class TeacherProfile:
     repeat_after: float = 0.0
     # A person's budget: at most `rate` words a robot minute on average (bumps and the goal
     # included), at most `burst` at once; 0: no budget.
-    rate: float = 0.0
+    rate: float = 4.0
     burst: float = 2.0
     # Speak at salient moments only, as a person watching does: a bump, the goal, nearing
     # it (within `near_goal` metres of the way), getting going the right way after standing,
     # turning or regressing, turning away after progress, being stuck; not at every look.
-    salient: bool = False
+    salient: bool = True
     near_goal: float = 1.5
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
@@ -126,6 +134,18 @@ class TeacherProfile:
             raise ValueError("need 0 < small_change <= large_change (metres)")
         if self.rate < 0 or self.burst < 1:
             raise ValueError("rate must be >= 0 words a minute and burst >= 1 word")
+
+    def describe(self) -> str:
+        """How often it speaks, in a few words."""
+        when = "at salient moments" if self.salient else f"judging every {self.interval:g} s"
+        budget = f"at most {self.rate:g} words a robot minute" if self.rate else "no budget"
+        return f"{budget}, {when}"
+
+
+PERSON = TeacherProfile()
+# Judges every look, with the paper's fading schedule: about 50 words a robot minute.
+TIRELESS = TeacherProfile(rate=0.0, salient=False, schedule=FeedbackSchedule())
+PROFILES = {"person": PERSON, "tireless": TIRELESS}
 
 
 @dataclass(frozen=True)
