@@ -78,15 +78,15 @@ class LearnerConfig:
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
     feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
-    bias_weight: float = 3.0  # beta, the weight of H in the policy (action_bias)
+    bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
     # Fields of the state the advice generalizes over: one coarse tiling per field, each
     # ignoring it; the policy's H(s) is the mean of the state's own and its tiles'. (): off.
     advice_generalization: tuple[str, ...] = ("distance", "sector")
 
-    # The potential the teacher's words imply (experimental): Phi over the state's goal
-    # distance and sector, moved towards each word's reward at this rate (0: off); every
-    # update's reward gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping).
-    potential_rate: float = 0.0
+    # The potential the teacher's words imply: Phi over the state's goal distance and
+    # sector, moved towards each word's reward at this rate (0: off); every update's reward
+    # gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum).
+    potential_rate: float = 0.25
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
