@@ -1,6 +1,6 @@
 """A Gymnasium environment over the simulator core: one robot, one task.
 
-    env = NavigationEnv(task="1")  # or gym.make("voxshape/Navigation-v0", task="1")
+    env = NavigationEnv(task="1")  # or gym.make(MAKE_ID, task="1"), no import needed
     obs, info = env.reset(seed=0)
     obs, reward, terminated, truncated, info = env.step(np.array([0.5, 0.0], np.float32))
 
@@ -118,4 +118,16 @@ class NavigationEnv(gym.Env):
         self.sim.close()
 
 
-gym.register(id="voxshape/Navigation-v0", entry_point=NavigationEnv)
+ENV_ID = "voxshape/Navigation-v0"
+# Gymnasium 1.x loads no plugins: `gym.make("module:id")` imports the module, which registers
+# the id, so this form works in a fresh interpreter with no import of ours beforehand.
+MAKE_ID = f"services.sim.gym_env:{ENV_ID}"
+
+
+def register() -> None:
+    """Registers ENV_ID with Gymnasium unless it is there (no warning on a second call)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point=NavigationEnv)
+
+
+register()

@@ -1,0 +1,252 @@
+"""Every command and code block of the README is run by a test: the quick ones here, as
+written (in a scratch directory, on loopback); the long ones (a session, the paper's
+experiment) by the test COVERED names, which runs the same command on a smaller job. A
+command added to the README without an entry in COVERED fails the suite."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+import warnings
+
+import gymnasium as gym
+import pytest
+
+from services.logger.run import RunDir, describe_session, write_session_info
+from services.sim import gym_env
+from tests.conftest import ROOT, VOXSHAPE
+from tests.logger_support import scripted_session, write_script
+
+README = ROOT / "README.md"
+FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
+INLINE = re.compile(r"`([^`]+)`")
+# What counts as a command, in a fenced `sh` block or in an inline code span.
+COMMAND = re.compile(r"(voxshape|make|docker compose|\.ci/run)(\s|$)")
+
+HERE = "tests.test_readme"
+DEMO = "tests.test_demo::test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are"
+TYPED = "tests.test_teach::test_typed_words_reach_the_utterance_topic"
+# README command (whitespace collapsed) -> the tests that run it (module::function).
+COVERED: dict[str, tuple[str, ...]] = {
+    # Minutes each: the make targets are checked to run the commands below, which are tested.
+    "make demo": (f"{HERE}::test_the_make_targets_run_what_the_readme_says", DEMO),
+    "make test": (f"{HERE}::test_the_make_targets_run_what_the_readme_says",),
+    "make lint": (f"{HERE}::test_the_make_targets_run_what_the_readme_says",),
+    ".ci/run": (f"{HERE}::test_ci_runs_make_test",),
+    # A whole session: with mock speech at 20x; the audio path on its own.
+    "voxshape demo": (
+        DEMO,
+        "tests.test_simteacher_service::test_its_synthesized_audio_is_recognized_by_pocketsphinx",
+    ),
+    "voxshape demo --speech mock --rtf 20": (DEMO,),
+    "voxshape up": ("tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",),
+    # Interactive: typed words through a test router; no microphone here.
+    "voxshape teach": (TYPED,),
+    "voxshape teach --teacher ana --robot r1": (TYPED,),
+    "voxshape teach --mic": ("tests.test_teach::test_no_microphone_is_a_clear_error",),
+    "voxshape teach --connect tls/lab.example:7448 --tls-root-ca ca.pem --user ana --teacher ana": (
+        "tests.test_multihost::test_a_typed_good_crosses_three_hosts_to_the_learner",
+        "tests.test_security::test_tls_with_a_certificate_works_and_plain_tcp_cannot_use_the_tls_endpoint",
+    ),
+    "docker compose up": (
+        "tests.test_compose::test_docker_compose_accepts_the_file",
+        "tests.test_compose::test_every_service_joins_a_secured_router_and_announces_itself",
+    ),
+    "voxshape status": (f"{HERE}::test_status_as_written",),
+    # A live viewer needs a recording: the test serves a scripted one on free ports.
+    "voxshape view": (
+        "tests.test_logger::test_view_serves_the_web_viewer_on_localhost_and_prints_its_url",
+    ),
+    "voxshape report runs/default": (f"{HERE}::test_report_as_written",),
+    "voxshape train --task 2 --seed 1": (f"{HERE}::test_train_as_written",),
+    # Hours of runs: one task, a few short runs (workers default to the cores, 2 here).
+    "voxshape experiment paper --seeds 10 --workers 2": (
+        "tests.test_experiment::test_experiment_paper_end_to_end",
+    ),
+    "voxshape experiment paper --seeds 10 --first-seed 10 --workers 2": (
+        "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
+    ),
+    "voxshape experiment pool docs/results/paper docs/results/paper-heldout"
+    " --out docs/results/paper-20seeds": (
+        f"{HERE}::test_pool_as_written_gives_the_published_results",
+        "tests.test_experiment::test_pooled_experiments_are_the_experiment_of_all_their_seeds",
+    ),
+    "voxshape experiment sweep --rate 0,1,2,4,8,16 --seeds 20 --workers 2": (
+        "tests.test_experiment::test_the_budget_sweep_runs_both_feedback_settings_at_each_rate",
+    ),
+    # A service that runs until stopped: a tiny map file's episodes on a test router.
+    "voxshape sim --task my-map.toml": (
+        "tests.test_sim_service::test_episode_events_and_outcome_on_the_terminal_observation",
+    ),
+    "voxshape map my-map.toml --png map.png": (f"{HERE}::test_map_as_written",),
+}
+
+
+def fences() -> list[tuple[str, str]]:
+    """The README's fenced blocks: (language, body)."""
+    return FENCE.findall(README.read_text())
+
+
+def readme_commands() -> list[str]:
+    """Commands of the `sh` blocks (comments dropped) and inline ones, whitespace collapsed."""
+    found = []
+    for language, body in fences():
+        if language == "sh":
+            found += [line.split("#", 1)[0].strip() for line in body.splitlines()]
+    prose = FENCE.sub("", README.read_text())
+    found += [" ".join(span.split()) for span in INLINE.findall(prose)]
+    return list(dict.fromkeys(c for c in found if COMMAND.match(c)))
+
+
+def run(argv: list[str], cwd, timeout: float = 60, **env: str) -> subprocess.CompletedProcess:
+    """A command in a fresh process, with no VOXSHAPE_* of the caller (the defaults)."""
+    clean = {k: v for k, v in os.environ.items() if not k.startswith("VOXSHAPE_")}
+    return subprocess.run(
+        argv, capture_output=True, text=True, timeout=timeout, cwd=cwd, env={**clean, **env}
+    )
+
+
+def as_written(command: str) -> list[str]:
+    """`voxshape ...` of the README, run with this environment's voxshape."""
+    argv = shlex.split(command)
+    assert argv[0] == "voxshape" and command in readme_commands(), command
+    return [VOXSHAPE, *argv[1:]]
+
+
+def test_every_readme_command_has_a_test():
+    found = readme_commands()
+    missing = [c for c in found if c not in COVERED]
+    assert not missing, f"README commands with no test: add them to COVERED: {missing}"
+    stale = [c for c in COVERED if c not in found]
+    assert not stale, f"COVERED names commands the README no longer has: {stale}"
+
+
+def test_every_test_in_the_table_exists():
+    for command, tests in COVERED.items():
+        assert tests, command
+        for test in tests:
+            module, _, name = test.partition("::")
+            function = getattr(importlib.import_module(module), name, None)
+            assert name.startswith("test_") and callable(function), f"{command}: no {test}"
+
+
+def test_fenced_blocks_are_commands_or_pictures():
+    """A new kind of block (python, toml...) fails here until a test runs it."""
+    for language, body in fences():
+        assert language in ("sh", ""), f"a ```{language} block: run it in {__name__}"
+        if language == "":  # a diagram, with arrows; commands go in ```sh blocks
+            assert re.search(r"-->|<--", body), f"label this block ```sh:\n{body}"
+
+
+@pytest.mark.parametrize("command", [c for c in readme_commands() if c.startswith("voxshape")])
+def test_every_voxshape_command_parses(command):
+    """Flags of the heavy commands too: a renamed flag fails here, in milliseconds."""
+    from services.cli import parser
+
+    try:
+        parser().parse_args(shlex.split(command)[1:])
+    except SystemExit as e:
+        pytest.fail(f"{command!r} does not parse (exit {e.code})")
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="no make")
+def test_the_make_targets_run_what_the_readme_says():
+    """`make -n` prints each target's commands without running them."""
+    expected = {
+        "demo": [".venv/bin/voxshape demo"],
+        "test": [".venv/bin/ruff check .", ".venv/bin/pytest"],
+        "lint": [".venv/bin/ruff check .", ".venv/bin/ruff format --check ."],
+    }
+    for target, lines in expected.items():
+        result = run(["make", "-n", target], ROOT, timeout=30)
+        assert result.returncode == 0, result.stderr
+        assert set(lines) <= set(result.stdout.splitlines()), (target, result.stdout)
+
+
+def test_ci_runs_make_test():
+    script = ROOT / ".ci" / "run"
+    assert os.access(script, os.X_OK)
+    assert script.read_text().splitlines()[-1] == "exec make test"
+
+
+def test_status_as_written(tmp_path, session_id):
+    """No router on the default port: a clear error, not a traceback (a router there, from
+    someone's session: our own session id is empty)."""
+    env = {"VOXSHAPE_SESSION": session_id, "VOXSHAPE_CONNECT_TIMEOUT": "2"}
+    result = run(as_written("voxshape status"), tmp_path, **env)
+    assert "Traceback" not in result.stderr
+    if result.returncode == 0:
+        assert f"session '{session_id}': 0 node(s) present" in result.stdout
+    else:
+        assert result.returncode == 2 and "voxshape status: error:" in result.stderr
+
+
+def test_report_as_written(tmp_path):
+    run_dir = RunDir(tmp_path / "runs" / "default")
+    write_session_info(run_dir, describe_session("default", "1", {"task": "1"}))
+    write_script(run_dir.events, "default", scripted_session("default", episodes=3, steps=20))
+    result = run(as_written("voxshape report runs/default"), tmp_path)
+    assert result.returncode == 0, result.stderr
+    report = tmp_path / "runs" / "default" / "report"
+    assert "trajectories-r1.png" in (report / "summary.md").read_text()
+    assert len(list(report.glob("*.png"))) >= 3
+
+
+def test_train_as_written(tmp_path):
+    result = run(as_written("voxshape train --task 2 --seed 1"), tmp_path, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert re.search(r"task 2, seed 1: converged after \d+ episodes", result.stdout), result.stdout
+
+
+def test_map_as_written(tmp_path):
+    shutil.copy(ROOT / "services" / "sim" / "maps" / "task3.toml", tmp_path / "my-map.toml")
+    result = run(as_written("voxshape map my-map.toml --png map.png"), tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert (tmp_path / "map.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_pool_as_written_gives_the_published_results(tmp_path):
+    """Pooling the two published halves again gives the published 20 seeds, to the byte."""
+    results = ROOT / "docs" / "results"
+    for half in ("paper", "paper-heldout"):
+        shutil.copytree(results / half, tmp_path / "docs" / "results" / half)
+    command = next(c for c in readme_commands() if c.startswith("voxshape experiment pool"))
+    result = run(as_written(command), tmp_path)
+    assert result.returncode == 0, result.stderr
+    for name in ("results.json", "report.md"):
+        pooled = tmp_path / "docs" / "results" / "paper-20seeds" / name
+        assert pooled.read_text() == (results / "paper-20seeds" / name).read_text(), name
+
+
+def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
+    """The README's `gym.make(...)` as written, in `python -I`: nothing of ours imported
+    before it, only the installed package on the path."""
+    prose = FENCE.sub("", README.read_text())
+    (snippet,) = [s for s in INLINE.findall(prose) if s.startswith("gym.make(")]
+    assert f'"{gym_env.MAKE_ID}"' in snippet
+    code = "\n".join(
+        [
+            "import gymnasium as gym",
+            f"env = {snippet}",
+            "env.reset(seed=0)",
+            "env.step(env.action_space.sample())",
+            "print(env.spec.id)",
+            "env.close()",
+        ]
+    )
+    result = run([sys.executable, "-I", "-c", code], tmp_path)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == [gym_env.ENV_ID]
+
+
+def test_registration_is_idempotent():
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # gymnasium warns when an id is overridden
+        gym_env.register()
+        gym_env.register()
+    assert gym.spec(gym_env.ENV_ID).entry_point is gym_env.NavigationEnv
