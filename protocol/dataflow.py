@@ -81,7 +81,7 @@ DATAFLOW: dict[str, NodeRole] = {
     "speech": NodeRole(
         "speech",
         "recognizes every teacher's audio (or a mock's said text) as utterances",
-        publishes=_flows("teacher", ANY, "utterance"),
+        publishes=_flows("teacher", ANY, "utterance", "notice"),
         subscribes=_flows("teacher", ANY, "audio", "said"),
     ),
     "teacher": NodeRole(

@@ -160,7 +160,7 @@ def _arbiter_examples(
                 utterance=said.id,
                 kind="low_confidence",
                 meaning=None,
-                text="not understood, please repeat",
+                text="not used: heard 'good' with confidence 0.30, below 0.50; say it again",
             ),
         ),
         (

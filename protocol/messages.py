@@ -291,14 +291,22 @@ class ClockReply(Message):
 
 
 NoticeKind = Literal[
-    "understood", "low_confidence", "not_understood", "rate_limited", "unknown_robot", "too_late"
+    "understood",
+    "low_confidence",
+    "not_understood",
+    "rate_limited",
+    "unknown_robot",
+    "too_late",
+    "not_recognized",  # from the speech service: speech heard, no phrase of the vocabulary
 ]
 
 
 @dataclass(frozen=True, kw_only=True)
 class TeacherNotice(Message):
     """What the arbiter made of one utterance, for the teacher client to show (arbiter ->
-    teacher): understood, or why it was ignored (rate-limited ones at most once a second)."""
+    teacher): understood, or why it was ignored (rate-limited ones at most once a second).
+    The speech service sends "not_recognized" for speech it rejected (`utterance` is then the
+    id of that rejection: no Utterance exists)."""
 
     TYPE: ClassVar[str] = "notice"
 

@@ -266,7 +266,7 @@ def test_unknown_words_and_phrases_are_ignored_and_the_teacher_asked_to_repeat(t
     assert not feedback(out)
     (notice,) = notices(out)
     assert notice.kind == "not_understood" and notice.text.startswith(
-        "not understood, please repeat"
+        f"not understood: {text!r} is not in the vocabulary; say e.g. "
     )
     assert a.counters["rejected.not_understood"] == 1
 
@@ -276,7 +276,9 @@ def test_low_confidence_is_ignored_and_the_teacher_asked_to_repeat():
     out = a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.59), shown(99))
     (notice,) = notices(out)
     assert not feedback(out) and notice.kind == "low_confidence"
-    assert notice.text.startswith("not understood, please repeat")
+    assert notice.text == (
+        "not used: heard 'good' with confidence 0.59, below 0.60; say it again, clearly"
+    )
     assert feedback(
         a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.6), shown(99))
     )

@@ -73,7 +73,7 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         node.zenoh.put(key, b"\x00garbage")
         said.put(utterance("ana", "r1", "cucumber", onset + 0.1))
         notice = collect(node, 1, TeacherNotice)[0]
-        assert notice.kind == "not_understood" and "please repeat" in notice.text
+        assert notice.kind == "not_understood" and "not in the vocabulary" in notice.text
         said.put(utterance("ana", "r1", "avanza", onset + 0.2))
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")

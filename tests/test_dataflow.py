@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import subprocess
+import time
 
 import pytest
 
@@ -209,11 +210,20 @@ def test_the_real_services_declare_exactly_their_rows(
         node.input("feedback", robot_key(session_id, "r1", "feedback"))
         node.input("teaching", robot_key(session_id, "r1", "teaching"))
         node.input("notice", teacher_key(session_id, "ana", "notice"))
+        node.input("rejected", teacher_key(session_id, "bob", "notice"))
         wait_present(node, set(services), timeout=60.0)
         services["sim"] = start("sim", "sim", "--rtf", "20", "--seed", "1")
-        # The arbiter declares its outputs as it first uses them.
+        # The arbiter and speech declare their outputs as they first use them: speech its
+        # notices when it rejects what bob says.
         collect(node, 1, CreditedFeedback, timeout=60.0)
-        collect(node, 1, TeacherNotice, timeout=10.0)
+        services["teacher"].stdin.write(b"cucumber\n")
+        services["teacher"].stdin.flush()
+        kinds: dict[str, str] = {}
+        deadline = time.monotonic() + 10.0
+        while len(kinds) < 2 and time.monotonic() < deadline:
+            (notice,) = collect(node, 1, TeacherNotice, timeout=10.0)
+            kinds[notice.teacher] = notice.kind
+        assert kinds.get("bob") == "not_recognized" and "ana" in kinds, kinds
         collect(node, 1, TeachingStats, timeout=10.0)
     for proc in services.values():
         proc.send_signal(signal.SIGINT)

@@ -88,8 +88,13 @@ def test_wav_files_streamed_by_teach_come_out_as_utterances_on_the_teachers_cloc
         assert utterance.onset == pytest.approx(start + offset + clip.speech_start_s, abs=0.06)
         assert utterance.end == pytest.approx(start + offset + clip.speech_end_s, abs=0.1)
         assert 0 < utterance.confidence <= 1
-    understood = [e["text"] for e in shown if e["event"] == "understood"]
-    assert understood == ["turn left", "very good"]  # teach shows what was understood
+    # no arbiter runs: what speech recognized is told as unanswered, what it rejected as such
+    unanswered = [e["text"] for e in shown if e["event"] == "no_answer"]
+    assert unanswered == ["turn left", "very good"]
+    (rejected,) = [e for e in shown if e["event"] == "notice"]
+    assert (
+        rejected["kind"] == "not_recognized" and "pocketsphinx heard speech" in rejected["message"]
+    )
     err = stop(speech)
     assert "received.audio=" in err and "speech.rejected=1" in err and "sent.utterance=2" in err
 

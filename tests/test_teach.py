@@ -18,6 +18,7 @@ from protocol import (
     CreditedFeedback,
     EpisodeEvent,
     Said,
+    TeacherNotice,
     Utterance,
     load_vocabulary,
     teacher_key,
@@ -25,6 +26,7 @@ from protocol import (
 from protocol.examples import example_messages
 from protocol.messages import SAMPLE_RATE
 from services.runtime import Node, Presence
+from services.speech.transcriber import not_recognized
 from services.teacher.board import Board
 from services.teacher.sources import default_teacher_id, typed, typed_lines, wav_stream
 from tests.conftest import VOXSHAPE, bus_args, collect
@@ -61,10 +63,10 @@ def test_typed_words_reach_the_utterance_topic(router, session_id, client_config
         )
         assert u.onset == u.end == u.recognized_at
     shown = [json.loads(line) for line in result.stdout.splitlines()]
-    notes = [e["text"] for e in shown if e["event"] == "note"]
-    assert notes == ["banana"]  # told it is not in the vocabulary (sent all the same)
-    meanings = [e["meaning"] for e in shown if e["event"] == "understood"]
-    assert meanings == ["qualifier +10", "command left", "not in the vocabulary"]
+    # no arbiter runs: each word is told once that nobody answered, never "understood"
+    unanswered = [e["text"] for e in shown if e["event"] == "no_answer"]
+    assert unanswered == ["good", "turn left", "banana"]
+    assert not [e for e in shown if e["event"] == "notice"]
 
 
 def test_no_microphone_is_a_clear_error(tmp_path):
@@ -127,7 +129,7 @@ def test_typed_lines_and_what_they_become():
 
 def test_the_board_shows_status_episodes_feedback_and_what_was_understood():
     examples = {m.TYPE: m for _, m in example_messages("s1")}
-    board = Board(VOCABULARY, status_every_s=2.0)
+    board = Board(status_every_s=2.0)
     obs = examples["observation"]
     (status,) = board.observation(obs, now=10.0)
     assert "episode 3, step 57" in status.text and "last reward -1" in status.text
@@ -145,9 +147,67 @@ def test_the_board_shows_status_episodes_feedback_and_what_was_understood():
         teachers=("ana",),
     )
     assert "took left from ana" in board.feedback(feedback)[0].text
-    (understood,) = board.understood(examples["utterance"])
-    assert understood.text == "understood 'muy bien': qualifier +50 (mock, confidence 0.87)"
-    assert understood.as_json()["event"] == "understood"
+
+
+def notice(u: Utterance, kind: str, text: str) -> TeacherNotice:
+    return TeacherNotice(
+        teacher=u.teacher, robot=u.robot, utterance=u.id, kind=kind, meaning=None, text=text
+    )
+
+
+def test_each_utterance_gets_one_line_once_the_arbiter_answers():
+    examples = {m.TYPE: m for _, m in example_messages("s1")}
+    heard = examples["utterance"]  # "muy bien", mock, confidence 0.87
+    board = Board(answer_within_s=1.0)
+    assert board.recognized(heard, now=10.0) == [] and board.waiting
+    assert board.tick(10.5) == []
+    (line,) = board.notice(notice(heard, "low_confidence", "not used: heard it"), now=10.6)
+    assert line.text == "not used: heard it (mock, confidence 0.87)"
+    assert (line.event, line.data["kind"], line.data["text"]) == (
+        "notice",
+        "low_confidence",
+        "muy bien",
+    )
+    assert not board.waiting and board.tick(20.0) == []  # answered: nothing more
+
+
+def test_an_unanswered_utterance_is_told_once_and_a_late_answer_shown_as_late():
+    said = typed("good", "ana", "r1", "en", 100.0, False)
+    board = Board(answer_within_s=1.0, no_answer_hint="no arbiter heard it")
+    board.sent(said, now=5.0)
+    board.recognized(said, now=5.01)  # the echo of its own typed words: still one
+    assert board.tick(5.9) == []
+    (line,) = board.tick(6.0)
+    assert line.text == "no answer to 'good' within 1 s: no arbiter heard it"
+    assert line.event == "no_answer" and board.tick(9.0) == []
+    (late,) = board.notice(notice(said, "understood", "understood 'good': good (+10)"), 9.5)
+    assert late.text == "late answer: understood 'good': good (+10) (typed)" and late.data["late"]
+
+
+def test_silence_after_a_rate_limit_is_explained_as_the_rate_limit():
+    board = Board(answer_within_s=1.0)
+    first, second = (typed(w, "ana", "r1", "en", 0.0, False) for w in ("good", "bad"))
+    board.sent(first, 0.0)
+    board.sent(second, 0.0)
+    board.notice(notice(first, "rate_limited", "not used: too many words"), 0.1)
+    (line,) = board.tick(1.0)
+    assert "rate limited" in line.text
+
+
+def test_speech_the_speech_service_rejected_gets_its_line():
+    rejected = not_recognized("ana", "r1", "pocketsphinx")
+    (line,) = Board().notice(rejected, now=1.0)
+    assert line.text.startswith("not recognized: pocketsphinx heard speech")
+
+
+def test_a_robot_nothing_is_seen_of_is_told_once():
+    examples = {m.TYPE: m for _, m in example_messages("s1")}
+    board = Board(answer_within_s=1.0, robot_missing="robot 'r1' is not running", started_at=0.0)
+    assert board.tick(0.5) == []
+    assert [s.text for s in board.tick(1.0)] == ["robot 'r1' is not running"]
+    assert board.tick(2.0) == []
+    back, status = board.observation(examples["observation"], now=3.0)
+    assert back.text == "robot r1 is running now" and status.event == "status"
 
 
 def test_the_teacher_syncs_its_clock_and_shows_what_the_arbiter_made_of_its_words(

@@ -163,7 +163,7 @@ class Arbiter:
             utterance.text, utterance.confidence, self.vocabulary, self.config.min_confidence
         )
         if isinstance(understood, NotUnderstood):
-            return self._ignore(understood.reason, utterance, tally, received_at)
+            return self._ignore(understood.reason, utterance, tally, received_at, understood.detail)
         meaning = understood.meaning
         if understood.is_command:
             out, episode = self._command(utterance, meaning.action or "stop", robot)
@@ -361,27 +361,35 @@ class Arbiter:
         )
 
     def _ignore(
-        self, reason: NoticeKind, utterance: Utterance, tally: _Tally, now: float
+        self,
+        reason: NoticeKind,
+        utterance: Utterance,
+        tally: _Tally,
+        now: float,
+        detail: str = "",
     ) -> list[Message]:
         self.counters[f"rejected.{reason}"] += 1
         tally.ignored += 1
         if reason == "rate_limited" and not self._notices.due((utterance.teacher, reason), now):
             return []
-        return [self._notice(utterance, reason, self._explain(reason, utterance), None)]
+        return [self._notice(utterance, reason, self._explain(reason, utterance, detail), None)]
 
-    def _explain(self, reason: str, utterance: Utterance) -> str:
-        if reason in ("low_confidence", "not_understood"):
+    def _explain(self, reason: str, utterance: Utterance, detail: str) -> str:
+        """Why an utterance was not used, in a sentence that says what to do."""
+        if reason == "low_confidence":
+            return f"not used: {detail}; say it again, clearly"
+        if reason == "not_understood":
             said = examples_of(self.vocabulary, utterance.language)
-            return f"not understood, please repeat (heard {utterance.text!r}; say e.g. {said})"
+            return f"not understood: {detail}; say e.g. {said}"
         if reason == "rate_limited":
             return (
-                f"too many utterances: slow down to {self.config.rate:g} per second; "
-                "some were ignored"
+                f"not used: too many words, at most {self.config.rate:g} a second; "
+                "slow down (words beyond it are ignored, told once a second)"
             )
         if reason == "unknown_robot":
             known = ", ".join(self._robots) or "none yet"
-            return f"no robot {utterance.robot!r} is running in this session (robots: {known})"
-        return "too late: the steps you mean are no longer remembered, say it sooner"
+            return f"not used: no robot {utterance.robot!r} runs in this session (robots: {known})"
+        return "too late: the steps you mean are no longer remembered; say it sooner"
 
     def _notice(
         self, utterance: Utterance, kind: NoticeKind, text: str, meaning: str | None

@@ -33,7 +33,7 @@ def interpret(
     if confidence < min_confidence:
         return NotUnderstood(
             "low_confidence",
-            f"heard {text!r} with confidence {confidence:.2f} < {min_confidence:.2f}",
+            f"heard {text!r} with confidence {confidence:.2f}, below {min_confidence:.2f}",
         )
     meaning = vocabulary.lookup(text)
     if meaning is None:

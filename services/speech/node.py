@@ -3,6 +3,7 @@
 Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk)
          voxshape/<session>/teacher/*/said       text said (mock)
 Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
+         voxshape/<session>/teacher/<t>/notice     speech heard but rejected ("not recognized")
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from services.speech.engines import ENGINES, EngineError, Recognizer, open_recog
 from services.speech.mock import MockRecognizer, MockSettings
 from services.speech.pocketsphinx_engine import PocketsphinxSettings
 from services.speech.streams import AudioStreams, StreamLimits
-from services.speech.transcriber import AudioTranscriber, MockTranscriber
+from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized
 
 TICK_S = 0.02  # idle streams and due mock results are looked at this often
 
@@ -148,24 +149,24 @@ def run(args: argparse.Namespace) -> int:
             core = AudioTranscriber(recognizer, streams, report)
             node.input("audio", teacher_key(node.session_id, "*", "audio"))
             node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
-        outputs: dict[str, Output] = {}
+        outputs: dict[tuple[str, str], Output] = {}
 
-        def publish(utterances: list[Utterance]) -> None:
-            for u in utterances:
-                if u.teacher not in outputs:
-                    key = teacher_key(node.session_id, u.teacher, "utterance")
-                    outputs[u.teacher] = node.output("utterance", key)
-                outputs[u.teacher].put(u)
-                node.log.info(
-                    "heard",
-                    extra=fields(
-                        teacher=u.teacher,
-                        robot=u.robot,
-                        text=u.text,
-                        confidence=f"{u.confidence:.2f}",
-                        after_end_s=f"{u.recognized_at - u.end:.2f}",
-                    ),
-                )
+        def publish(results: list[Recognized]) -> None:
+            for r in results:
+                topic = "utterance" if isinstance(r, Utterance) else "notice"
+                if (r.teacher, topic) not in outputs:
+                    key = teacher_key(node.session_id, r.teacher, topic)
+                    outputs[r.teacher, topic] = node.output(topic, key)
+                outputs[r.teacher, topic].put(r)
+                if isinstance(r, Utterance):
+                    heard = fields(
+                        teacher=r.teacher,
+                        robot=r.robot,
+                        text=r.text,
+                        confidence=f"{r.confidence:.2f}",
+                        after_end_s=f"{r.recognized_at - r.end:.2f}",
+                    )
+                    node.log.info("heard", extra=heard)
 
         for event in node.events(tick=TICK_S):
             now = time.time()

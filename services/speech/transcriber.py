@@ -1,4 +1,6 @@
-"""The speech service's core (no bus): messages in, Utterance messages out.
+"""The speech service's core (no bus): messages in, Utterance messages out, and a
+TeacherNotice ("not_recognized") for each stretch of speech the engine rejected, so the
+teacher hears that something was heard and not understood.
 
 `AudioTranscriber`: audio chunks -> streams -> segments -> an audio engine -> utterances.
 `MockTranscriber`: said text -> the mock engine -> utterances, each when its latency is due.
@@ -13,10 +15,26 @@ import itertools
 from collections import Counter
 from dataclasses import replace
 
-from protocol import Alternative, AudioChunk, Said, Utterance
+from protocol import Alternative, AudioChunk, Said, TeacherNotice, Utterance
+from protocol.messages import new_message_id
 from services.speech.engines import Recognizer
 from services.speech.mock import MockRecognizer
 from services.speech.streams import AudioStreams, Report, SpeechSegment
+
+Recognized = Utterance | TeacherNotice
+
+
+def not_recognized(teacher: str, robot: str, engine: str) -> TeacherNotice:
+    """The notice of speech the engine heard and rejected (no phrase of the vocabulary)."""
+    return TeacherNotice(
+        teacher=teacher,
+        robot=robot,
+        utterance=new_message_id(),
+        kind="not_recognized",
+        meaning=None,
+        text=f"not recognized: {engine} heard speech but no phrase of the vocabulary; "
+        "say it again (`voxshape vocabulary` lists them)",
+    )
 
 
 class AudioTranscriber:
@@ -28,16 +46,16 @@ class AudioTranscriber:
         self.counters = streams.counters
         self._report = report or (lambda kind, detail: None)
 
-    def on_audio(self, teacher: str, chunk: AudioChunk, now: float) -> list[Utterance]:
+    def on_audio(self, teacher: str, chunk: AudioChunk, now: float) -> list[Recognized]:
         return self._recognize_all(self.streams.on_chunk(teacher, chunk, now), now)
 
-    def on_tick(self, now: float) -> list[Utterance]:
+    def on_tick(self, now: float) -> list[Recognized]:
         return self._recognize_all(self.streams.on_tick(now), now)
 
-    def close(self, now: float) -> list[Utterance]:
+    def close(self, now: float) -> list[Recognized]:
         return self._recognize_all(self.streams.close(), now)
 
-    def _recognize_all(self, segments: list[SpeechSegment], now: float) -> list[Utterance]:
+    def _recognize_all(self, segments: list[SpeechSegment], now: float) -> list[Recognized]:
         out = []
         for segment in segments:
             utterance = self._recognize(segment, now)
@@ -45,7 +63,7 @@ class AudioTranscriber:
                 out.append(utterance)
         return out
 
-    def _recognize(self, segment: SpeechSegment, now: float) -> Utterance | None:
+    def _recognize(self, segment: SpeechSegment, now: float) -> Recognized | None:
         self.counters["speech.segments"] += 1
         try:
             result = self.recognizer.recognize(segment.samples)
@@ -55,7 +73,7 @@ class AudioTranscriber:
             return None
         if result is None:
             self.counters["speech.rejected"] += 1
-            return None
+            return not_recognized(segment.teacher, segment.robot, self.recognizer.engine)
         self.counters["speech.utterances"] += 1
         return Utterance(
             teacher=segment.teacher,
@@ -78,15 +96,20 @@ class MockTranscriber:
     def __init__(self, mock: MockRecognizer, counters: Counter[str] | None = None) -> None:
         self.mock = mock
         self.counters: Counter[str] = counters if counters is not None else Counter()
-        self._due: list[tuple[float, int, Utterance]] = []  # heap by due time
+        self._due: list[tuple[float, int, Recognized]] = []  # heap by due time
         self._order = itertools.count()
 
-    def on_said(self, teacher: str, said: Said, now: float) -> list[Utterance]:
+    def on_said(self, teacher: str, said: Said, now: float) -> list[Recognized]:
         """Schedules what the mock hears of `said`; returns the results already due."""
         if said.teacher != teacher:
             self.counters["said.wrong_teacher"] += 1
             return []
-        for heard in self.mock.hear(said.text, said.language):
+        heard_all = self.mock.hear(said.text, said.language)
+        if not heard_all:  # dropped, or not in the vocabulary: rejected after the latency
+            notice = not_recognized(said.teacher, said.robot, self.mock.engine)
+            due = now + self.mock.settings.latency_s
+            heapq.heappush(self._due, (due, next(self._order), notice))
+        for heard in heard_all:
             utterance = Utterance(
                 teacher=said.teacher,
                 robot=said.robot,
@@ -104,19 +127,19 @@ class MockTranscriber:
         self.mock.counters.clear()
         return self.on_tick(now)
 
-    def on_tick(self, now: float) -> list[Utterance]:
+    def on_tick(self, now: float) -> list[Recognized]:
         out = []
         while self._due and self._due[0][0] <= now:
-            due, _, utterance = heapq.heappop(self._due)
-            out.append(_recognized_at(utterance, due))
+            due, _, result = heapq.heappop(self._due)
+            out.append(_recognized_at(result, due))
         return out
 
-    def close(self, now: float) -> list[Utterance]:
+    def close(self, now: float) -> list[Recognized]:
         """Everything still pending, at once (the service is stopping)."""
         out = [_recognized_at(u, max(now, due)) for due, _, u in sorted(self._due)]
         self._due.clear()
         return out
 
 
-def _recognized_at(utterance: Utterance, when: float) -> Utterance:
-    return replace(utterance, recognized_at=when)
+def _recognized_at(result: Recognized, when: float) -> Recognized:
+    return replace(result, recognized_at=when) if isinstance(result, Utterance) else result

@@ -1,12 +1,13 @@
-"""What a teacher sees: the robot's status and what was understood of each utterance (pure)."""
+"""What a teacher sees (pure): the robot's status, and one line per utterance saying what
+became of it, only once the arbiter (or the speech service) said so, or that nobody did."""
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Literal
 
 from protocol import CreditedFeedback, EpisodeEvent, Observation, TeacherNotice, Utterance
-from protocol.vocabulary import Vocabulary
 
 
 @dataclass(frozen=True)
@@ -21,26 +22,38 @@ class Shown:
         return {"event": self.event, **self.data}
 
 
-def meaning_of(vocabulary: Vocabulary, text: str) -> str:
-    meaning = vocabulary.lookup(text)
-    if meaning is None:
-        return "not in the vocabulary"
-    if meaning.kind == "command":
-        return f"command {meaning.action}"
-    return f"{meaning.kind} {meaning.reward:+g}"
-
-
 class Board:
-    def __init__(self, vocabulary: Vocabulary, status_every_s: float = 2.0) -> None:
-        self.vocabulary = vocabulary
+    def __init__(
+        self,
+        status_every_s: float = 2.0,
+        answer_within_s: float = 1.0,
+        no_answer_hint: str = "no arbiter heard it",
+        robot_missing: str = "",
+        started_at: float = 0.0,
+    ) -> None:
+        """`no_answer_hint`: what to tell the teacher when an utterance gets no answer;
+        `robot_missing`: when no observation of the robot came within `answer_within_s` of
+        `started_at` (empty: not watched)."""
         self.status_every_s = status_every_s
+        self.robot_missing = robot_missing
+        self._started_at = started_at
+        self._robot_seen = self._robot_missing_told = False
+        self.answer_within_s = answer_within_s
+        self.no_answer_hint = no_answer_hint
         self._last_status = float("-inf")
         self.last_feedback: CreditedFeedback | None = None
+        self._pending: dict[str, _Pending] = {}
+        self._late: OrderedDict[str, _Pending] = OrderedDict()
+        self._rate_limited_at = float("-inf")
 
     def observation(self, obs: Observation, now: float) -> list[Shown]:
         """The robot's status, at most every `status_every_s`."""
+        back = []
+        if not self._robot_seen and self._robot_missing_told:
+            back = [Shown("robot", f"robot {obs.robot} is running now", {"robot": obs.robot})]
+        self._robot_seen = True
         if now - self._last_status < self.status_every_s:
-            return []
+            return back
         self._last_status = now
         data = {
             "robot": obs.robot,
@@ -55,7 +68,7 @@ class Board:
             f"({obs.step} in all), last reward {obs.reward:+g}, "
             f"{obs.goal_distance:.1f} m to the goal"
         )
-        return [Shown("status", text, data)]
+        return [*back, Shown("status", text, data)]
 
     def episode(self, event: EpisodeEvent) -> list[Shown]:
         data = {
@@ -92,28 +105,86 @@ class Board:
         }
         return [Shown("feedback", text, data)]
 
-    def understood(self, u: Utterance) -> list[Shown]:
-        meaning = meaning_of(self.vocabulary, u.text)
-        how = "typed" if u.engine == "typed" else f"{u.engine}, confidence {u.confidence:.2f}"
-        text = f"understood {u.text!r}: {meaning} ({how})"
-        data = {
-            "teacher": u.teacher,
-            "robot": u.robot,
-            "text": u.text,
-            "meaning": meaning,
-            "confidence": u.confidence,
-            "engine": u.engine,
-            "language": u.language,
-            "onset": u.onset,
-            "end": u.end,
-            "recognized_at": u.recognized_at,
-        }
-        return [Shown("understood", text, data)]
+    # -- what became of each utterance: one line each, once the arbiter (or speech) says ------
+    @property
+    def waiting(self) -> bool:
+        """Whether an utterance still awaits its answer (for at most `answer_within_s`)."""
+        return bool(self._pending)
 
-    def notice(self, n: TeacherNotice) -> list[Shown]:
-        """The arbiter's verdict on one utterance: understood, or why it was ignored."""
-        data = {"robot": n.robot, "utterance": n.utterance, "kind": n.kind, "meaning": n.meaning}
-        return [Shown("notice", f"arbiter: {n.text}", data)]
+    def sent(self, u: Utterance, now: float) -> list[Shown]:
+        """An utterance this client sent (typed): awaits its notice."""
+        self._pending.setdefault(u.id, _Pending(u, now))
+        return []
+
+    def recognized(self, u: Utterance, now: float) -> list[Shown]:
+        """What the speech service made of this teacher's speech (or the echo of a typed one):
+        nothing is shown until the arbiter says what it made of it."""
+        return self.sent(u, now)
+
+    def notice(self, n: TeacherNotice, now: float) -> list[Shown]:
+        """The verdict on one utterance: understood, or why not (from the arbiter), or speech
+        that the speech service rejected."""
+        if n.kind == "rate_limited":
+            self._rate_limited_at = now
+        late = n.utterance in self._late
+        pending = self._late.pop(n.utterance) if late else self._pending.pop(n.utterance, None)
+        data = {
+            "robot": n.robot,
+            "utterance": n.utterance,
+            "kind": n.kind,
+            "meaning": n.meaning,
+            "message": n.text,
+            "late": late,
+            **(_heard(pending.utterance) if pending else {}),
+        }
+        how = f" ({_how(pending.utterance)})" if pending else ""
+        text = ("late answer: " if late else "") + n.text + how
+        return [Shown("notice", text, data)]
+
+    def tick(self, now: float) -> list[Shown]:
+        """Utterances nobody answered within `answer_within_s`: say so, once each; and a robot
+        that nothing was seen of."""
+        out = []
+        if (
+            self.robot_missing
+            and not (self._robot_seen or self._robot_missing_told)
+            and now - self._started_at >= self.answer_within_s
+        ):
+            self._robot_missing_told = True
+            out.append(Shown("robot", self.robot_missing, {"message": self.robot_missing}))
+        for id_, pending in list(self._pending.items()):
+            if now - pending.since < self.answer_within_s:
+                continue
+            del self._pending[id_]
+            self._late[id_] = pending
+            if len(self._late) > MAX_REMEMBERED:
+                self._late.popitem(last=False)
+            u = pending.utterance
+            if now - self._rate_limited_at < RATE_LIMIT_MEMORY_S:
+                why = "you were rate limited a moment ago: words beyond the limit are ignored"
+            else:
+                why = self.no_answer_hint
+            text = f"no answer to {u.text!r} within {self.answer_within_s:g} s: {why}"
+            out.append(Shown("no_answer", text, {"robot": u.robot, **_heard(u), "why": why}))
+        return out
+
+
+@dataclass(frozen=True)
+class _Pending:
+    utterance: Utterance
+    since: float
+
+
+MAX_REMEMBERED = 256  # utterances told "no answer", kept to show a late answer
+RATE_LIMIT_MEMORY_S = 2.0  # a rate-limited notice explains silences this long after it
+
+
+def _how(u: Utterance) -> str:
+    return "typed" if u.engine == "typed" else f"{u.engine}, confidence {u.confidence:.2f}"
+
+
+def _heard(u: Utterance) -> dict:
+    return {"text": u.text, "engine": u.engine, "confidence": u.confidence, "onset": u.onset}
 
 
 SpeechUse = Literal["audio", "through_speech", "typed"]

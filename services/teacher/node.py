@@ -71,11 +71,13 @@ from services.teacher.sources import (
     new_stream_id,
     read_recordings,
     typed,
+    typed_at_terminal,
     typed_lines,
     wav_stream,
 )
 
 TICK_S = 0.02
+ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
 UTTERANCES_KEPT = 256  # typed utterances kept for an arbiter that missed them
 
 
@@ -85,8 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="(VOXSHAPE_ROBOT)")
     parser.add_argument(
         "--teacher",
-        default=env("VOXSHAPE_TEACHER") or default_teacher_id(),
-        help="your id in the session (VOXSHAPE_TEACHER; default: your login name)",
+        default=env("VOXSHAPE_TEACHER"),
+        help="your id in the session (VOXSHAPE_TEACHER; default: --user if given, else your "
+        "login name)",
     )
     parser.add_argument(
         "--language", choices=LANGUAGES, default=env("VOXSHAPE_LANGUAGE", "en"), help="of typing"
@@ -115,6 +118,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
     parser.add_argument("--json", action="store_true", help="one JSON object per line")
+    parser.add_argument(
+        "--arrows",
+        action="store_true",
+        help="typing at a terminal: the arrow keys send forward, back, left, right at once",
+    )
 
 
 class Sender(Protocol):
@@ -139,14 +147,30 @@ class Screen:
 
 
 def run(args: argparse.Namespace) -> int:
-    teacher = check_id(args.teacher, "teacher")
+    bus = bus_config("teacher", args)
+    teacher = check_id(args.teacher or bus.user or default_teacher_id(), "teacher")
     robot = check_id(args.robot, "robot")
     if min(args.linger, args.status_every, args.wait_speech) < 0:
         raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
     vocabulary = load_vocabulary(args.vocabulary)
-    bus = bus_config("teacher", args)
     screen = Screen(args.json)
-    board = Board(vocabulary, args.status_every)
+    session = bus.session
+    hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
+    if bus.user is not None and bus.user != teacher:
+        refused = (
+            f"a secured router lets user {bus.user!r} speak only as teacher {bus.user!r}: it "
+            f"drops the words of teacher {teacher!r} (leave --teacher out: it defaults to --user)"
+        )
+        screen.note("warning", refused)
+        hint = f"{hint}, or {refused}"
+    board = Board(
+        args.status_every,
+        ANSWER_WITHIN_S,
+        hint,
+        robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
+        f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
+        started_at=time.monotonic(),
+    )
     mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
     try:
         recordings = read_recordings(args.wav or [])
@@ -219,7 +243,7 @@ def run(args: argparse.Namespace) -> int:
             def via_speech() -> bool:
                 return args.through_speech and speech.available
 
-            sender = _Typed(teacher, robot, args.language, via_speech, screen, vocabulary)
+            sender = _Typed(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
         _loop(node, outputs, sender, speech, board, screen, args.linger)
     return 0
 
@@ -242,19 +266,21 @@ def _wait_for_speech(
 
 
 def _show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen) -> None:
+    now = time.monotonic()
     match event:
         case Presence(role="speech", node=node, alive=alive):
             screen.show(speech.change(node, alive))
         case Input(message=Utterance() as utterance):
-            screen.show(board.understood(utterance))
+            screen.show(board.recognized(utterance, now))
         case Input(message=Observation() as obs):
-            screen.show(board.observation(obs, time.monotonic()))
+            screen.show(board.observation(obs, now))
         case Input(message=EpisodeEvent() as episode):
             screen.show(board.episode(episode))
         case Input(message=CreditedFeedback() as feedback):
             screen.show(board.feedback(feedback))
         case Input(message=TeacherNotice() as notice):
-            screen.show(board.notice(notice))
+            screen.show(board.notice(notice, now))
+    screen.show(board.tick(now))
 
 
 def _loop(
@@ -271,10 +297,12 @@ def _loop(
         _show_event(event, speech, board, screen)
         for message in sender.due():
             outputs[type(message)].put(message)
+            if isinstance(message, Utterance):
+                board.sent(message, time.monotonic())
         if sender.done:
             if lingering_until is None:
                 lingering_until = time.monotonic() + linger
-            elif time.monotonic() >= lingering_until:
+            elif time.monotonic() >= lingering_until and not board.waiting:
                 break
 
 
@@ -341,33 +369,25 @@ class _Typed:
         robot: str,
         language: str,
         via_speech: Callable[[], bool],
-        screen: Screen,
         vocabulary: Vocabulary,
+        arrows: bool = False,
     ) -> None:
         """`via_speech()`: whether a line goes to the speech service now (else straight out as
-        an utterance)."""
+        an utterance); `arrows`: at a terminal, arrow keys send commands."""
         self._lines: queue.SimpleQueue = queue.SimpleQueue()
         self._args = (teacher, robot, language)
         self._via_speech = via_speech
-        self._screen = screen
-        self._vocabulary = vocabulary
         self.done = False
-        interactive = sys.stdin.isatty()
-        if interactive:
-            print(f"type what you say to robot {robot}, one utterance per line (Ctrl-D ends)")
-        threading.Thread(target=self._read, args=(interactive,), daemon=True).start()
+        if sys.stdin.isatty():
+            how = "; arrow keys steer" if arrows else ""
+            print(f"type what you say to robot {robot}, one utterance per line{how} (Ctrl-D ends)")
+            lines = typed_at_terminal(vocabulary, language, arrows)
+        else:
+            lines = typed_lines(iter(sys.stdin.readline, ""))
+        threading.Thread(target=self._read, args=(lines,), daemon=True).start()
 
-    def _read(self, interactive: bool) -> None:
-        def lines() -> Iterator[str]:
-            while True:
-                if interactive:
-                    print("say> ", end="", flush=True)
-                line = sys.stdin.readline()
-                if not line:
-                    return
-                yield line
-
-        for text in typed_lines(lines()):
+    def _read(self, lines: Iterator[str]) -> None:
+        for text in lines:
             self._lines.put(text)
         self._lines.put(None)
 
@@ -382,12 +402,5 @@ class _Typed:
                 self.done = True
                 return out
             text = text[:500]
-            if self._vocabulary.lookup(text) is None:
-                self._screen.note(
-                    "note",
-                    f"{text!r} is not in the vocabulary: nobody will act on it "
-                    "(`voxshape vocabulary` lists the phrases)",
-                    text=text,
-                )
             teacher, robot, language = self._args
             out.append(typed(text, teacher, robot, language, time.time(), self._via_speech()))

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol import AudioChunk, Said, Utterance
+from protocol import AudioChunk, Said, Utterance, Vocabulary
 from protocol.messages import SAMPLE_RATE, Message
 from services.speech.audio import chunks, read_wav, samples_to_pcm
 
@@ -115,6 +115,40 @@ def typed_lines(lines: Iterator[str]) -> Iterator[str]:
         text = line.strip()
         if text and not text.startswith("#"):
             yield text
+
+
+ARROW_COMMANDS = {"up": "forward", "down": "back", "left": "left", "right": "right"}
+
+
+def typed_at_terminal(vocabulary: Vocabulary, language: str, arrows: bool) -> Iterator[str]:
+    """Lines typed at a prompt with line editing and history (prompt_toolkit); what the
+    session prints meanwhile goes above the prompt, never into the line being typed. With
+    `arrows`, an arrow key sends its command at once (in `language`)."""
+    from prompt_toolkit import PromptSession
+    from prompt_toolkit.key_binding import KeyBindings
+    from prompt_toolkit.patch_stdout import patch_stdout
+
+    bindings = KeyBindings()
+    if arrows:
+        for key, action in ARROW_COMMANDS.items():
+            phrase = next(
+                m.phrases[language][0]
+                for m in vocabulary.meanings.values()
+                if m.kind == "command" and m.action == action and m.phrases.get(language)
+            )
+
+            @bindings.add(key)
+            def _send(event: object, phrase: str = phrase) -> None:
+                event.app.exit(result=phrase)  # type: ignore[attr-defined]
+
+    prompt = PromptSession(key_bindings=bindings)
+    with patch_stdout(raw=True):
+        while True:
+            try:
+                line = prompt.prompt("say> ")
+            except (EOFError, KeyboardInterrupt):
+                return
+            yield from typed_lines([line])
 
 
 @contextmanager
