@@ -3,9 +3,11 @@
 Starts the session of compose.yaml (router, logger, simulator, learner, speech, arbiter), each
 service its own process, plus a simulated teacher that speaks: synthesized audio through
 pocketsphinx when espeak-ng and sox are installed, else text through the mock speech engine.
-It trains task 1 until the learner converges (services/learner/convergence.py), showing each
+It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
+converges (services/learner/convergence.py, judged by that map's shortest time), showing each
 episode, then stops the session and writes the logger's recording, the report's pictures
-(services/logger/report.py) and a table of the episodes under runs/<session>/.
+(services/logger/report.py) and a table of the episodes under runs/<session>/: demo.md counts
+episodes and interventions from the event log as the report's summary.md does.
 
 The simulator runs paced at `--rtf` times real time: the arbiter credits what teachers say by
 the wall-clock display time of the steps, so the robot must not outrun that (a lockstep
@@ -27,15 +29,22 @@ from services import launcher
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult
 from services.learner.train import convergence_on
-from services.logger.report import write_report
+from services.logger.report import (
+    INTERVENTIONS_ARE,
+    STEP_SECONDS,
+    EpisodeCounts,
+    RobotSummary,
+    load_run,
+    write_report,
+)
 from services.logger.run import RunDir, RunError
 from services.runtime import BusError, Input, Tick
-from services.sim.maps import load_map
+from services.sim.maps import Map, load_map
 from services.simteacher.teacher import PERSON, PROFILES, TIRELESS
 from services.topology import ServiceSpec
 
 ROBOT, TEACHER = "r1", "simteacher"
-TASK = "1"
+TASK = "1"  # the default task
 FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within the arbiter's
 # settle time (3 s); an episode is shown without them after this
 
@@ -71,6 +80,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def demo_task() -> str:
+    """The task the demo runs and judges convergence by: VOXSHAPE_TASK (a task number or a
+    map file), else task 1."""
+    return os.environ.get("VOXSHAPE_TASK") or TASK
+
+
+def task_title(task: str, m: Map) -> str:
+    """`task 2`, or `map mine.toml (Office)` for a map file."""
+    return f"task {task}" if task in ("1", "2", "3", "4") else f"map {Path(task).name} ({m.name})"
+
+
 @dataclass
 class Shown:
     """An ended episode as displayed."""
@@ -86,12 +106,12 @@ class Shown:
 @dataclass
 class ConvergenceWatch:
     """Episodes of one robot and the arbiter's interventions per episode, to convergence
-    (pure: messages in, lines out)."""
+    (pure: messages in, lines out), judged by the map of the task run (demo_task)."""
 
     robot: str
     max_episodes: int
     convergence: Convergence = field(
-        default_factory=lambda: convergence_on(load_map(TASK), LearnerConfig())
+        default_factory=lambda: convergence_on(load_map(demo_task()), LearnerConfig())
     )
     episodes: list[Shown] = field(default_factory=list)
     interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
@@ -100,7 +120,7 @@ class ConvergenceWatch:
     def on_episode(self, event: EpisodeEvent, now: float) -> None:
         if event.robot != self.robot or event.kind == "start" or self.done:
             return
-        seconds = event.episode_steps * 0.1
+        seconds = event.episode_steps * STEP_SECONDS
         self.episodes.append(Shown(event.episode, event.kind, event.episode_steps, seconds, now))
         self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
 
@@ -138,31 +158,35 @@ class ConvergenceWatch:
     def all_shown(self) -> bool:
         return self._shown >= len(self.episodes)
 
-    def table(self) -> str:
-        c = self.convergence
-        rows = [
-            f"| {e.number} | {e.outcome} | {e.steps} | {e.seconds:.1f} | "
-            f"{'-' if e.interventions is None else e.interventions} |"
-            for e in self.episodes
+
+def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
+    """demo.md: every episode the event log holds and the counts of the report's summary.md
+    (services/logger/report.count_episodes), so the two files agree."""
+    at = counts.convergence.converged_at
+    rows = []
+    for i, e in enumerate(robot.ended):
+        when = "" if at is None or i < at else " (converged)" if i == at else " (after)"
+        count = f"{e.interventions}{'' if e.final else '*'}"
+        rows.append(
+            f"| {robot.label(e)} | {e.outcome}{when} | {e.steps} | {e.seconds:.1f} | {count} |"
+        )
+    if any(not e.final for e in robot.ended):
+        rows += ["", "\\* not the arbiter's final count: the session stopped first."]
+    return "\n".join(
+        [
+            f"# Demo: robot {robot.robot}, {title}, taught by a simulated teacher",
+            "",
+            counts.describe(),
+            "",
+            f"Convergence: {counts.convergence.rule()}; {INTERVENTIONS_ARE}. The same counts, "
+            "from the same event log, as report/summary.md.",
+            "",
+            "| episode | outcome | steps | robot seconds | interventions |",
+            "|---|---|---|---|---|",
+            *rows,
+            "",
         ]
-        verdict = (
-            f"converged after {c.n_episodes} episodes, {c.learning_time / 60:.1f} robot minutes, "
-            f"{sum(e.interventions or 0 for e in self.episodes[: c.n_episodes])} interventions"
-            if c.converged
-            else f"not converged within {len(self.episodes)} episodes"
-        )
-        return "\n".join(
-            [
-                f"# Demo: robot {self.robot}, task {TASK}, taught by a simulated teacher",
-                "",
-                f"{verdict} (convergence: {c.rule()}).",
-                "",
-                "| episode | outcome | steps | robot seconds | interventions |",
-                "|---|---|---|---|---|",
-                *rows,
-                "",
-            ]
-        )
+    )
 
 
 def speech_mode(choice: str) -> str:
@@ -310,12 +334,17 @@ def outputs(session: launcher.LocalSession, session_id: str, progress: Convergen
     """Writes the report and the episode table; says where everything is."""
     run_dir = Path("runs") / session_id
     try:
-        written = write_report(RunDir.existing(run_dir))
+        run = RunDir.existing(run_dir)
+        loaded = load_run(run)
+        written = write_report(run, loaded=loaded)
     except RunError as e:
         session.say(f"error: no report: {e}")
         return 1
+    robot = loaded.summary.robot(progress.robot)
+    counts = loaded.counts()[progress.robot]
+    session.say(counts.describe())
     table = run_dir / "demo.md"
-    table.write_text(progress.table(), encoding="utf-8")
+    table.write_text(demo_table(robot, counts, task_title(demo_task(), loaded.map)), "utf-8")
     recording = run_dir / "recording.rrd"
     session.say(f"written under {run_dir}/:")
     for path in [recording, table, *written]:

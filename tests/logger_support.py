@@ -1,6 +1,7 @@
 """Support for the logger's tests: a scripted session (a robot driving straight episodes on
-task 1, with known returns, a teacher's utterance and credited feedback at known steps), and
-reading a recording back with rerun's RrdReader."""
+task 1, with known returns, a teacher's utterance and credited feedback at known steps, and the
+arbiter's count of interventions per episode), and reading a recording back with rerun's
+RrdReader."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from protocol import (
     LearningSummary,
     Message,
     Observation,
+    TeachingStats,
     Utterance,
     encode,
     robot_key,
@@ -25,6 +27,8 @@ from services.logger.eventlog import EventLogWriter, EventRecord
 from services.sim.maps import load_map
 
 TIMELINES = ("step", "episode", "sim_time", "wall_time")
+# A map that is not task 1: its shortest time is 19 s where task 1's is 10.3 s.
+LONG_ROOM = Path(__file__).parent / "fixtures" / "maps" / "long-room.toml"
 
 
 @dataclass
@@ -38,8 +42,14 @@ class Script:
 
 
 def scripted_session(
-    session: str, episodes: int = 3, steps: int = 20, robot: str = "r1", feedback_episode: int = 1
+    session: str,
+    episodes: int = 3,
+    steps: int = 20,
+    robot: str = "r1",
+    feedback_episode: int = 1,
 ) -> Script:
+    """`episodes` episodes of `steps` steps each; the arbiter's final count of interventions
+    of each episode comes during the next (the last one's never)."""
     m = load_map("1")
     script = Script()
     add = script.messages.append
@@ -61,6 +71,19 @@ def scripted_session(
                 ),
             )
         )
+        if episode > 0:  # the arbiter settles an episode's count during the next one
+            add(
+                (
+                    robot_key(session, robot, "teaching"),
+                    TeachingStats(
+                        robot=robot,
+                        episode=episode - 1,
+                        final=True,
+                        interventions=int(episode - 1 == feedback_episode),
+                        teachers=(),
+                    ),
+                )
+            )
         total = 0.0
         for k in range(steps + 1):
             last = k == steps

@@ -72,12 +72,14 @@ def test_the_recording_holds_poses_feedback_steps_and_episode_returns(scripted_r
     assert data["/reward/feedback/r1"][0][0] == script.feedback_arrival_step
     texts = {r[-1][0]: r[0] for r in data["/log/r1"]}  # text -> step
     assert texts["ana: reward +10, credited to step 29"] == script.feedback_arrival_step
-    # the learning curve: each episode's return at its last step, interventions counted
+    # the learning curve: each episode's return at its last step, and its interventions (the
+    # arbiter's final count, drawn at its end once it comes: never for the last one here)
     returns = [r[-1][0] for r in sorted(data["/episode/return/r1"])]
     assert returns == [script.returns[e] for e in range(3)]
-    interventions = [r[-1][0] for r in sorted(data["/episode/interventions/r1"])]
-    assert interventions == [0.0, 1.0, 0.0]
-    assert "episode 1 ends: timeout after 20 steps, return -20, 1 intervention(s)" in texts
+    interventions = [(*r[:2], r[-1][0]) for r in sorted(data["/episode/interventions/r1"])]
+    assert interventions == [(20, 0, 0.0), (41, 1, 1.0)]
+    assert "episode 1 ends: timeout after 20 steps, return -20" in texts
+    assert texts["episode 1: 1 intervention(s), the arbiter's final count"] == 41
     # timelines: steps, simulated time in nanoseconds, the logger's wall clock
     step, episode, sim_ns, wall_ns, _ = data["/world/map/poses/r1"][-1]
     assert (episode, sim_ns) == (2, round(step * 0.1 * 1e9))
@@ -151,7 +153,8 @@ def test_report_draws_pictures_and_sums_up(scripted_run, capsys):
     robot = summary.robots["r1"]
     assert [e.env_return for e in robot.ended] == [script.returns[e] for e in range(3)]
     assert [e.interventions for e in robot.ended] == [0, 1, 0]
-    assert robot.teacher_rewards == [(script.feedback_credited_step, 10.0)]
+    assert robot.credits == [(script.feedback_credited_step, 10.0)]
+    assert robot.words == [(script.feedback_arrival_step, 10.0, "ana")]
     assert list(moving_average([1, 2, 3, 4], 2)) == [1.0, 1.5, 2.5, 3.5]
     paths = write_report(run)
     for png in paths[:-1]:

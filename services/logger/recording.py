@@ -15,7 +15,9 @@ Entities (`<r>` a robot, `<t>` a teacher):
     action/policy/<r>, action/teacher/<r>   the discrete action taken, by who chose it
     q/<r>                          Q-values of the current state, one series per action
     states/<r>, td_error/<r>       number of states, TD error
-    episode/return/<r>, episode/steps/<r>, episode/interventions/<r>   the learning curve
+    episode/return/<r>, episode/steps/<r>   the learning curve, at each episode's end
+    episode/interventions/<r>      the arbiter's final count of an episode's interventions
+                                   (TeachingStats, as the report counts), at the episode's end
     log/<r>, log/teachers/<t>, log/session   text: episodes, utterances, feedback, presence
 
 Timelines: `step` (the robot's global step), `episode`, `sim_time` and `wall_time` (when the
@@ -44,6 +46,7 @@ from protocol import (
     LearningSummary,
     Message,
     Observation,
+    TeachingStats,
     Utterance,
     to_wire,
 )
@@ -58,6 +61,7 @@ log = logging.getLogger("voxshape.logger")
 APPLICATION = "voxshape"
 TRAIL_STEPS = 600  # the trails view shows the positions of this many steps before the cursor
 GOAL_MISMATCH_M = 0.05  # the map's goal and the one observations imply may differ this much
+ENDS_KEPT = 256  # episode ends remembered, to draw their final interventions when they come
 TEXT_PREVIEW = 160
 
 WALL = (90, 90, 90)
@@ -156,6 +160,7 @@ class Recorder:
         self._columns: dict[str, _Column] = {}
         self._robots: set[str] = set()
         self._goal_checked: set[str] = set()
+        self._ends: dict[tuple[str, int], _When] = {}  # (robot, episode) -> when it ended
         self._pending_rows = 0
         self.counters["thinned_scans"] = 0  # always reported, even when nothing was thinned
 
@@ -301,6 +306,8 @@ class Recorder:
                 self._row(f"td_error/{message.robot}", "scalar", when, message.td_error)
             case EpisodeEvent():
                 self._episode(decoded, message)
+            case TeachingStats():
+                self._teaching(decoded, message)
             case CreditedFeedback():
                 self._feedback(decoded, message)
             case Utterance():
@@ -380,7 +387,6 @@ class Recorder:
 
     def _episode(self, decoded: Known, event: EpisodeEvent) -> None:
         r = event.robot
-        tally = self.tally.robot(r)
         when = _When(event.step, event.episode, event.sim_time, decoded.record.received)
         if event.kind == "start":
             self._text(decoded, f"log/{r}", f"episode {event.episode} starts", "DEBUG", when=when)
@@ -388,12 +394,34 @@ class Recorder:
         self._set_time(when)
         self.stream.log(f"episode/return/{r}", rr.Scalars(event.env_return))
         self.stream.log(f"episode/steps/{r}", rr.Scalars(float(event.episode_steps)))
-        self.stream.log(f"episode/interventions/{r}", rr.Scalars(float(tally.interventions)))
+        self._ends.pop((r, event.episode), None)  # a restarted simulator's: the latest wins
+        self._ends[(r, event.episode)] = when
+        if len(self._ends) > ENDS_KEPT:
+            del self._ends[next(iter(self._ends))]
         self._text(
             decoded,
             f"log/{r}",
             f"episode {event.episode} ends: {event.kind} after {event.episode_steps} steps, "
-            f"return {event.env_return:+g}, {tally.interventions} intervention(s)",
+            f"return {event.env_return:+g}",
+            "INFO",
+            when=when,
+        )
+
+    def _teaching(self, decoded: Known, stats: TeachingStats) -> None:
+        """An episode's interventions once the arbiter's count is final (a few seconds after
+        it ended), drawn at its end: the count of the report and the demo's table."""
+        when = self._ends.get((stats.robot, stats.episode))
+        if not stats.final or when is None:
+            return
+        self._set_time(when)
+        self.stream.log(
+            f"episode/interventions/{stats.robot}", rr.Scalars(float(stats.interventions))
+        )
+        self._text(
+            decoded,
+            f"log/{stats.robot}",
+            f"episode {stats.episode}: {stats.interventions} intervention(s), the arbiter's "
+            "final count",
             "INFO",
             when=when,
         )

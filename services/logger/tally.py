@@ -1,13 +1,14 @@
 """Where each robot stands as a session's messages go by: its latest step, simulated time and
-episode, and the teacher interventions of its current episode. The recording and the report
-both count with this, so they agree. Pure."""
+episode, and when each recent step was observed (the recording places feedback and utterances
+with it). Pure. Interventions are not counted here: the arbiter's count (TeachingStats) is the
+one the recording, the report and the demo show."""
 
 from __future__ import annotations
 
 from collections import OrderedDict
 from dataclasses import dataclass, field
 
-from protocol import CreditedFeedback, EpisodeEvent, Observation
+from protocol import EpisodeEvent, Observation
 from services.logger.decoding import Decoded, Known
 
 REMEMBERED_STEPS = 20_000  # steps whose times are kept, for feedback credited to past steps
@@ -26,7 +27,6 @@ class RobotTally:
     step: int | None = None  # the latest observed step
     sim_time: float = 0.0
     episode: int = 0
-    interventions: int = 0  # feedback messages since the current episode started
     observations: int = 0
     _times: OrderedDict[int, StepTime] = field(default_factory=OrderedDict, repr=False)
 
@@ -59,7 +59,4 @@ class SessionTally:
         if isinstance(message, Observation):
             self.robot(message.robot)._observed(message, decoded.record.received)
         elif isinstance(message, EpisodeEvent) and message.kind == "start":
-            tally = self.robot(message.robot)
-            tally.episode, tally.interventions = message.episode, 0
-        elif isinstance(message, CreditedFeedback):
-            self.robot(message.robot).interventions += 1
+            self.robot(message.robot).episode = message.episode
