@@ -10,7 +10,14 @@ import pytest
 from services.cli import main
 from services.experiment import bench, distributed
 from services.experiment.inprocess import RunResult, RunSpec, run
-from services.experiment.paper import mean_ci, speedup_interval
+from services.experiment.paper import (
+    PAPER_AVERAGE,
+    mean_ci,
+    paper_average,
+    report,
+    speedup_interval,
+    summarize,
+)
 from services.learner.config import SettingsError, replaced
 from services.sim.maps import TASKS
 from services.sim.task import Simulation
@@ -307,3 +314,51 @@ def test_the_speedup_interval_holds_the_speedup_and_narrows_with_agreeing_seeds(
     assert low < 10.0 < high
     low2, high2 = speedup_interval(rl, runs([2.0, 30.0, 1.0, 7.0]), ["1"])
     assert high2 - low2 > 2 * (high - low)  # seeds that disagree: a wider interval
+
+
+def result(task: str, setting: str, seed: int, minutes: float, interventions: int = 0):
+    return RunResult(task, setting, seed, True, 5, minutes * 60, interventions, 0, [60.0] * 5,
+                     True, (0.2, 0.8), {})  # fmt: skip
+
+
+def test_the_papers_averages_are_over_the_tasks_run():
+    assert paper_average(["1", "2", "3", "4"]) == PAPER_AVERAGE  # as printed
+    one = paper_average(["1"])
+    assert one["minutes"] == {"rl": 103.93, "rl+f": 19.59, "rl+t+f": 12.85}
+    assert one["speedup"]["rl+t+f"] == pytest.approx(103.93 / 12.85)
+    assert one["interventions"] == {"rl+f": 71, "rl+t+f": 23}
+    two = paper_average(["2", "1", "my-room.toml"])  # a map file has no paper figure
+    assert two["minutes"]["rl"] == pytest.approx((103.93 + 66.4) / 2)
+    assert two["speedup"]["rl+f"] == pytest.approx((103.93 + 66.4) / (19.59 + 15.1))
+    assert "rl+t+f-perfect" not in two["minutes"]  # the paper ran it on task 2 only
+    assert paper_average(["2"])["speedup"]["rl+t+f-perfect"] == pytest.approx(66.4 / 7.6)
+    assert paper_average(["my-room.toml"])["speedup"] == {}
+
+
+def test_a_report_on_some_tasks_compares_with_the_paper_on_those_tasks_only():
+    runs = [result("1", "rl", s, 20.0) for s in range(2)]
+    runs += [result("1", "rl+t+f", s, 5.0, 30) for s in range(2)]
+    summary = summarize(runs, 2)
+    assert summary["paper"]["tasks"] == ["1"]
+    text = report(summary, "voxshape experiment paper --tasks 1", 1.0)
+    assert "| Avg of T1 | 20.0 | 103.93 | 5.0 | 12.85 |" in text  # not the four-task 92.54
+    assert f"| RL + T + F | 4.00 | 4.00-4.00 | {103.93 / 12.85:.2f} |" in text  # not 5.4
+    assert "| Avg of T1 | 30.0 | 23 |" in text  # interventions: task 1's, not 42
+    assert "92.54" not in text and "5.4 |" not in text
+    assert "over the same built-in tasks (T1)" in text
+
+    # With a map file: the average of all tasks has no paper figure, the built-in one has.
+    runs += [result("/x/my-room.toml", "rl", s, 40.0) for s in range(2)]
+    runs += [result("/x/my-room.toml", "rl+t+f", s, 10.0, 50) for s in range(2)]
+    text = report(summarize(runs, 2), "voxshape experiment paper --tasks 1,my-room.toml", 1.0)
+    assert "| Avg of my-room.toml, T1 | 30.0 | - | 7.5 | - |" in text
+    assert "| Avg of T1 | 20.0 | 103.93 | 5.0 | 12.85 |" in text
+    assert "| RL + T + F | 4.00 | 4.00-4.00 | - |" in text
+    assert f"| RL + T + F | 4.00 | {103.93 / 12.85:.2f} |" in text  # the built-in tasks alone
+    assert "Map files (my-room.toml) have no paper figure" in text
+
+    four = [result(t, st, s, m) for t in "1234" for st, m in (("rl", 20.0), ("rl+f", 10.0))
+            for s in range(2)]  # fmt: skip
+    text = report(summarize(four, 2), "voxshape experiment paper", 1.0)
+    assert "| Avg | 20.0 | 92.54 | 10.0 | 24.08 |" in text  # the printed four-task figures
+    assert "| RL + F | 2.00 | 2.00-2.00 | 3.84 |" in text

@@ -7,7 +7,8 @@ per core). Writes to the output directory:
   interventions, share converged) with 95% confidence intervals; the speedup of each setting
   (mean RL learning time over the tasks / the setting's, the paper's own ratio) with a 95%
   bootstrap interval, and the mean interventions of each feedback setting;
-- report.md: Tables 2 and 3 in the paper's layout, ours beside the paper's numbers;
+- report.md: Tables 2 and 3 in the paper's layout, ours beside the paper's numbers; averages and
+  speedups beside the paper's over the same built-in tasks (map files have no paper figure);
 - figure2.png: episode duration against episode, one line per setting (the paper's Figure 2);
 - runs.jsonl: each run as it finishes, with the RunSpec it ran (setting, teacher, learner).
 
@@ -57,6 +58,8 @@ PAPER_INTERVENTIONS = {
     "rl+t+f": {"1": 23, "2": 34, "3": 40, "4": 72},
     "rl+t+f-perfect": {"2": 39},
 }
+# The paper's averages over its four tasks, as printed; over fewer tasks, paper_average computes
+# them from the per-task tables above.
 PAPER_AVERAGE = {
     "episodes": {"rl": 9.5, "rl+f": 10, "rl+t+f": 7.75},
     "minutes": {"rl": 92.54, "rl+f": 24.08, "rl+t+f": 17.13},
@@ -67,6 +70,34 @@ PAPER_AVERAGE = {
 T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179,
        2.160, 2.145, 2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064,
        2.060, 2.056, 2.052, 2.048, 2.045, 2.042)  # fmt: skip
+
+
+def paper_average(tasks: Iterable[str]) -> dict[str, dict[str, float]]:
+    """The paper's averages over `tasks` (map files have none and are left out), from its
+    per-task tables: episodes, minutes and interventions per setting, and each setting's
+    speedup (the paper's mean RL minutes over those tasks / the setting's). A setting without
+    a figure for every one of the tasks has none; over all four tasks, the printed averages."""
+    built_in = [t for t in TASKS if t in set(tasks)]
+    if built_in == list(TASKS):
+        return {key: dict(values) for key, values in PAPER_AVERAGE.items()}
+    if not built_in:
+        return {key: {} for key in PAPER_AVERAGE}
+
+    def mean(table: dict[str, dict[str, float]]) -> dict[str, float]:
+        return {
+            setting: statistics.fmean(figures[t] for t in built_in)
+            for setting, figures in table.items()
+            if all(t in figures for t in built_in)
+        }
+
+    minutes = mean(PAPER_MINUTES)
+    speedup = {s: minutes["rl"] / m for s, m in minutes.items() if s != "rl" and "rl" in minutes}
+    return {
+        "episodes": mean(PAPER_EPISODES),
+        "minutes": minutes,
+        "interventions": mean(PAPER_INTERVENTIONS),
+        "speedup": speedup,
+    }
 
 
 def mean_ci(values: Iterable[float]) -> tuple[float, float]:
@@ -164,9 +195,11 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
         for s in settings
         if SETTINGS[s].feedback
     }
+    built_in = [t for t in tasks if t in TASKS]
     return {
         "seeds": seeds,
         "tasks": cells,
+        "paper": {"tasks": built_in, **paper_average(built_in)},  # over the same tasks
         "mean_learning_time_s": means,
         "speedup": speedup,
         "speedup_ci95": speedup_ci95,
@@ -214,6 +247,42 @@ def _paper(table: dict, setting: str, task: str) -> str:
     return "-" if value is None else f"{value:g}"
 
 
+def _figure(value: float | None) -> str:
+    """A paper figure: as printed (92.54, 84), or computed to two decimals."""
+    return "-" if value is None else f"{round(value, 2):g}"
+
+
+def _over(summary: dict, tasks: list[str], setting: str, key: str) -> float | None:
+    """Our mean of a cell's `key` over `tasks` (None if a task lacks the setting)."""
+    cells = [summary["tasks"][t].get(setting) for t in tasks]
+    if not tasks or any(c is None for c in cells):
+        return None
+    return statistics.fmean(c[key] for c in cells)
+
+
+def _labels(tasks: list[str]) -> str:
+    return ", ".join(task_label(t) for t in tasks)
+
+
+def paper_note(tasks: list[str], built_in: list[str]) -> str:
+    """Which of the paper's figures the averages and speedups are compared with."""
+    maps = [t for t in tasks if t not in TASKS]
+    if not built_in:
+        return f"Map files ({_labels(maps)}) have no paper figures: nothing to compare with."
+    if built_in == list(TASKS) and not maps:
+        return ""  # the paper's own four-task averages, as printed
+    note = (
+        f"The paper's figures: its averages and speedups over the same built-in tasks "
+        f"({_labels(built_in)}), from its per-task tables, not its four-task averages."
+    )
+    if maps:
+        note += (
+            f" Map files ({_labels(maps)}) have no paper figure: the averages of all tasks "
+            "are not compared, those of the built-in tasks alone are."
+        )
+    return note
+
+
 def report(summary: dict, command: str, wall_seconds: float) -> str:
     """The Markdown report: Tables 2 and 3 in the paper's layout, ours beside the paper's."""
     tasks = list(summary["tasks"])
@@ -258,18 +327,54 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         row = [f"{_cell(summary, task, s, 'learning_time_s', 60)} | "
                f"{_paper(PAPER_MINUTES, s, task)}" for s in settings]  # fmt: skip
         lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
+    # The paper's averages over the same tasks: all of them when all are built-in, else
+    # none on the row of all tasks and a row of the built-in tasks alone.
+    built_in = [t for t in tasks if t in TASKS]
+    mixed = bool(built_in) and len(built_in) < len(tasks)
+    paper = paper_average(built_in)
+    average_label = "Avg" if tasks == list(TASKS) else f"Avg of {_labels(tasks)}"
     average = [
-        f"{summary['mean_learning_time_s'][s] / 60:.1f} | {PAPER_AVERAGE['minutes'].get(s, '-')}"
+        f"{summary['mean_learning_time_s'][s] / 60:.1f} | "
+        + ("-" if mixed else _figure(paper["minutes"].get(s)))
         for s in settings
     ]
-    lines.append("| Avg | " + " | ".join(average) + " |")
+    lines.append(f"| {average_label} | " + " | ".join(average) + " |")
+    if mixed:
+        row = []
+        for s in settings:
+            ours = _over(summary, built_in, s, "learning_time_s")
+            row.append(
+                f"{'-' if ours is None else f'{ours / 60:.1f}'} | "
+                f"{_figure(paper['minutes'].get(s))}"
+            )
+        lines.append(f"| Avg of {_labels(built_in)} | " + " | ".join(row) + " |")
+    note = paper_note(tasks, built_in)
+    lines += ["", note] if note else []
     lines += ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
     lines += ["| setting | ours | 95% interval | paper |", "|---|---|---|---|"]
     bound = "≥ " if summary["speedup_is_lower_bound"] else ""
     for setting, value in summary["speedup"].items():
-        paper = PAPER_AVERAGE["speedup"].get(setting, "-")
+        theirs = "-" if mixed else _figure(paper["speedup"].get(setting))
         low, high = summary["speedup_ci95"][setting]
-        lines.append(f"| {LABELS[setting]} | {bound}{value:.2f} | {low:.2f}-{high:.2f} | {paper} |")
+        lines.append(
+            f"| {LABELS[setting]} | {bound}{value:.2f} | {low:.2f}-{high:.2f} | {theirs} |"
+        )
+    if mixed and summary["speedup"]:
+        lines += [
+            "",
+            f"On the built-in tasks alone ({_labels(built_in)}), against the paper's "
+            "speedups over them:",
+            "",
+            "| setting | ours | paper |",
+            "|---|---|---|",
+        ]
+        rl = _over(summary, built_in, "rl", "learning_time_s")
+        for setting in summary["speedup"]:
+            ours = _over(summary, built_in, setting, "learning_time_s")
+            value = "-" if rl is None or not ours else f"{bound}{rl / ours:.2f}"
+            lines.append(
+                f"| {LABELS[setting]} | {value} | {_figure(paper['speedup'].get(setting))} |"
+            )
     if bound:
         lines += [
             "",
@@ -289,10 +394,20 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
                f"{_paper(PAPER_INTERVENTIONS, s, task)}" for s in feedback]  # fmt: skip
         lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
     average = [
-        f"{summary['interventions'][s]:.1f} | {PAPER_AVERAGE['interventions'].get(s, '-')}"
+        f"{summary['interventions'][s]:.1f} | "
+        + ("-" if mixed else _figure(paper["interventions"].get(s)))
         for s in feedback
     ]
-    lines.append("| Avg | " + " | ".join(average) + " |")
+    lines.append(f"| {average_label} | " + " | ".join(average) + " |")
+    if mixed:
+        row = []
+        for s in feedback:
+            ours = _over(summary, built_in, s, "interventions")
+            row.append(
+                f"{'-' if ours is None else f'{ours:.1f}'} | "
+                f"{_figure(paper['interventions'].get(s))}"
+            )
+        lines.append(f"| Avg of {_labels(built_in)} | " + " | ".join(row) + " |")
     noisy, perfect = "rl+t+f", "rl+t+f-perfect"
     if "2" in summary["tasks"] and {noisy, perfect} <= set(summary["tasks"]["2"]):
         lines += [
