@@ -11,7 +11,8 @@ ENV PYTHONUNBUFFERED=1 \
     XDG_DATA_HOME=/tmp/.local/share \
     MPLCONFIGDIR=/tmp/matplotlib
 
-# openssl: `voxshape certs` inside the container, when wanted.
+# openssl: `voxshape certs` inside the container, when wanted. No PortAudio: no service uses
+# a microphone (`voxshape teach --mic` runs on a teacher's machine); the wheels bring the rest.
 RUN apt-get update \
     && apt-get install -y --no-install-recommends openssl \
     && rm -rf /var/lib/apt/lists/* \

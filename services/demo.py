@@ -50,12 +50,10 @@ FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    launcher.add_arguments(parser)
+    # --task, --rtf, --robots as `voxshape up`'s, with the demo's defaults
+    launcher.add_arguments(parser, {"task": TASK, "rtf": "10", "robots": ROBOT})
     parser.add_argument(
         "--max-episodes", type=int, default=60, help="give up if not converged by then"
-    )
-    parser.add_argument(
-        "--rtf", type=float, default=10.0, help="simulated seconds per wall second (paced)"
     )
     parser.add_argument(
         "--speech",
@@ -196,15 +194,17 @@ def speech_mode(choice: str) -> str:
 
 
 def prepare_environment(args: argparse.Namespace, mode: str) -> str:
-    """The variables compose.yaml and the services read (the shell's own win); the session."""
+    """The variables compose.yaml and the services read (the shell's own win, but for those
+    of --task, --rtf and --robots, whose defaults are the shell's); the session. The
+    simulated teacher teaches the first robot."""
     session = os.environ.get("VOXSHAPE_SESSION") or time.strftime("demo-%Y%m%d-%H%M%S")
+    os.environ["VOXSHAPE_TASK"] = args.task
+    os.environ["VOXSHAPE_RTF"] = f"{args.rtf:g}"
+    os.environ["VOXSHAPE_ROBOTS"] = ",".join(args.robots)
+    os.environ["VOXSHAPE_ROBOT"] = args.robots[0]
     defaults = {
         "VOXSHAPE_SESSION": session,
-        "VOXSHAPE_TASK": TASK,
-        "VOXSHAPE_ROBOTS": ROBOT,
-        "VOXSHAPE_ROBOT": ROBOT,
         "VOXSHAPE_CLOCK": "paced",
-        "VOXSHAPE_RTF": f"{args.rtf:g}",
         "VOXSHAPE_SPEECH_ENGINE": "pocketsphinx" if mode == "audio" else "mock",
         # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
         # reacts after as many steps as at real time, services/simteacher), whatever --rtf.
@@ -229,7 +229,7 @@ def teacher_spec(
         **bus,
         "VOXSHAPE_NODE": TEACHER,
         "VOXSHAPE_TEACHER": TEACHER,
-        "VOXSHAPE_ROBOT": ROBOT,
+        "VOXSHAPE_ROBOT": os.environ["VOXSHAPE_ROBOT"],
         "VOXSHAPE_TASK": os.environ["VOXSHAPE_TASK"],
     }
     return ServiceSpec("sim-teacher", tuple(command), environment, ("router", "speech"), ())
@@ -254,14 +254,16 @@ def run(args: argparse.Namespace) -> int:
         if mode == "audio"
         else "text heard by the mock speech engine"
     )
+    robot, others = args.robots[0], args.robots[1:]
     session.say(
-        f"voxshape demo: session {session_id!r}, task 1, robot {ROBOT} at {args.rtf:g}x real "
-        f"time, taught by a simulated {args.teacher_profile} "
+        f"voxshape demo: session {session_id!r}, {task_title(args.task, load_map(args.task))}, "
+        f"robot {robot} at {args.rtf:g}x real time, taught by a simulated {args.teacher_profile} "
         f"({PROFILES[args.teacher_profile].describe()}) speaking {speaks}"
+        + (f"; {', '.join(others)} also learning, untaught and not counted" if others else "")
     )
-    progress = ConvergenceWatch(ROBOT, args.max_episodes)
-    session.input("episode", robot_key(session_id, ROBOT, "episode"))  # from the first one
-    session.input("teaching", robot_key(session_id, ROBOT, "teaching"))
+    progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
+    session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
+    session.input("teaching", robot_key(session_id, robot, "teaching"))
     code = 0
     t0 = time.monotonic()
     try:

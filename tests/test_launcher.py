@@ -7,13 +7,15 @@ import re
 import signal
 import subprocess
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
-from protocol import robot_key
-from services.launcher import LocalSession
-from services.runtime import Input
+from protocol import LearningSummary, robot_key
+from services.cli import parser
+from services.launcher import LocalSession, prepare_run, session_variables
+from services.runtime import Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
 
@@ -224,3 +226,108 @@ def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
     assert any("most recent call first" in line for line in lines), lines
     time.sleep(0.5)
     assert router.poll() is None, "SIGUSR1 stopped the service"
+
+
+# -- runs: each `up` a new run unless --resume; --task, --rtf, --robots --------------------------
+
+
+def test_a_new_run_keeps_the_earlier_one_aside_and_resume_keeps_it(tmp_path):
+    run_dir = tmp_path / "runs" / "s1"
+    assert prepare_run(run_dir, resume=False) == f"a new run in {run_dir}"
+    run_dir.mkdir(parents=True)
+    (run_dir / "events.msgpack").write_bytes(b"earlier")
+    line = prepare_run(run_dir, resume=True)
+    assert line.startswith(f"resuming the run in {run_dir}: no learner checkpoint"), line
+    assert (run_dir / "events.msgpack").read_bytes() == b"earlier"
+    line = prepare_run(run_dir, resume=False)
+    (kept,) = (p for p in run_dir.parent.iterdir() if p != run_dir)
+    assert line == (
+        f"{run_dir} held an earlier run: kept as {kept}; this run starts fresh (--resume "
+        "continues it)"
+    )
+    assert re.fullmatch(r"s1\.\d{4}-\d\d-\d\dT\d\d-\d\d-\d\d", kept.name), kept.name
+    assert (kept / "events.msgpack").read_bytes() == b"earlier" and not run_dir.exists()
+    run_dir.mkdir()
+    (run_dir / "events.msgpack").write_bytes(b"later")
+    prepare_run(run_dir, resume=False)  # started in the same second: its own name
+    assert len(list(run_dir.parent.iterdir())) == 2 and not run_dir.exists()
+    line = prepare_run(run_dir, resume=True)
+    assert line == f"--resume: {run_dir} holds no earlier run; this run starts fresh"
+
+
+def test_the_flags_set_the_compose_variables(monkeypatch):
+    for name in [n for n in os.environ if n.startswith("VOXSHAPE_")]:
+        monkeypatch.delenv(name)
+    args = parser().parse_args(["up", "--task", "2", "--rtf", "5", "--robots", "r1,r2"])
+    specs = {s.name: s for s in load_topology(COMPOSE, session_variables(args), ("simteacher",))}
+    for name in ("sim", "logger"):
+        assert specs[name].environment["VOXSHAPE_TASK"] == "2", name
+    assert specs["sim"].environment["VOXSHAPE_RTF"] == "5"
+    for name in ("sim", "learner"):  # the simulator's robots, each with its learner
+        assert specs[name].environment["VOXSHAPE_ROBOTS"] == "r1,r2", name
+    assert specs["simteacher"].environment["VOXSHAPE_ROBOT"] == "r1"  # a robot that is there
+    monkeypatch.setenv("VOXSHAPE_RTF", "3")  # a variable goes on working without its flag
+    monkeypatch.setenv("VOXSHAPE_ROBOTS", "a,b")
+    args = parser().parse_args(["up"])
+    variables = session_variables(args)
+    assert (variables["VOXSHAPE_RTF"], variables["VOXSHAPE_ROBOT"]) == ("3", "a")
+    demo = parser().parse_args(["demo", "--rtf", "7"])  # the demo's own defaults otherwise
+    assert (demo.task, demo.rtf, demo.robots) == ("1", 7.0, ("a", "b"))
+
+
+def test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes(
+    spawn, session_id, tmp_path
+):
+    """Both robots of --robots move and learn, each with its learner; an earlier run is kept
+    aside (its broken checkpoint is never read) and --resume goes on with the last one."""
+    earlier = tmp_path / "runs" / session_id
+    earlier.mkdir(parents=True)
+    (earlier / "events.msgpack").write_bytes(b"earlier")
+    (earlier / "learner-r1.npz").write_bytes(b"not a checkpoint")  # resuming it would fail
+    robots = ("--robots", "r1,r2", "--rtf", "5")
+    up, port = start_up(spawn, session_id, tmp_path, *robots)
+    lines = read_until(up, r"ready in", timeout=60)
+    assert any(f"runs/{session_id} held an earlier run: kept as" in line for line in lines), lines
+    (kept,) = (tmp_path / "runs").glob(f"{session_id}.*")
+    assert (kept / "events.msgpack").read_bytes() == b"earlier"
+    learnt = learning_of(session_id, port, ("r1", "r2"))
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=60)
+    out = "\n".join([*lines, rest])
+    assert up.returncode == 0, out
+    for robot in ("r1", "r2"):
+        assert re.search(rf"learning robot={robot} .*states=0 episodes=0", out), out
+    up, port = start_up(spawn, session_id, tmp_path, *robots, "--resume")
+    lines = read_until(up, r"ready in", timeout=60)
+    resumed = next(line for line in lines if "resuming the run in" in line)
+    assert re.search(r"learner r1 at episode \d+ \(\d+ states\), learner r2 at", resumed), lines
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=60)
+    out = "\n".join([*lines, rest])
+    for robot in ("r1", "r2"):
+        states = int(re.search(rf"learning robot={robot} .*states=(\d+)", out).group(1))
+        assert states >= learnt[robot] > 0, (robot, out)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [session_id, kept.name]
+
+
+def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str, int]:
+    """States each robot's learner has, from its learning summaries once it has some."""
+    config = replace(
+        bus_config("test", env={}),
+        session=session_id,
+        node="watcher",
+        mode="client",
+        connect=(f"tcp/127.0.0.1:{port}",),
+        connect_timeout=10.0,
+    )
+    states: dict[str, int] = {}
+    with Node("test", config) as node:
+        for robot in robots:
+            node.input("learning", robot_key(session_id, robot, "learning"))
+        deadline = time.monotonic() + 60
+        while min((states.get(r, 0) for r in robots), default=0) < 3:
+            assert time.monotonic() < deadline, f"learning within 60 s: {states}"
+            event = node.poll(0.5)
+            if isinstance(event, Input) and isinstance(event.message, LearningSummary):
+                states[event.message.robot] = event.message.states
+    return states

@@ -6,18 +6,21 @@ from __future__ import annotations
 import json
 import math
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from protocol import ACTION_NAMES, Credit, CreditedFeedback
+from protocol import ACTION_NAMES, Credit, CreditedFeedback, ProtocolError
 from services.learner import checkpoint
+from services.learner import node as learner_node
 from services.learner.actions import ActionSet
 from services.learner.config import LearnerConfig, SettingsError, with_settings
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
 from services.learner.train import train
+from services.runtime import ConfigError
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
 
@@ -435,6 +438,32 @@ def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
     with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
         checkpoint.load(path, replace(EXACT, laser_sectors=6))
     assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
+
+
+def test_a_checkpoint_is_peeked_at_without_restoring_it(tmp_path):
+    learner = Learner(EXACT, seed=3)
+    run_episode(learner, TraceBook())
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)
+    assert checkpoint.peek(path) == (learner.episode, len(learner.states)) != (0, 0)
+    path.write_bytes(b"garbage")
+    assert checkpoint.peek(path) is None and checkpoint.peek(tmp_path / "none.npz") is None
+
+
+def test_the_learner_service_drives_every_robot_each_with_its_own_checkpoint():
+    environ = {"VOXSHAPE_ROBOTS": "r1, r2,r1", "VOXSHAPE_ROBOT": "r9"}
+    assert learner_node.robots_of(None, environ) == ("r1", "r2")  # as the simulator's list
+    assert learner_node.robots_of(["r3"], environ) == ("r3",)  # --robot wins
+    assert learner_node.robots_of(None, {"VOXSHAPE_ROBOT": "r9"}) == ("r9",)
+    assert learner_node.robots_of(None, {}) == ("r1",)
+    with pytest.raises(ProtocolError):
+        learner_node.robots_of(["a b"], {})
+    assert learner_node.checkpoint_path(None, "s", "r2", 2) == Path("runs/s/learner-r2.npz")
+    assert learner_node.checkpoint_path(Path("x.npz"), "s", "r1", 1) == Path("x.npz")
+    template = Path("ckpt/{robot}.npz")
+    assert learner_node.checkpoint_path(template, "s", "r2", 2) == Path("ckpt/r2.npz")
+    with pytest.raises(ConfigError, match=r"put \{robot\} in it"):
+        learner_node.checkpoint_path(Path("x.npz"), "s", "r1", 2)
 
 
 def test_goal_sectors_must_match_and_checkpoints_from_before_them_resume(tmp_path):

@@ -188,6 +188,17 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     return learner, Bookmark.of(meta.get("step"), meta.get("feedback_taken", []))
 
 
+def peek(path: Path) -> tuple[int, int] | None:
+    """The episodes and states of the checkpoint at `path`, read without restoring it (to
+    say what a session resumes); None if there is none or it cannot be read."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta, keys = json.loads(str(data["meta"])), data["keys"]
+            return int(meta["episode"]), len(keys)
+    except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError):
+        return None
+
+
 def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner | None:
     """The checkpoint at `path`, else the previous one if `path` is corrupt, else None if
     there is none; a corrupt checkpoint with no good previous one raises CheckpointError."""

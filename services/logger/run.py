@@ -6,6 +6,10 @@
     runs/<session>/logger-stats.json  what the logger received and wrote to the event log
     runs/<session>/recording-stats.json   what the recording drew, and the scans it thinned
     runs/<session>/report/            pictures and summary of `voxshape report`
+    runs/<session>/learner-<robot>.npz    each robot's learner checkpoint (the learner's own)
+
+`voxshape up` and `voxshape demo` start each run of a session in an empty runs/<session>/:
+an earlier run there is kept aside as runs/<session>.<its start time>/ (unless --resume).
 
 The map lives in session.json as the text of its TOML file, so a replay or a report draws the
 map the session ran on even if the file changed or is on another machine.
@@ -183,6 +187,26 @@ def session_map(run: RunDir, task: str | None = None) -> Map:
     if task is not None:
         return load_map(task)
     return read_session_info(run).world()
+
+
+def keep_earlier_run(path: Path) -> Path | None:
+    """Moves an earlier run out of `path` (runs/<session>/) to a sibling named by when it
+    started, runs/<session>.YYYY-MM-DDTHH-MM-SS/, so that a new run starts empty there;
+    returns where it went, or None if `path` held nothing. Nothing is deleted."""
+    if not path.exists() or (path.is_dir() and not any(path.iterdir())):
+        return None
+    try:
+        started = read_session_info(RunDir(path)).started
+    except RunError:  # no session.json (no logger ran): its oldest file tells
+        started = min((p.stat().st_mtime for p in path.rglob("*")), default=None)
+    stamp = time.strftime("%Y-%m-%dT%H-%M-%S", time.localtime(started or path.stat().st_mtime))
+    kept = path.with_name(f"{path.name}.{stamp}")
+    for n in range(2, 1000):
+        if not kept.exists():
+            break
+        kept = path.with_name(f"{path.name}.{stamp}-{n}")
+    path.rename(kept)
+    return kept
 
 
 def write_json_atomically(path: Path, data: dict[str, Any]) -> None:
