@@ -123,7 +123,7 @@ def test_every_service_joins_a_secured_router_and_announces_itself(
         timeout=30,
         env={k: v for k, v in env.items() if k != "VOXSHAPE_SECRETS"},
     )
-    assert stranger.returncode == 2 and "cannot reach" in stranger.stderr
+    assert stranger.returncode == 2 and "answers but refused this session" in stranger.stderr
     up.send_signal(signal.SIGINT)
     rest, _ = up.communicate(timeout=60)
     assert up.returncode == 0, rest
