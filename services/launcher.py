@@ -33,6 +33,7 @@ from services.sim.maps import load_map
 from services.topology import ServiceSpec, find_compose_file, load_topology, local_variables
 
 STOP_GRACE_S = 10.0
+INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"  # where `voxshape teach` and the tools connect by default
 
 
@@ -108,7 +109,14 @@ class LocalSession:
         return spec.node in self.present
 
     def _spawn(self, spec: ServiceSpec) -> None:
-        env = {**os.environ, **spec.environment, "PYTHONUNBUFFERED": "1"}
+        # As in its container, a service's VOXSHAPE_* settings are those compose.yaml gives it
+        # (a VOXSHAPE_CONNECT the user exported for a remote session must not reach the router)
+        inherited = {
+            k: v
+            for k, v in os.environ.items()
+            if not k.startswith("VOXSHAPE_") or k in INHERITED_SETTINGS
+        }
+        env = {**inherited, **spec.environment, "PYTHONUNBUFFERED": "1"}
         proc = subprocess.Popen(
             resolve_command(spec.command),
             env=env,

@@ -44,10 +44,22 @@ COVERED: dict[str, tuple[str, ...]] = {
         "tests.test_simteacher_service::test_its_synthesized_audio_is_recognized_by_pocketsphinx",
     ),
     "voxshape demo --speech mock --rtf 20": (DEMO,),
-    "voxshape up": ("tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",),
+    "voxshape up": (
+        "tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",
+        "tests.test_first_hour::test_the_first_hour_of_a_new_user",
+    ),
+    "voxshape up --robots r1,r2 --rtf 5": (
+        "tests.test_launcher::test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes",
+    ),
+    "voxshape demo --task my-map.toml": (
+        "tests.test_first_hour::test_the_demo_on_a_map_file_converges_and_says_so",
+    ),
     # Interactive: typed words through a test router; no microphone here.
     "voxshape teach": (TYPED,),
-    "voxshape teach --teacher ana --robot r1": (TYPED,),
+    "voxshape teach --teacher ana --robot r1": (
+        TYPED,
+        "tests.test_first_hour::test_the_first_hour_of_a_new_user",
+    ),
     "voxshape teach --mic": ("tests.test_teach::test_no_microphone_is_a_clear_error",),
     "voxshape teach --connect tls/lab.example:7448 --tls-root-ca ca.pem --user ana --teacher ana": (
         "tests.test_multihost::test_a_typed_good_crosses_three_hosts_to_the_learner",
@@ -57,7 +69,10 @@ COVERED: dict[str, tuple[str, ...]] = {
         "tests.test_compose::test_docker_compose_accepts_the_file",
         "tests.test_compose::test_every_service_joins_a_secured_router_and_announces_itself",
     ),
-    "voxshape status": (f"{HERE}::test_status_as_written",),
+    "voxshape status": (
+        f"{HERE}::test_status_as_written",
+        "tests.test_first_hour::test_the_first_hour_of_a_new_user",
+    ),
     # A live viewer needs a recording: the test serves a scripted one on free ports.
     "voxshape view": (
         "tests.test_logger::test_view_serves_the_web_viewer_on_localhost_and_prints_its_url",
@@ -68,7 +83,11 @@ COVERED: dict[str, tuple[str, ...]] = {
     "voxshape experiment paper --seeds 10 --workers 2": (
         "tests.test_experiment::test_experiment_paper_end_to_end",
     ),
-    "voxshape experiment paper --seeds 10 --first-seed 10 --workers 2": (
+    "voxshape experiment paper --seeds 10 --workers 2 --out docs/results/paper": (
+        "tests.test_experiment::test_experiment_paper_end_to_end",
+    ),
+    "voxshape experiment paper --seeds 10 --first-seed 10 --workers 2"
+    " --out docs/results/paper-heldout": (
         "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
     ),
     "voxshape experiment pool docs/results/paper docs/results/paper-heldout"
@@ -76,7 +95,8 @@ COVERED: dict[str, tuple[str, ...]] = {
         f"{HERE}::test_pool_as_written_gives_the_published_results",
         "tests.test_experiment::test_pooled_experiments_are_the_experiment_of_all_their_seeds",
     ),
-    "voxshape experiment sweep --rate 0,1,2,4,8,16 --seeds 20 --workers 2": (
+    "voxshape experiment sweep --rate 0,1,2,4,8,16 --seeds 20 --workers 2"
+    " --out docs/results/budget": (
         "tests.test_experiment::test_the_budget_sweep_runs_both_feedback_settings_at_each_rate",
     ),
     # A service that runs until stopped: a tiny map file's episodes on a test router.

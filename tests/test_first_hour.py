@@ -1,0 +1,189 @@
+"""A new user's first hour, walked in pseudo terminals (pexpect) as the README tells it: a
+session by hand (`voxshape up`, `voxshape teach --teacher ana --robot r1`, `voxshape status`),
+typed words that reach the learner, a second `voxshape up` that starts a new run, a wrong
+password, the Gymnasium line and the demo on a map file of one's own.
+
+Only the router's port and the session's name differ from the README: they come from the
+environment (VOXSHAPE_ROUTER, VOXSHAPE_CONNECT, VOXSHAPE_SESSION), so the commands are typed as
+written and the test never meets another session on port 7447.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pexpect
+import pytest
+
+from services.runtime import free_loopback_port
+from tests.conftest import ROOT, VOXSHAPE
+
+README = (ROOT / "README.md").read_text()
+MAPS = ROOT / "tests" / "fixtures" / "maps"
+
+
+def session_env(session: str, port: int) -> dict[str, str]:
+    router = f"tcp/127.0.0.1:{port}"
+    return {
+        **os.environ,
+        "VOXSHAPE_SESSION": session,
+        "VOXSHAPE_ROUTER": router,  # where `voxshape up`'s services connect
+        "VOXSHAPE_ROUTER_LISTEN": router,
+        "VOXSHAPE_CONNECT": router,  # where `voxshape teach` and `status` connect
+        "VOXSHAPE_VIEWER_PORT": str(free_loopback_port()),  # the logger's live recording
+        "TERM": "dumb",
+    }
+
+
+def run_as_written(command: str, cwd: Path, env: dict[str, str], timeout: float) -> pexpect.spawn:
+    """A README command in a pseudo terminal, `voxshape` being this installation's."""
+    assert command in README, f"not in the README: {command}"
+    program, *args = command.split()
+    executable = VOXSHAPE if program == "voxshape" else program
+    return pexpect.spawn(executable, args, cwd=str(cwd), env=env, encoding="utf-8", timeout=timeout)
+
+
+def stop(child: pexpect.spawn, timeout: float = 30.0) -> str:
+    """Ctrl-C, as a user does; what it printed until it ended."""
+    child.sendintr()
+    child.expect(pexpect.EOF, timeout=timeout)
+    child.close()
+    return child.before
+
+
+def checkpoint_meta(path: Path) -> dict:
+    with np.load(path, allow_pickle=False) as data:
+        return json.loads(str(data["meta"]))
+
+
+@pytest.mark.timeout(400)
+def test_the_first_hour_of_a_new_user(tmp_path, session_id):
+    env = session_env(session_id, free_loopback_port())
+    run_dir = tmp_path / "runs" / session_id
+
+    # terminal 1: the session; terminal 2: a teacher typing good, bad, left
+    up = run_as_written("voxshape up", tmp_path, env, timeout=120)
+    try:
+        up.expect(r"ready in [\d.]+ s")
+        up.expect("voxshape teach")  # it says what to run next
+        teach = run_as_written("voxshape teach --teacher ana --robot r1", tmp_path, env, 30)
+        teach.expect("say> ")
+        for word, answer in (
+            ("good", "understood 'good'"),
+            ("bad", "understood 'bad'"),
+            ("left", "understood 'left': command left"),
+        ):
+            teach.sendline(word)
+            teach.expect(re.escape(answer))
+        teach.sendeof()
+        teach.expect(pexpect.EOF)
+        teach.close()
+        assert teach.exitstatus == 0
+
+        status = run_as_written("voxshape status", tmp_path, env, timeout=30)
+        status.expect(pexpect.EOF)
+        status.close()
+        for service in ("sim", "learner", "arbiter", "speech", "logger"):
+            assert service in status.before, status.before
+    finally:
+        stopped = stop(up)
+    assert up.exitstatus == 0, stopped[-3000:]
+    # the learner took all three: its checkpoint (written on stopping) names them
+    first = checkpoint_meta(run_dir / "learner-r1.npz")
+    assert len(first["feedback_taken"]) == 3, first
+
+    # a second `voxshape up` of the session: the first run is kept aside, the learner fresh
+    up = run_as_written("voxshape up", tmp_path, env, timeout=120)
+    try:
+        up.expect(r"kept as (runs/\S+?)[;:,]?\s")
+        kept = tmp_path / up.match.group(1)
+        up.expect(r"ready in [\d.]+ s")
+    finally:
+        stop(up)
+    assert kept != run_dir and (kept / "events.msgpack").exists()
+    assert checkpoint_meta(kept / "learner-r1.npz")["feedback_taken"] == first["feedback_taken"]
+    assert checkpoint_meta(run_dir / "learner-r1.npz")["feedback_taken"] == []
+
+
+def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
+    """A secured router as `voxshape certs` and `voxshape router --secrets` make it; ana types
+    a wrong password: one line naming her and the router, within 2 s of the client's start."""
+    secrets = tmp_path / "secrets"
+    subprocess.run([VOXSHAPE, "certs", str(secrets)], check=True, capture_output=True)
+    port = free_loopback_port()
+    env = session_env(session_id, port)
+    router_env = {k: v for k, v in env.items() if k != "VOXSHAPE_CONNECT"}
+    router = pexpect.spawn(
+        VOXSHAPE,
+        ["router", "--secrets", str(secrets), "--access", str(ROOT / "deploy" / "access.toml")],
+        env={**router_env, "VOXSHAPE_LISTEN": env["VOXSHAPE_CONNECT"]},
+        encoding="utf-8",
+        timeout=30,
+    )
+    try:
+        router.expect("joined the bus")
+        python_start = _seconds_to_start(env)
+        teach = pexpect.spawn(
+            VOXSHAPE,
+            ["teach", "--user", "ana"],
+            env={**env, "VOXSHAPE_PASSWORD": "not-her-password"},
+            encoding="utf-8",
+            timeout=15,
+        )
+        started = time.monotonic()
+        teach.expect(pexpect.EOF)
+        took = time.monotonic() - started
+        teach.close()
+    finally:
+        stop(router)
+    lines = [line for line in teach.before.splitlines() if line.strip()]
+    assert len(lines) == 1 and "refused user 'ana'" in lines[0], teach.before
+    assert teach.exitstatus != 0
+    assert took - python_start < 2.0, (took, python_start)
+
+
+def _seconds_to_start(env: dict[str, str]) -> float:
+    """How long the client takes to start and parse its arguments on this machine now."""
+    started = time.monotonic()
+    subprocess.run([VOXSHAPE, "teach", "--help"], env=env, capture_output=True, check=True)
+    return time.monotonic() - started
+
+
+def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
+    (line,) = re.findall(r'`(gym\.make\("[^`]+\))`', README)
+    child = pexpect.spawn(
+        str(Path(VOXSHAPE).parent / "python"),
+        ["-I", "-c", f"import gymnasium as gym; env = {line}; env.reset(seed=0); print('ok')"],
+        cwd=str(tmp_path),
+        encoding="utf-8",
+        timeout=60,
+    )
+    child.expect(pexpect.EOF)
+    child.close()
+    assert child.exitstatus == 0 and "ok" in child.before, child.before
+
+
+@pytest.mark.timeout(300)
+def test_the_demo_on_a_map_file_converges_and_says_so(tmp_path, session_id):
+    shutil.copy(MAPS / "long-room.toml", tmp_path / "mine.toml")
+    env = session_env(session_id, free_loopback_port())
+    demo = pexpect.spawn(
+        VOXSHAPE,
+        ["demo", "--task", "mine.toml", "--speech", "mock", "--rtf", "20"],
+        cwd=str(tmp_path),
+        env=env,
+        encoding="utf-8",
+        timeout=240,
+    )
+    demo.expect(r"converged after (\d+) episodes")
+    demo.expect(pexpect.EOF)
+    demo.close()
+    assert demo.exitstatus == 0, demo.before[-3000:]
+    assert "mine.toml" in (tmp_path / "runs" / session_id / "demo.md").read_text()
