@@ -5,133 +5,186 @@ from __future__ import annotations
 import argparse
 import contextlib
 import faulthandler
+import importlib
 import io
 import signal
 import sys
 from collections.abc import Callable
-from types import ModuleType
 
 from protocol import ProtocolError, VocabularyError
-from services import demo, launcher, router, tools
-from services.arbiter import node as arbiter_node
-from services.deploy import certs as deploy_certs
-from services.experiment import commands as experiment_commands
-from services.learner import commands as learner_commands
-from services.learner import node as learner_node
 from services.learner.config import SettingsError
-from services.logger import node as logger_node
-from services.logger import replay as logger_replay
-from services.logger import report as logger_report
-from services.logger import view as logger_view
 from services.logger.run import RunError
 from services.runtime import BusError, ConfigError, configure_logging
-from services.sim import commands as sim_commands
-from services.sim import node as sim_node
 from services.sim.maps import MapError
-from services.simteacher import node as simteacher_node
-from services.speech import node as speech_node
-from services.teacher import node as teacher_node
 from services.topology import TopologyError
 
 Runner = Callable[[argparse.Namespace], int]
 Adder = Callable[[argparse.ArgumentParser], None]
 
-
-def _module(module: ModuleType) -> tuple[Adder, Runner]:
-    return module.add_arguments, module.run
-
-
-# name -> (help, add its arguments, run it). Services whose issues have not landed are absent.
-COMMANDS: dict[str, tuple[str, Adder, Runner]] = {
-    "demo": ("run the main job in a local session (no docker, no manual router)", *_module(demo)),
+# name -> (help, module, its function adding the arguments, its function running it). A
+# command's module is imported only when that command runs: `voxshape teach` does not load
+# the simulator or matplotlib.
+COMMANDS: dict[str, tuple[str, str, str, str]] = {
+    "demo": (
+        "run the main job in a local session (no docker, no manual router)",
+        "services.demo",
+        "add_arguments",
+        "run",
+    ),
     "up": (
         "start the local session: every service of compose.yaml as its own process",
-        *_module(launcher),
+        "services.launcher",
+        "add_arguments",
+        "run",
     ),
-    "router": ("run the zenoh router of a session", *_module(router)),
+    "router": ("run the zenoh router of a session", "services.router", "add_arguments", "run"),
     "certs": (
         "make a development CA, TLS certificates and passwords for a secured session",
-        *_module(deploy_certs),
+        "services.deploy.certs",
+        "add_arguments",
+        "run",
     ),
-    "sim": ("run the simulator: PyBullet world, robots, episodes", *_module(sim_node)),
+    "sim": (
+        "run the simulator: PyBullet world, robots, episodes",
+        "services.sim.node",
+        "add_arguments",
+        "run",
+    ),
     "learner": (
         "run the learner: SARSA(lambda) with dynamic reward shaping",
-        *_module(learner_node),
+        "services.learner.node",
+        "add_arguments",
+        "run",
     ),
     "train": (
         "train plain SARSA(lambda) in one process and report convergence",
-        *_module(learner_commands),
+        "services.learner.commands",
+        "add_arguments",
+        "run",
     ),
     "map": (
         "draw a task's map (start, goal, optional path and scan) as PNG",
-        sim_commands.add_map_arguments,
-        sim_commands.map_command,
+        "services.sim.commands",
+        "add_map_arguments",
+        "map_command",
     ),
     "bench": (
         "measure and print performance figures",
-        sim_commands.add_bench_arguments,
-        sim_commands.bench_command,
+        "services.sim.commands",
+        "add_bench_arguments",
+        "bench_command",
     ),
-    "status": ("list the nodes present in a session", tools.add_status_arguments, tools.status),
+    "status": (
+        "list the nodes present in a session",
+        "services.tools",
+        "add_status_arguments",
+        "status",
+    ),
     "listen": (
         "print every message of a session, decoded",
-        tools.add_listen_arguments,
-        tools.listen,
+        "services.tools",
+        "add_listen_arguments",
+        "listen",
     ),
     "dataflow": (
         "print who publishes and subscribes to what (protocol/dataflow.py)",
-        tools.add_dataflow_arguments,
-        tools.show_dataflow,
+        "services.tools",
+        "add_dataflow_arguments",
+        "show_dataflow",
     ),
     "vocabulary": (
         "check a vocabulary file and list its phrases",
-        tools.add_vocabulary_arguments,
-        tools.vocabulary,
+        "services.tools",
+        "add_vocabulary_arguments",
+        "vocabulary",
     ),
     "logger": (
         "record the session: event log, rerun recording, live viewer server",
-        *_module(logger_node),
+        "services.logger.node",
+        "add_arguments",
+        "run",
     ),
-    "view": ("look at a live or recorded session in rerun's viewer", *_module(logger_view)),
-    "replay": ("re-render a session's recording from its event log", *_module(logger_replay)),
-    "report": ("pictures and a summary of a recorded session", *_module(logger_report)),
+    "view": (
+        "look at a live or recorded session in rerun's viewer",
+        "services.logger.view",
+        "add_arguments",
+        "run",
+    ),
+    "replay": (
+        "re-render a session's recording from its event log",
+        "services.logger.replay",
+        "add_arguments",
+        "run",
+    ),
+    "report": (
+        "pictures and a summary of a recorded session",
+        "services.logger.report",
+        "add_arguments",
+        "run",
+    ),
     "speech": (
         "run the speech service: teachers' audio (or said text) in, utterances out",
-        *_module(speech_node),
+        "services.speech.node",
+        "add_arguments",
+        "run",
     ),
     "teach": (
         "teach a robot: speak, stream WAV files or type words; see what was understood",
-        *_module(teacher_node),
+        "services.teacher.node",
+        "add_arguments",
+        "run",
     ),
     "arbiter": (
         "run the feedback arbiter: utterances in, credited rewards and commands out",
-        *_module(arbiter_node),
+        "services.arbiter.node",
+        "add_arguments",
+        "run",
     ),
     "sim-teacher": (
         "run the simulated teacher: watches a robot, speaks through the speech service",
-        *_module(simteacher_node),
+        "services.simteacher.node",
+        "add_arguments",
+        "run",
     ),
     "experiment": (
         "run the paper's experiments in-process (simulated teacher): tables and figure",
-        *_module(experiment_commands),
+        "services.experiment.commands",
+        "add_arguments",
+        "run",
     ),
 }
 
 
-def parser() -> argparse.ArgumentParser:
+def _adder(command: str) -> Adder:
+    _, module, add, _ = COMMANDS[command]
+    return getattr(importlib.import_module(module), add)
+
+
+def _runner(command: str) -> Runner:
+    _, module, _, run = COMMANDS[command]
+    return getattr(importlib.import_module(module), run)
+
+
+def parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The whole command line; with `only`, the arguments of that command alone (the others
+    are listed, their modules not imported)."""
     top = argparse.ArgumentParser(
         prog="voxshape",
         description="Teach a robot by voice: SARSA(lambda) with dynamic reward shaping.",
     )
     top.add_argument("--log-level", help="DEBUG, INFO, WARNING... (VOXSHAPE_LOG_LEVEL)")
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name, (text, add, _) in COMMANDS.items():
-        add(sub.add_parser(name, help=text, description=text))
+    for name, (text, *_) in COMMANDS.items():
+        command = sub.add_parser(name, help=text, description=text)
+        if only in (None, name):
+            _adder(name)(command)
     return top
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    named = next((a for a in argv if a in COMMANDS), None)
+    args = parser(only=named or "").parse_args(argv)
     configure_logging(args.log_level)
     # `kill -USR1 <pid>` prints where every thread of a stuck process is (the demo does it
     # for each service when no episode ends); not when main() runs in a process whose stderr
@@ -139,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.suppress(io.UnsupportedOperation):
         faulthandler.register(signal.SIGUSR1, all_threads=True)
     try:
-        return COMMANDS[args.command][2](args)
+        return _runner(args.command)(args)
     except (
         BusError,
         ConfigError,
