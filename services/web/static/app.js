@@ -35,7 +35,7 @@ const state = {
   frames: [], // {robot, step, stamp, received, drawn}: performance.now() ms, stamp gateway ms
   drawn: {}, // robot -> pose last drawn {x, y, theta, step}
   clock: null,
-  mic: { talking: false, chunks: 0, sentMs: 0, error: null, starts: 0, stops: 0 },
+  mic: { talking: false, chunks: 0, sentMs: 0, pressMs: 0, error: null, starts: 0, stops: 0 },
   trace: { recording: false, episode: null, commands: 0, done: null },
   errors: [],
 };
@@ -300,7 +300,7 @@ function setLanguage(language) {
 }
 
 function say(meaning) {
-  if (!state.robot) return;
+  if (!state.robot) return noRobot();
   const text = phraseFor(state.welcome?.vocabulary, state.language, meaning);
   const msg = { type: "say", robot: state.robot, text, language: state.language, onset: browserNow() };
   if (connection?.sendJson(msg)) state.said.push({ ...msg, meaning });
@@ -315,17 +315,25 @@ const mic = new PushToTalk({
     if (pcm.byteLength && connection?.sendBinary(audioFrame(pcm, captureMs))) {
       state.mic.chunks++;
       state.mic.sentMs += (pcm.byteLength / 2 / 16000) * 1000;
+      state.mic.pressMs += (pcm.byteLength / 2 / 16000) * 1000;
       state.mic.lastCapture = captureMs;
     }
     if (final) state.mic.final = captureMs;
   },
 });
 
+function noRobot() {
+  $("mic-line").className = "hint error";
+  $("mic-line").textContent = "no robot is running yet: nobody to talk to";
+}
+
 async function talkStart() {
-  if (state.mic.talking || !state.robot) return;
+  if (state.mic.talking) return;
+  if (!state.robot) return noRobot();
   state.mic.talking = true;
   state.mic.starts++;
   state.mic.error = null;
+  state.mic.pressMs = 0; // audio sent during this press
   $("talk").classList.add("on");
   $("mic-line").className = "hint";
   $("mic-line").textContent = "listening… release to send";

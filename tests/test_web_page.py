@@ -1,0 +1,370 @@
+"""The teacher's web page in a real headless Chromium (Debian's, driven by Playwright) against a
+real local session: router, simulator, learner, arbiter, pocketsphinx speech and `voxshape
+web`, each its own process. The page draws the map and a moving robot; holding the talk button
+with Chromium's fake microphone playing "turn left" makes the learner take the command; a
+click on "good" reaches the learner as a credited reward; two pages are two teachers; a wrong
+password on a secured session is refused with a clear message.
+
+The page's state is read from `window.voxshape`, never from pixels. Screenshots go to
+docs/web/ when VOXSHAPE_SCREENSHOTS=1 (else to the test's temporary folder)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import time
+import uuid
+import wave
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from protocol import CreditedFeedback, TeachingStats, robot_key
+from services.runtime import Input, Node, bus_config
+from services.speech.audio import read_wav
+from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port, wait_present
+
+CHROMIUM = Path("/usr/bin/chromium")
+sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is a dev dependency")
+pytestmark = [
+    pytest.mark.skipif(
+        not CHROMIUM.exists(),
+        reason="Debian's chromium is missing (/usr/bin/chromium): `make test` installs it "
+        "(deploy/apt-packages.txt); no browser is ever downloaded",
+    ),
+    pytest.mark.timeout(240),
+]
+
+FIXTURES = ROOT / "tests" / "fixtures" / "speech"
+SPOKEN = FIXTURES / "en-voc-turn-left-kal-diphone.wav"
+PAD_S = (0.3, 0.7)  # silence around the words: the fake microphone loops its file
+SHOTS = ROOT / "docs" / "web"
+BROWSER_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--use-fake-ui-for-media-stream",
+    "--use-fake-device-for-media-stream",
+]
+WAIT_MS = 20_000  # any one thing the page waits for
+SECURED_ACCESS = """
+[users]
+logger = { role = "admin" }
+web = { role = "admin" }
+ana = { role = "teacher" }
+"""
+
+
+class Processes:
+    """Child processes of a module's session, each ended by its pid."""
+
+    def __init__(self) -> None:
+        self.children: list[subprocess.Popen] = []
+
+    def start(self, argv: list[str], cwd: Path) -> subprocess.Popen:
+        proc = subprocess.Popen(
+            argv, cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True
+        )
+        self.children.append(proc)
+        return proc
+
+    def stop(self) -> None:
+        for proc in reversed(self.children):
+            if proc.poll() is None:
+                os.kill(proc.pid, signal.SIGTERM)
+        for proc in self.children:
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                os.kill(proc.pid, signal.SIGKILL)
+                proc.wait(5)
+
+
+@dataclass
+class Session:
+    id: str
+    router: str
+    url: str
+
+    def node_config(self, name: str):
+        return replace(
+            bus_config("test", env={}),
+            session=self.id,
+            node=name,
+            mode="client",
+            connect=(self.router,),
+            connect_timeout=5.0,
+        )
+
+
+def start_web(procs: Processes, cwd: Path, bus: list[str]) -> str:
+    port = free_port()
+    procs.start([VOXSHAPE, "web", *bus, "--port", str(port), "--task", "1"], cwd)
+    wait_for_port(port, timeout=30)
+    return f"http://127.0.0.1:{port}/"
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory) -> Iterator[Session]:
+    """An open session: router, arbiter, pocketsphinx speech, a learner and the simulator for
+    r1 (twice real time), and the page's gateway."""
+    cwd = tmp_path_factory.mktemp("session")
+    sid, port = f"w{uuid.uuid4().hex[:10]}", free_port()
+    router = f"tcp/127.0.0.1:{port}"
+    procs = Processes()
+    try:
+        procs.start(
+            [VOXSHAPE, "router", "--session", sid, "--node", "router", "--listen", router], cwd
+        )
+        wait_for_port(port)
+        session = Session(sid, router, "")
+        with Node("test", session.node_config("setup")) as node:
+            node.watch_presence()
+            procs.start([VOXSHAPE, "arbiter", *bus_args(router, sid, "arbiter")], cwd)
+            procs.start([VOXSHAPE, "speech", *bus_args(router, sid, "speech")], cwd)
+            learner = ["--robot", "r1", "--seed", "1"]
+            procs.start([VOXSHAPE, "learner", *bus_args(router, sid, "learner"), *learner], cwd)
+            session.url = start_web(procs, cwd, bus_args(router, sid, "web"))
+            wait_present(node, {"arbiter", "speech", "learner", "web"}, timeout=60)
+            sim = ["--robot", "r1", "--rtf", "2", "--seed", "1", "--task", "1"]
+            procs.start([VOXSHAPE, "sim", *bus_args(router, sid, "sim"), *sim], cwd)
+        yield session
+    finally:
+        procs.stop()
+
+
+@pytest.fixture(scope="module")
+def spoken_wav(tmp_path_factory) -> Path:
+    """The fixture with silence either side, so one pass of the looping fake microphone holds
+    the whole phrase."""
+    samples = read_wav(SPOKEN)
+    pad = [np.zeros(int(s * 16000), np.int16) for s in PAD_S]
+    path = tmp_path_factory.mktemp("audio") / "turn-left.wav"
+    with wave.open(str(path), "wb") as w:
+        w.setnchannels(1)
+        w.setsampwidth(2)
+        w.setframerate(16000)
+        w.writeframes(np.concatenate([pad[0], samples, pad[1]]).astype("<i2").tobytes())
+    return path
+
+
+@pytest.fixture(scope="module")
+def browser(spoken_wav) -> Iterator[object]:
+    with sync_api.sync_playwright() as p:
+        chromium = p.chromium.launch(
+            executable_path=str(CHROMIUM),
+            args=[*BROWSER_ARGS, f"--use-file-for-fake-audio-capture={spoken_wav}"],
+        )
+        try:
+            yield chromium
+        finally:
+            chromium.close()
+
+
+@pytest.fixture
+def open_page(browser):
+    """Pages in contexts of their own (as separate browsers), closed after the test."""
+    contexts = []
+
+    def open_(url: str, **login: str):
+        # the page's policy forbids eval; Playwright's wait_for_function evaluates strings
+        context = browser.new_context(viewport={"width": 1280, "height": 900}, bypass_csp=True)
+        contexts.append(context)
+        page = context.new_page()
+        page.errors = []
+        page.on("pageerror", lambda e: page.errors.append(str(e)))
+        page.goto(url, timeout=WAIT_MS)
+        for field, value in login.items():
+            page.fill(f"#{field}", value)
+        page.click("#login-button")
+        return page
+
+    yield open_
+    for context in contexts:
+        context.close()
+
+
+def teaching(page) -> None:
+    page.wait_for_function("window.voxshape.phase === 'teaching'", timeout=WAIT_MS)
+
+
+def state(page, expression: str):
+    return page.evaluate(f"(s => {expression})(window.voxshape)")
+
+
+def wait_notice(page, kind: str, meaning: str) -> dict:
+    page.wait_for_function(
+        f"window.voxshape.notices.some(n => n.kind === {kind!r} && n.meaning === {meaning!r})",
+        timeout=WAIT_MS,
+    )
+    return state(page, f"s.notices.find(n => n.kind === {kind!r} && n.meaning === {meaning!r})")
+
+
+def wait_feedback(node: Node, teacher: str, timeout: float = 20.0) -> CreditedFeedback:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        event = node.poll(0.1)
+        if (
+            isinstance(event, Input)
+            and isinstance(event.message, CreditedFeedback)
+            and teacher in event.message.teachers
+        ):
+            return event.message
+    raise AssertionError(f"no credited feedback from {teacher} within {timeout} s")
+
+
+def screenshot(page, name: str, tmp_path: Path) -> None:
+    path = tmp_path / name
+    page.screenshot(path=str(path))
+    if os.environ.get("VOXSHAPE_SCREENSHOTS") == "1":
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        shutil.copy(path, SHOTS / name)
+
+
+# -- the open session ------------------------------------------------------------------------
+
+
+def test_the_page_draws_the_map_and_a_moving_robot(session, open_page):
+    page = open_page(session.url, teacher="ana")
+    teaching(page)
+    welcome = state(page, "s.welcome")
+    assert welcome["session"] == session.id and welcome["teacher"] == "ana"
+    assert len(welcome["map"]["walls"]) >= 4 and welcome["map"]["goal"]["radius"] > 0
+    assert {e["meaning"] for e in welcome["vocabulary"]["es"]} >= {"good", "left", "stop"}
+    page.wait_for_function("window.voxshape.drawn.r1 !== undefined", timeout=30_000)
+    first = state(page, "s.drawn.r1")
+    page.wait_for_function(
+        f"window.voxshape.drawn.r1.step >= {first['step'] + 10}", timeout=WAIT_MS
+    )
+    later = state(page, "s.drawn.r1")
+    assert (later["x"], later["y"], later["theta"]) != (first["x"], first["y"], first["theta"])
+    assert (
+        0 <= later["x"] <= welcome["map"]["width"] and 0 <= later["y"] <= welcome["map"]["height"]
+    )
+    frames = state(page, "s.frames.filter(f => f.robot === 'r1').slice(-5)")
+    assert all(f["drawn"] >= f["received"] and f["stamp"] > 0 for f in frames)
+    # the clock was synced (5 probes at start) and the status line follows the robot
+    page.wait_for_function("window.voxshape.clock.replies >= 5", timeout=WAIT_MS)
+    assert abs(state(page, "s.clock.offset_ms")) < 1000  # one machine, one clock
+    assert "m to the goal" in page.inner_text("#status")
+    # the Spanish words replace the English ones on the buttons
+    page.click("[data-lang=es]")
+    assert page.inner_text("[data-meaning=left]").startswith("izquierda")
+    assert page.errors == []
+
+
+def test_holding_the_button_says_turn_left_to_the_learner(session, open_page, tmp_path):
+    with Node("test", session.node_config("observer")) as node:
+        node.input("feedback", robot_key(session.id, "r1", "feedback"))
+        page = open_page(session.url, teacher="mic")
+        teaching(page)
+        page.wait_for_function("window.voxshape.obs.r1 !== undefined", timeout=30_000)
+        seconds = sum(PAD_S) + 12161 / 16000  # one pass of the fake microphone's file
+        page.locator("#talk").hover()
+        page.mouse.down()
+        page.wait_for_function(
+            f"window.voxshape.mic.pressMs >= {seconds * 1000:.0f}", timeout=WAIT_MS
+        )
+        page.mouse.up()
+        assert state(page, "s.mic.error") is None
+        feedback = wait_feedback(node, "mic")
+    assert (feedback.kind, feedback.command, feedback.teachers) == ("command", "left", ("mic",))
+    notice = wait_notice(page, "understood", "left")
+    assert notice["heard"] == "turn left" and "understood 'turn left'" in notice["text"]
+    assert "understood 'turn left'" in page.inner_text("#notices")
+    assert page.errors == []
+
+
+def test_a_click_on_good_reaches_the_learner_as_a_credited_reward(session, open_page, tmp_path):
+    with Node("test", session.node_config("observer")) as node:
+        node.input("feedback", robot_key(session.id, "r1", "feedback"))
+        page = open_page(session.url, teacher="clicker")
+        teaching(page)
+        page.wait_for_function("window.voxshape.obs.r1 !== undefined", timeout=30_000)
+        page.click("[data-meaning=good]")
+        feedback = wait_feedback(node, "clicker")
+    assert (feedback.kind, feedback.reward, feedback.teachers) == ("reward", 10.0, ("clicker",))
+    notice = wait_notice(page, "understood", "good")
+    assert notice["heard"] == "good" and "understood 'good'" in notice["text"]
+    # the arrow keys steer: a command, as the page says
+    page.keyboard.press("ArrowLeft")
+    wait_notice(page, "understood", "left")
+    page.wait_for_function("window.voxshape.stats.r1?.teacher?.understood >= 2", timeout=WAIT_MS)
+    assert state(page, "s.said.map(x => x.text)") == ["good", "left"]
+    screenshot(page, "teaching.png", tmp_path)
+    assert page.errors == []
+
+
+def test_two_pages_are_two_teachers(session, open_page):
+    with Node("test", session.node_config("observer")) as node:
+        node.input("teaching", robot_key(session.id, "r1", "teaching"))
+        pages = [open_page(session.url, teacher=t) for t in ("ana", "ben")]
+        for page in pages:
+            teaching(page)
+            page.wait_for_function("window.voxshape.obs.r1 !== undefined", timeout=30_000)
+        for page in pages:
+            page.keyboard.press("g")
+        heard: set[str] = set()
+        deadline = time.monotonic() + 20.0
+        while not {"ana", "ben"} <= heard and time.monotonic() < deadline:
+            event = node.poll(0.1)
+            if isinstance(event, Input) and isinstance(event.message, TeachingStats):
+                heard |= {t.teacher for t in event.message.teachers if t.understood}
+    assert {"ana", "ben"} <= heard, heard
+    for page in pages:
+        page.wait_for_function("window.voxshape.stats.r1?.teachers >= 2", timeout=WAIT_MS)
+        assert page.errors == []
+
+
+# -- a secured session -----------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def secured(tmp_path_factory) -> Iterator[tuple[str, dict[str, str]]]:
+    """A router with passwords and access control, and the gateway as its observer user; the
+    page's address and the users' passwords."""
+    from services.deploy.access import load_access, load_credentials
+    from services.deploy.certs import make_all
+
+    folder = tmp_path_factory.mktemp("secrets")
+    (folder / "access.toml").write_text(SECURED_ACCESS)
+    make_all(folder, load_access(folder / "access.toml"))
+    port = free_port()
+    router = f"tcp/127.0.0.1:{port}"
+    procs = Processes()
+    secrets = ("--secrets", str(folder))
+    try:
+        procs.start(
+            [
+                *(VOXSHAPE, "router", "--session", "locked", "--node", "router", *secrets),
+                *("--access", str(folder / "access.toml"), "--listen", router),
+            ],
+            folder,
+        )
+        wait_for_port(port)
+        bus = [*bus_args(router, "locked", "web"), "--user", "web", *secrets]
+        yield start_web(procs, folder, bus), load_credentials(folder / "credentials")
+    finally:
+        procs.stop()
+
+
+def test_a_wrong_password_is_refused_with_a_clear_message(secured, open_page):
+    url, passwords = secured
+    page = open_page(url, user="ana", password="not-her-password")
+    page.wait_for_function("window.voxshape.refused !== null", timeout=WAIT_MS)
+    reason = state(page, "s.refused")
+    assert "ana" in reason and "password" in reason, reason
+    assert page.is_visible("#refused") and "password" in page.inner_text("#refused")
+    assert not page.is_visible("#teach")
+    # her own password opens the session, as its user: the teacher id is the user name
+    page = open_page(url, user="ana", password=passwords["ana"])
+    teaching(page)
+    assert state(page, "[s.teacher, s.secured]") == ["ana", True]
