@@ -242,6 +242,18 @@ def _teacher(summary: dict) -> str:
     return f"The simulated teacher: {name} ({PROFILES[name].describe()}){changed}."
 
 
+def _built_in_row(
+    summary: dict, built_in: list[str], settings: list[str], key: str, paper: dict
+) -> str:
+    """The row of the built-in tasks alone, ours beside the paper's (minutes or counts)."""
+    scale = 60 if key == "learning_time_s" else 1
+    cells = []
+    for s in settings:
+        ours = _over(summary, built_in, s, key)
+        cells.append(f"{'-' if ours is None else f'{ours / scale:.1f}'} | {_figure(paper.get(s))}")
+    return f"| Avg of {_labels(built_in)} | " + " | ".join(cells) + " |"
+
+
 def _paper(table: dict, setting: str, task: str) -> str:
     value = table.get(setting, {}).get(task)
     return "-" if value is None else f"{value:g}"
@@ -340,14 +352,9 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     ]
     lines.append(f"| {average_label} | " + " | ".join(average) + " |")
     if mixed:
-        row = []
-        for s in settings:
-            ours = _over(summary, built_in, s, "learning_time_s")
-            row.append(
-                f"{'-' if ours is None else f'{ours / 60:.1f}'} | "
-                f"{_figure(paper['minutes'].get(s))}"
-            )
-        lines.append(f"| Avg of {_labels(built_in)} | " + " | ".join(row) + " |")
+        lines.append(
+            _built_in_row(summary, built_in, settings, "learning_time_s", paper["minutes"])
+        )
     note = paper_note(tasks, built_in)
     lines += ["", note] if note else []
     lines += ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
@@ -400,14 +407,9 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     ]
     lines.append(f"| {average_label} | " + " | ".join(average) + " |")
     if mixed:
-        row = []
-        for s in feedback:
-            ours = _over(summary, built_in, s, "interventions")
-            row.append(
-                f"{'-' if ours is None else f'{ours:.1f}'} | "
-                f"{_figure(paper['interventions'].get(s))}"
-            )
-        lines.append(f"| Avg of {_labels(built_in)} | " + " | ".join(row) + " |")
+        lines.append(
+            _built_in_row(summary, built_in, feedback, "interventions", paper["interventions"])
+        )
     noisy, perfect = "rl+t+f", "rl+t+f-perfect"
     if "2" in summary["tasks"] and {noisy, perfect} <= set(summary["tasks"]["2"]):
         lines += [
