@@ -102,6 +102,12 @@ DATAFLOW: dict[str, NodeRole] = {
             *_flows("robot", ANY, "obs"),
         ),
     ),
+    "web": NodeRole(
+        "observer",
+        "the teachers' web page (voxshape web): shows every robot to the browsers; each "
+        "browser's teacher is a teacher node of its own",
+        subscribes=_flows("robot", ANY, "obs", "episode", "feedback", "teaching"),
+    ),
     "logger": NodeRole("admin", "records every message of the session", everything=True),
     "launcher": NodeRole("admin", "voxshape up and the demo: watch the session", everything=True),
     "listen": NodeRole("admin", "voxshape listen: prints every message", everything=True),

@@ -134,6 +134,12 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
         "add_arguments",
         "run",
     ),
+    "web": (
+        "serve the teachers' web page: watch a robot, speak or type to it in a browser",
+        "services.web.node",
+        "add_arguments",
+        "run",
+    ),
     "arbiter": (
         "run the feedback arbiter: utterances in, credited rewards and commands out",
         "services.arbiter.node",

@@ -55,6 +55,8 @@ _SUMMARIES = {
     "speech": "utterances of every teacher; their audio and said text",
     "teacher": "speak or type as itself; see the robots (observations, episodes, feedback) "
     "and its notices",
+    "observer": "see the robots (observations, episodes, feedback, teaching stats); publish "
+    "nothing (the web page's gateway)",
     "admin": "everything in the session (logger, launcher, tools)",
 }
 
@@ -232,7 +234,8 @@ def access_control(session: str, users: dict[str, User]) -> dict:
             published = [k for t in role.publish for k in _key(session, user, *t)]
             subscribed = [k for t in role.subscribe for k in _key(session, user, *t)]
             tokens = [presence_key(session, r, "*") for r in role.announce]
-            own.append(_rule(f"{name}:publish", ["put"], published, "ingress"))
+            if published:  # a role may publish nothing (an observer)
+                own.append(_rule(f"{name}:publish", ["put"], published, "ingress"))
             own.append(_rule(f"{name}:subscribe", ["declare_subscriber"], subscribed, "ingress"))
             own.append(_rule(f"{name}:receive", ["put"], subscribed, "egress"))
             own.append(_rule(f"{name}:announce", ["liveliness_token"], tokens, "ingress"))
@@ -266,10 +269,7 @@ def _kept_and_recovering(name: str, published: list[str], subscribed: list[str])
     heartbeats and answers the subscribers' queries for what they missed with the messages
     themselves (replies on `<key>`). Only a user who may publish `<key>` may answer for it."""
     token = ["liveliness_token", "declare_liveliness_subscriber", "liveliness_query"]
-    return [
-        _rule(f"{name}:keep", ["put", "declare_queryable", *token], _adv(published), "ingress"),
-        _rule(f"{name}:answer", ["reply"], published + _adv(published), "ingress"),
-        _rule(f"{name}:asked", ["query", "liveliness_token"], _adv(published), "egress"),
+    recovering = [
         _rule(
             f"{name}:recover",
             ["query", "declare_subscriber", *token],
@@ -282,6 +282,14 @@ def _kept_and_recovering(name: str, published: list[str], subscribed: list[str])
             subscribed + _adv(subscribed),
             "egress",
         ),
+    ]
+    if not published:  # an observer: nothing to keep or answer for
+        return recovering
+    return [
+        _rule(f"{name}:keep", ["put", "declare_queryable", *token], _adv(published), "ingress"),
+        _rule(f"{name}:answer", ["reply"], published + _adv(published), "ingress"),
+        _rule(f"{name}:asked", ["query", "liveliness_token"], _adv(published), "egress"),
+        *recovering,
     ]
 
 

@@ -165,7 +165,8 @@ class Board:
             else:
                 why = self.no_answer_hint
             text = f"no answer to {u.text!r} within {self.answer_within_s:g} s: {why}"
-            out.append(Shown("no_answer", text, {"robot": u.robot, **_heard(u), "why": why}))
+            data = {"robot": u.robot, "utterance": u.id, **_heard(u), "why": why}
+            out.append(Shown("no_answer", text, data))
         return out
 
 

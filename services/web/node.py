@@ -1,0 +1,576 @@
+"""`voxshape web`: the teachers' web page, an aiohttp server bridged to the bus.
+
+    GET /        the page (services/web/static/index.html) and its files
+    GET /ws      the WebSocket of docs/web.md: login, then JSON and audio frames
+
+Inputs (its own node, role "web"): voxshape/<session>/robot/*/obs, episode, feedback,
+teaching. Each logged-in browser gets a teacher node of its own (role "teacher", the browser's
+user and password on a secured session, so the router's access control applies to it as to
+`voxshape teach`): outputs teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio,
+inputs its notices and utterances, and the clock exchange with the arbiter.
+
+Zenoh delivers on its own threads: a pump thread per node hands each message to the event
+loop (call_soon_threadsafe); a browser is sent from a bounded queue of its own, observations
+aside (only each robot's latest waits), so a slow browser never holds up the bus.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import os
+import signal
+import ssl
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from aiohttp import WSMsgType, web
+
+from protocol import (
+    AudioChunk,
+    CreditedFeedback,
+    EpisodeEvent,
+    Message,
+    Observation,
+    TeacherNotice,
+    TeachingStats,
+    Utterance,
+    load_vocabulary,
+    robot_key,
+    teacher_key,
+)
+from protocol.vocabulary import LANGUAGES
+from services.runtime import (
+    BusConfig,
+    BusError,
+    ConfigError,
+    Input,
+    Node,
+    Output,
+    add_bus_arguments,
+    bus_config,
+    fields,
+)
+from services.runtime.clock import ClockSync
+from services.sim.maps import load_map
+from services.teacher.board import Board
+from services.web.gateway import (
+    MAX_BINARY_BYTES,
+    MAX_TEXT_BYTES,
+    BrowserError,
+    RateLimit,
+    Robots,
+    SessionView,
+    Teaching,
+    feedback_json,
+    host_allowed,
+    map_json,
+    origin_allowed,
+    parse_login,
+    vocabulary_json,
+)
+
+STATIC = Path(__file__).with_name("static")
+DEFAULT_PORT = 8080
+DEFAULT_MAX_CLIENTS = 20
+LOGIN_WAIT_S = 10.0  # a socket that has not logged in by then is closed
+QUEUE_LIMIT = 1000  # messages waiting for one browser (observations aside): beyond, too slow
+TICK_S = 0.05  # observations' slots and the "no answer" lines are checked this often
+ANSWER_WITHIN_S = 1.0  # as `voxshape teach`
+UTTERANCES_KEPT = 256  # typed words kept for an arbiter that missed them (as `voxshape teach`)
+HARD_FRAME_LIMIT = 4 * MAX_BINARY_BYTES  # aiohttp closes the socket above this (1009)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_bus_arguments(parser)
+    env = os.environ.get
+    parser.add_argument(
+        "--address",
+        default=env("VOXSHAPE_WEB_ADDRESS", "127.0.0.1"),
+        help="address to serve the page on (VOXSHAPE_WEB_ADDRESS; default 127.0.0.1: this "
+        "host only; 0.0.0.0 for every interface)",
+    )
+    parser.add_argument(
+        "--port",
+        type=int,
+        default=int(env("VOXSHAPE_WEB_PORT") or DEFAULT_PORT),
+        help=f"(VOXSHAPE_WEB_PORT; default {DEFAULT_PORT})",
+    )
+    parser.add_argument(
+        "--https-cert",
+        type=Path,
+        default=env("VOXSHAPE_WEB_CERT") or None,
+        help="serve HTTPS with this certificate (PEM; VOXSHAPE_WEB_CERT), e.g. the router's "
+        "of `voxshape certs DIR`: DIR/router.pem",
+    )
+    parser.add_argument(
+        "--https-key",
+        type=Path,
+        default=env("VOXSHAPE_WEB_KEY") or None,
+        help="its private key (VOXSHAPE_WEB_KEY), e.g. DIR/router.key",
+    )
+    parser.add_argument(
+        "--max-clients",
+        type=int,
+        default=int(env("VOXSHAPE_WEB_MAX_CLIENTS") or DEFAULT_MAX_CLIENTS),
+        help=f"browsers at once (VOXSHAPE_WEB_MAX_CLIENTS; default {DEFAULT_MAX_CLIENTS})",
+    )
+    parser.add_argument(
+        "--task",
+        default=env("VOXSHAPE_TASK", "1"),
+        help="the simulator's task number or map file, to draw the map (VOXSHAPE_TASK)",
+    )
+    parser.add_argument(
+        "--viewer-url",
+        default=env("VOXSHAPE_VIEWER_URL") or None,
+        help="the rerun web viewer's address, linked from the page (VOXSHAPE_VIEWER_URL)",
+    )
+    parser.add_argument(
+        "--language",
+        choices=LANGUAGES,
+        default=env("VOXSHAPE_LANGUAGE", "en"),
+        help="the page's first language (VOXSHAPE_LANGUAGE)",
+    )
+    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
+    parser.add_argument("--static", type=Path, default=STATIC, help="folder of the page")
+
+
+def page_url(address: str, port: int, https: bool) -> str:
+    """Where a browser on this host opens the page."""
+    host = "localhost" if address in ("0.0.0.0", "::", "") else address
+    host = f"[{host}]" if ":" in host else host
+    return f"{'https' if https else 'http'}://{host}:{port}/"
+
+
+def run(args: argparse.Namespace) -> int:
+    bus = bus_config("web", args)
+    if not 0 <= args.port <= 65535:
+        raise ConfigError(f"--port {args.port} is outside 0-65535 (VOXSHAPE_WEB_PORT)")
+    if args.max_clients < 1:
+        raise ConfigError("--max-clients must be at least 1")
+    if (args.https_cert is None) != (args.https_key is None):
+        raise ConfigError("--https-cert and --https-key go together")
+    tls = None
+    if args.https_cert is not None:
+        tls = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+        try:
+            tls.load_cert_chain(args.https_cert, args.https_key)
+        except (OSError, ssl.SSLError) as e:
+            raise ConfigError(
+                f"cannot use {args.https_cert} / {args.https_key} for HTTPS: {e}"
+            ) from None
+    view = SessionView(
+        session=bus.session,
+        secured=bus.user is not None,
+        language=args.language,
+        vocabulary=vocabulary_json(load_vocabulary(args.vocabulary)),
+        map=map_json(load_map(args.task)),
+        viewer=args.viewer_url,
+    )
+    if not (args.static / "index.html").is_file():
+        raise ConfigError(f"no page to serve: {args.static}/index.html is missing")
+    gateway = Gateway(bus, view, args.static, args.address, tls, args.max_clients)
+    asyncio.run(gateway.serve(args.port))
+    return 0
+
+
+class _Pump:
+    """Hands what a node receives (on zenoh's threads, queued by the node) to the loop."""
+
+    def __init__(
+        self, node: Node, loop: asyncio.AbstractEventLoop, deliver: Callable[[Any], None]
+    ) -> None:
+        self.node, self.loop, self.deliver = node, loop, deliver
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"pump-{node.id}", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        while not self.stopping.is_set():
+            item = self.node.poll(0.2)
+            if item is None:
+                continue
+            try:
+                self.loop.call_soon_threadsafe(self.deliver, item)
+            except RuntimeError:  # the loop is closed: shutting down
+                return
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self.thread.join(timeout=2.0)
+
+
+class Browser:
+    """One socket: its queue to the browser, and once logged in its teacher node."""
+
+    def __init__(self, ws: web.WebSocketResponse, gateway: Gateway) -> None:
+        self.ws, self.gateway = ws, gateway
+        self.queue: deque[str] = deque()
+        self.obs: dict[str, str] = {}  # each robot's latest observation waiting
+        self.wake = asyncio.Event()
+        self.too_slow = False
+        self.teaching: Teaching | None = None
+        self.node: Node | None = None
+        self.outputs: dict[type, Output] = {}
+        self.stack = ExitStack()  # the clock exchange and the pump, closed with the node
+        # Publishing can block under congestion: one worker per browser keeps the order.
+        self.executor = ThreadPoolExecutor(1, thread_name_prefix="publish")
+
+    def send(self, data: dict[str, Any]) -> None:
+        if len(self.queue) >= QUEUE_LIMIT:
+            self.too_slow = True
+        else:
+            self.queue.append(json.dumps(data))
+        self.wake.set()
+
+    def send_obs(self, robot: str, text: str) -> None:
+        self.obs[robot] = text  # the latest wins: an older one not yet sent is dropped
+        self.wake.set()
+
+    async def write(self) -> None:
+        """Sends what is queued, as the socket takes it."""
+        while not self.ws.closed:
+            await self.wake.wait()
+            self.wake.clear()
+            while self.queue or self.obs:
+                if self.too_slow:
+                    await self.ws.close(code=1008, message=b"too slow: messages piled up")
+                    return
+                text = self._next()
+                try:
+                    await self.ws.send_str(text)
+                except (ConnectionError, RuntimeError):
+                    return
+
+    def _next(self) -> str:
+        """Queued messages first, in order; then the robots' latest observations."""
+        if self.queue:
+            return self.queue.popleft()
+        return self.obs.pop(next(iter(self.obs)))
+
+    def publish(self, messages: list[Message]) -> None:
+        """On the browser's worker: to the bus, in order."""
+        for message in messages:
+            try:
+                self.outputs[type(message)].put(message)
+            except Exception as e:  # the session closing; a bus error
+                self.gateway.log.warning("cannot publish", extra=fields(problem=repr(e)))
+
+    def close_node(self) -> None:
+        """On the browser's worker, after what it had to publish: leave the bus."""
+        self.stack.close()
+        if self.node is not None:
+            self.node.close()
+
+
+class Gateway:
+    def __init__(
+        self,
+        bus: BusConfig,
+        view: SessionView,
+        static: Path,
+        address: str,
+        tls: ssl.SSLContext | None,
+        max_clients: int,
+    ) -> None:
+        self.bus, self.view, self.static = bus, view, static
+        self.address, self.tls, self.max_clients = address, tls, max_clients
+        self.robots = Robots()
+        self.browsers: set[Browser] = set()
+        self.sockets = 0
+        self.node: Node | None = None
+        self.logins = 0
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self._pump: _Pump | None = None
+        self._ticker: asyncio.Task | None = None
+        self.log = logging.getLogger("voxshape.web")
+
+    # -- the server ---------------------------------------------------------------------
+    def app(self) -> web.Application:
+        app = web.Application(middlewares=[self._guard], client_max_size=MAX_TEXT_BYTES)
+        app.router.add_get("/", self._index)
+        app.router.add_get("/ws", self._socket)
+        app.router.add_static("/", self.static, follow_symlinks=False)
+        return app
+
+    async def start(self) -> None:
+        """Joins the bus (the gateway's own node) and starts forwarding the robots."""
+        self.loop = asyncio.get_running_loop()
+        self.node = await asyncio.to_thread(Node, "web", self.bus)
+        for topic in ("obs", "episode", "feedback", "teaching"):
+            self.node.input(topic, robot_key(self.node.session_id, "*", topic))
+        self._pump = _Pump(self.node, self.loop, self._on_robots)
+        self._ticker = asyncio.create_task(self._tick())
+
+    async def stop(self) -> None:
+        for browser in list(self.browsers):
+            await browser.ws.close(code=1001, message=b"the server is stopping")
+        if self._ticker is not None:
+            self._ticker.cancel()
+        if self._pump is not None:
+            self._pump.stop()
+        if self.node is not None:
+            await asyncio.to_thread(self.node.close)
+
+    async def serve(self, port: int) -> None:
+        """Serves until SIGINT or SIGTERM: the page first (a taken port fails at once), then
+        the bus."""
+        runner = web.AppRunner(self.app(), access_log=None)
+        await runner.setup()
+        site = web.TCPSite(runner, self.address, port, ssl_context=self.tls)
+        try:
+            await site.start()
+        except OSError as e:
+            await runner.cleanup()
+            raise ConfigError(
+                f"cannot serve the page on {self.address}:{port}: {e.strerror} (another "
+                "`voxshape web`? choose another with --port or VOXSHAPE_WEB_PORT)"
+            ) from None
+        stopping = asyncio.Event()
+        for s in (signal.SIGINT, signal.SIGTERM):
+            asyncio.get_running_loop().add_signal_handler(s, stopping.set)
+        try:
+            await self.start()
+            self.log.info(
+                "serving the page",
+                extra=fields(url=page_url(self.address, port, self.tls is not None)),
+            )
+            await stopping.wait()
+        finally:
+            await self.stop()
+            await runner.cleanup()
+
+    @web.middleware
+    async def _guard(self, request: web.Request, handler: Callable) -> web.StreamResponse:
+        if not host_allowed(request.host, self.address):
+            raise web.HTTPForbidden(text="this page is served to this host only")
+        response = await handler(request)
+        # The page loads only its own files and talks only to its own socket.
+        response.headers.setdefault(
+            "Content-Security-Policy",
+            "default-src 'self'; connect-src 'self'; img-src 'self' data:; "
+            "style-src 'self' 'unsafe-inline'; frame-ancestors 'none'; base-uri 'none'",
+        )
+        response.headers.setdefault("X-Content-Type-Options", "nosniff")
+        response.headers.setdefault("Referrer-Policy", "no-referrer")
+        response.headers.setdefault("Cache-Control", "no-cache")
+        return response
+
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(self.static / "index.html")
+
+    # -- the robots, to every browser ---------------------------------------------------
+    def _on_robots(self, event: object) -> None:
+        if not isinstance(event, Input):
+            return
+        message = event.message
+        if isinstance(message, Observation):
+            self._send_obs(self.robots.observation(message, time.time()))
+        elif isinstance(message, EpisodeEvent):
+            self._broadcast(self.robots.episode(message))
+        elif isinstance(message, CreditedFeedback):
+            self._broadcast([feedback_json(message)])
+        elif isinstance(message, TeachingStats):
+            for browser in self.browsers:
+                if browser.teaching is not None:
+                    browser.send(browser.teaching.stats(message))
+            self._broadcast(self.robots.teaching(message))
+
+    def _broadcast(self, items: list[dict[str, Any]]) -> None:
+        for item in items:
+            for browser in self.browsers:
+                browser.send(item)
+
+    def _send_obs(self, items: list[dict[str, Any]]) -> None:
+        for item in items:
+            text = json.dumps(item)  # once for every browser
+            for browser in self.browsers:
+                browser.send_obs(item["robot"], text)
+
+    async def _tick(self) -> None:
+        while True:
+            await asyncio.sleep(TICK_S)
+            self._send_obs(self.robots.due(time.time()))
+            now = time.monotonic()
+            for browser in self.browsers:
+                if browser.teaching is not None:
+                    for line in browser.teaching.tick(now):
+                        browser.send(line)
+
+    # -- one browser --------------------------------------------------------------------
+    async def _socket(self, request: web.Request) -> web.StreamResponse:
+        scheme = "https" if self.tls is not None else "http"
+        if not origin_allowed(request.headers.get("Origin"), request.host, scheme):
+            self.log.warning(
+                "refused a socket from another origin",
+                extra=fields(origin=request.headers.get("Origin", "-"), host=request.host),
+            )
+            raise web.HTTPForbidden(text="this socket is for the page's own origin")
+        if self.sockets >= self.max_clients:
+            raise web.HTTPServiceUnavailable(
+                text=f"{self.max_clients} pages are open already (--max-clients)"
+            )
+        ws = web.WebSocketResponse(max_msg_size=HARD_FRAME_LIMIT, heartbeat=30.0)
+        await ws.prepare(request)
+        self.sockets += 1
+        browser = Browser(ws, self)
+        writer = asyncio.create_task(browser.write())
+        try:
+            if await self._login(browser):
+                self.browsers.add(browser)
+                await self._converse(browser)
+        finally:
+            self.sockets -= 1
+            self.browsers.discard(browser)
+            await self._leave(browser)
+            writer.cancel()
+            if not ws.closed:
+                await ws.close()
+        return ws
+
+    async def _login(self, browser: Browser) -> bool:
+        """The first message: log in, open this teacher's node, welcome. False: refused."""
+        ws = browser.ws
+        try:
+            msg = await asyncio.wait_for(ws.receive(), LOGIN_WAIT_S)
+        except TimeoutError:
+            await self._refuse(browser, f"log in within {LOGIN_WAIT_S:g} s")
+            return False
+        if msg.type != WSMsgType.TEXT:
+            return False if msg.type in _CLOSING else await self._refuse(browser, "log in first")
+        try:
+            login = parse_login(_json(msg.data), self.view.secured)
+        except BrowserError as e:
+            return await self._refuse(browser, str(e))
+        self.logins += 1
+        node_id = f"web-{login.teacher}"[:56] + f"-{self.logins}"
+        config = replace(self.bus, node=node_id, user=login.user, password=login.password)
+        try:
+            await asyncio.to_thread(self._teacher_node, browser, login.teacher, config)
+        except (BusError, ConfigError) as e:
+            self.log.warning(
+                "a browser's login was refused",
+                extra=fields(teacher=login.teacher, user=login.user or "-"),
+            )
+            return await self._refuse(browser, str(e))
+        board = Board(
+            answer_within_s=ANSWER_WITHIN_S,
+            no_answer_hint=f"no arbiter in session {self.view.session!r} heard it",
+        )
+        browser.teaching = Teaching(login.teacher, self.robots, board, self.view.language)
+        browser.send(self.robots.welcome(self.view, login.teacher))
+        self.log.info(
+            "a browser logged in", extra=fields(teacher=login.teacher, node=browser.node.id)
+        )
+        return True
+
+    def _teacher_node(self, browser: Browser, teacher: str, config: BusConfig) -> None:
+        """In a thread (the login can take a second): this browser's own teacher node."""
+        node = Node("teacher", config)
+        browser.node = node
+        session = node.session_id
+        node.input("utterance", teacher_key(session, teacher, "utterance"))
+        node.input("notice", teacher_key(session, teacher, "notice"))
+        browser.outputs = {
+            Utterance: node.output(
+                "utterance", teacher_key(session, teacher, "utterance"), keep=UTTERANCES_KEPT
+            ),
+            AudioChunk: node.output("audio", teacher_key(session, teacher, "audio")),
+        }
+        assert self.loop is not None
+        browser.stack.enter_context(
+            ClockSync(
+                node,
+                teacher,
+                synced=lambda e: None,
+                problem=lambda text: node.log.info(f"clock exchange: {text}"),
+            )
+        )
+        pump = _Pump(node, self.loop, lambda event: self._on_teacher(browser, event))
+        browser.stack.callback(pump.stop)
+
+    def _on_teacher(self, browser: Browser, event: object) -> None:
+        if browser.teaching is None or not isinstance(event, Input):
+            return
+        now = time.monotonic()
+        if isinstance(event.message, TeacherNotice):
+            for line in browser.teaching.notice(event.message, now):
+                browser.send(line)
+        elif isinstance(event.message, Utterance):
+            browser.teaching.recognized(event.message, now)
+
+    async def _converse(self, browser: Browser) -> None:
+        """Every frame after the login, within the limits; an error for each refused."""
+        teaching = browser.teaching
+        assert teaching is not None and self.loop is not None
+        limit = RateLimit()
+        async for msg in browser.ws:
+            now = time.monotonic()
+            if msg.type not in (WSMsgType.TEXT, WSMsgType.BINARY):
+                continue
+            if not limit.allow(now):
+                if limit.tell(now):
+                    browser.send(_error(f"too many messages: at most {limit.per_s:g} a second"))
+                continue
+            try:
+                if msg.type == WSMsgType.TEXT:
+                    if len(msg.data.encode()) > MAX_TEXT_BYTES:
+                        raise BrowserError(f"a text message is over {MAX_TEXT_BYTES} bytes")
+                    outcome = teaching.text(_json(msg.data), time.time(), now)
+                else:
+                    if len(msg.data) > MAX_BINARY_BYTES:
+                        raise BrowserError(f"an audio frame is over {MAX_BINARY_BYTES} bytes")
+                    outcome = teaching.audio(msg.data, time.time())
+            except BrowserError as e:
+                browser.send(_error(str(e)))
+                continue
+            for reply in outcome.replies:
+                browser.send(reply)
+            if outcome.messages:
+                self.loop.run_in_executor(browser.executor, browser.publish, outcome.messages)
+
+    async def _leave(self, browser: Browser) -> None:
+        """Ends its push-to-talk stream, then its node leaves the bus (after what it had to
+        publish: same worker)."""
+        assert self.loop is not None
+        if browser.teaching is not None and browser.teaching.talk is not None:
+            ended = browser.teaching.text({"type": "talk", "state": "stop"}, time.time(), 0.0)
+            self.loop.run_in_executor(browser.executor, browser.publish, ended.messages)
+        await self.loop.run_in_executor(browser.executor, browser.close_node)
+        browser.executor.shutdown(wait=False)
+
+    async def _refuse(self, browser: Browser, reason: str) -> bool:
+        """Says why, then closes the socket. Always False (not logged in)."""
+        with_reason = json.dumps({"type": "refused", "reason": reason})
+        try:
+            await browser.ws.send_str(with_reason)
+            await browser.ws.close(code=1008, message=b"refused")
+        except (ConnectionError, RuntimeError):
+            pass
+        return False
+
+
+_CLOSING = (WSMsgType.CLOSE, WSMsgType.CLOSING, WSMsgType.CLOSED, WSMsgType.ERROR)
+
+
+def _json(text: str) -> dict[str, Any]:
+    try:
+        data = json.loads(text)
+    except ValueError:
+        raise BrowserError("not JSON") from None
+    if not isinstance(data, dict):
+        raise BrowserError('a message is a JSON object with a "type"')
+    return data
+
+
+def _error(text: str) -> dict[str, Any]:
+    return {"type": "error", "text": text}
