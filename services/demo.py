@@ -9,6 +9,10 @@ episode, then stops the session and writes the logger's recording, the report's 
 (services/logger/report.py) and a table of the episodes under runs/<session>/: demo.md counts
 episodes and interventions from the event log as the report's summary.md does.
 
+`voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
+web page of compose.yaml (docs/web.md), prints its address, runs no simulated teacher unless
+`--sim-teacher`, and the robot runs at real time unless `--rtf`.
+
 The simulator runs paced at `--rtf` times real time: the arbiter credits what teachers say by
 the wall-clock display time of the steps, so the robot must not outrun that (a lockstep
 simulator here runs ~500 steps/s, and 0.1 s of a teacher's timing would cover 50 steps). The
@@ -51,7 +55,22 @@ FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # --task, --rtf, --robots as `voxshape up`'s, with the demo's defaults
-    launcher.add_arguments(parser, {"task": TASK, "rtf": "10", "robots": ROBOT})
+    launcher.add_arguments(parser, {"task": TASK, "robots": ROBOT})
+    parser.set_defaults(rtf=None)  # 10, or 1 with --web: a person teaches at real time
+    rtf = parser._option_string_actions["--rtf"]
+    rtf.help = "simulated seconds per wall second, paced (VOXSHAPE_RTF; default 10; --web: 1)"
+    parser.add_argument(
+        "--web",
+        action="store_true",
+        help="teach it yourself in a browser: serves the web page (its address is printed) "
+        "and runs no simulated teacher unless --sim-teacher; the robot runs at real time "
+        "unless --rtf",
+    )
+    parser.add_argument(
+        "--sim-teacher",
+        action="store_true",
+        help="with --web: the simulated teacher teaches too",
+    )
     parser.add_argument(
         "--max-episodes", type=int, default=60, help="give up if not converged by then"
     )
@@ -236,6 +255,8 @@ def teacher_spec(
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.rtf is None:
+        args.rtf = float(os.environ.get("VOXSHAPE_RTF") or (1 if args.web else 10))
     if args.max_episodes < 3 or args.rtf <= 0:
         print("voxshape demo: error: --max-episodes must be >= 3 and --rtf > 0")
         return 2
@@ -245,7 +266,14 @@ def run(args: argparse.Namespace) -> int:
     if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
         session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
         return 2
-    session.specs.append(teacher_spec(session, mode, args.seed, args.teacher_profile))
+    simulated = not args.web or args.sim_teacher
+    if simulated:
+        session.specs.append(teacher_spec(session, mode, args.seed, args.teacher_profile))
+    if not args.web:  # the page only when a person teaches
+        session.specs = [s for s in session.specs if s.name != "web"]
+    elif launcher.web_page(session) is None:
+        session.say("error: compose.yaml has no web service for --web")
+        return 2
     # The robot starts once its learner and teacher listen: at 20x, a start slowed by a busy
     # machine would otherwise run minutes of robot time untaught.
     session.specs.sort(key=lambda spec: spec.name == "sim")
@@ -255,10 +283,13 @@ def run(args: argparse.Namespace) -> int:
         else "text heard by the mock speech engine"
     )
     robot, others = args.robots[0], args.robots[1:]
+    taught = f"a simulated {args.teacher_profile} ({PROFILES[args.teacher_profile].describe()})"
+    taught = f"{taught} speaking {speaks}" if simulated else ""
+    if args.web:
+        taught = f"you in a browser{' and ' + taught if taught else ''}"
     session.say(
         f"voxshape demo: session {session_id!r}, {task_title(args.task, load_map(args.task))}, "
-        f"robot {robot} at {args.rtf:g}x real time, taught by a simulated {args.teacher_profile} "
-        f"({PROFILES[args.teacher_profile].describe()}) speaking {speaks}"
+        f"robot {robot} at {args.rtf:g}x real time, taught by {taught}"
         + (f"; {', '.join(others)} also learning, untaught and not counted" if others else "")
     )
     progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
@@ -269,6 +300,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         took = session.start()
         session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
+        if args.web:
+            session.say(f"teach it in a browser: {launcher.web_page(session)}")
         train(session, progress, args.stall_timeout)
     except (launcher.ServiceDied, launcher.LaunchAborted, BusError, TimeoutError) as e:
         session.say(f"error: {e}")
@@ -311,9 +344,7 @@ def train(session: launcher.LocalSession, progress: ConvergenceWatch, stall_time
         elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
             progress.on_teaching(event.message)
         elif isinstance(event, Tick):
-            for name, proc in session.procs.items():
-                if proc.poll() is not None:
-                    raise launcher.ServiceDied(name, proc.returncode)
+            session.check_children()  # restarts a dead service, or raises ServiceDied
         for line in progress.due_lines(now):
             session.say(line)
         if progress.done:

@@ -28,20 +28,39 @@ from typing import IO
 from protocol import ProtocolError, check_id
 from services.learner import checkpoint
 from services.logger.run import RUNS, keep_earlier_run
-from services.runtime import BusError, ConfigError, Node, Presence, Tick, bus_config
+from services.runtime import (
+    BusError,
+    ConfigError,
+    Node,
+    Presence,
+    Tick,
+    bus_config,
+    free_loopback_port,
+)
 from services.sim.maps import load_map
 from services.topology import ServiceSpec, find_compose_file, load_topology, local_variables
+from services.web import page_url
 
 STOP_GRACE_S = 10.0
 INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"  # where `voxshape teach` and the tools connect by default
+WEB_PORT = 8080  # compose's port of the web page
+
+
+MAX_RESTARTS = 5  # a service's restarts within RESTART_WINDOW_S before the session stops
+RESTART_WINDOW_S = 60.0
+FIRST_BACKOFF_S, MAX_BACKOFF_S = 0.5, 8.0  # doubling with each restart in the window
+
+
+def how_it_ended(code: int) -> str:
+    return f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
 
 
 class ServiceDied(RuntimeError):
-    def __init__(self, name: str, code: int) -> None:
+    def __init__(self, name: str, code: int, restarts: int = 0) -> None:
         self.name, self.code = name, code
-        how = f"was killed by {signal.Signals(-code).name}" if code < 0 else f"exited with {code}"
-        super().__init__(f"service {name!r} {how}")
+        given_up = f" ({restarts} restarts within {RESTART_WINDOW_S:g} s: given up)"
+        super().__init__(f"service {name!r} {how_it_ended(code)}" + (given_up if restarts else ""))
 
 
 class LaunchAborted(RuntimeError):
@@ -61,10 +80,16 @@ def resolve_command(command: tuple[str, ...]) -> list[str]:
 class LocalSession:
     """A running local session: child processes plus the launcher's own bus node."""
 
-    def __init__(self, specs: list[ServiceSpec], router: str, ready_timeout: float) -> None:
+    def __init__(
+        self, specs: list[ServiceSpec], router: str, ready_timeout: float, restart: bool = True
+    ) -> None:
+        """`restart`: follow each service's restart policy (else any death stops it all)."""
         self.specs = specs
         self.router = router
         self.ready_timeout = ready_timeout
+        self.restart = restart
+        self._restarted: dict[str, list[float]] = {}  # name -> monotonic times of restarts
+        self._restart_due: dict[str, float] = {}
         self.procs: dict[str, subprocess.Popen] = {}
         self.present: set[str] = set()
         self.bus: Node | None = None
@@ -145,7 +170,7 @@ class LocalSession:
             bus_config("launcher"), mode="client", connect=(self.router,), connect_timeout=1.0
         )
         while True:
-            self._check_children()
+            self.check_children()
             try:
                 node = Node("launcher", config, quiet=True)
             except BusError:
@@ -184,13 +209,42 @@ class LocalSession:
             if spec is not None and not event.alive and self.procs[spec.name].poll() is None:
                 self.say(f"warning: {spec.name} left the bus but its process is alive")
         elif isinstance(event, Tick):
-            self._check_children()
+            self.check_children()
 
-    def _check_children(self) -> None:
-        for name, proc in self.procs.items():
-            code = proc.poll()
-            if code is not None:
-                raise ServiceDied(name, code)
+    def check_children(self) -> None:
+        """Restarts the services whose policy says so, when their backoff is over; raises
+        ServiceDied for one that must not (or can no longer) be restarted."""
+        now = time.monotonic()
+        for spec in self.specs:
+            proc = self.procs.get(spec.name)
+            code = None if proc is None else proc.poll()
+            if code is None:
+                continue
+            due = self._restart_due.get(spec.name)
+            if due is None:
+                self._restart_due[spec.name] = now + self._backoff(spec, code, now)
+            elif now >= due:
+                del self._restart_due[spec.name]
+                self._restarted.setdefault(spec.name, []).append(now)
+                self._spawn(spec)
+
+    def _backoff(self, spec: ServiceSpec, code: int, now: float) -> float:
+        """Seconds to wait before restarting a service that ended with `code`."""
+        wanted = spec.restart in ("always", "unless-stopped") or (
+            spec.restart == "on-failure" and code != 0
+        )
+        if not (self.restart and wanted):
+            raise ServiceDied(spec.name, code)
+        recent = [t for t in self._restarted.get(spec.name, []) if now - t < RESTART_WINDOW_S]
+        self._restarted[spec.name] = recent
+        if len(recent) >= MAX_RESTARTS:
+            raise ServiceDied(spec.name, code, len(recent))
+        delay = min(MAX_BACKOFF_S, FIRST_BACKOFF_S * 2 ** len(recent))
+        self.say(
+            f"{spec.name} {how_it_ended(code)}: restarting it in {delay:g} s (restart "
+            f"{len(recent) + 1} of at most {MAX_RESTARTS} a minute; --no-restart stops instead)"
+        )
+        return delay
 
     def run(self) -> None:
         """Watches the session until a signal (returns) or a service dies (raises)."""
@@ -235,7 +289,11 @@ class LocalSession:
                     proc.wait()
         if self.bus is not None:
             self.bus.close()
-        return {name: proc.returncode for name, proc in self.procs.items()}
+        # one awaiting its restart died during the session, not at its end
+        return {
+            name: None if name in self._restart_due else proc.returncode
+            for name, proc in self.procs.items()
+        }
 
 
 # The flags that set compose.yaml's variables: flag -> variable.
@@ -284,6 +342,13 @@ def add_arguments(
         "checkpoints); without it, an earlier run there is kept aside and this one starts "
         "afresh",
     )
+    parser.add_argument(
+        "--no-restart",
+        dest="restart",
+        action="store_false",
+        help="a service that dies stops the session (default: restarted as compose.yaml's "
+        "`restart` says)",
+    )
 
 
 def positive_float(text: str) -> float:
@@ -319,6 +384,9 @@ def session_variables(args: argparse.Namespace) -> dict[str, str]:
         variables["VOXSHAPE_RTF"] = f"{args.rtf:g}"
     if args.robots is not None:
         variables["VOXSHAPE_ROBOTS"] = ",".join(args.robots)
+    if "VOXSHAPE_WEB_PORT" not in variables and not _can_listen("127.0.0.1", WEB_PORT):
+        # another session's page has the usual port: this one's goes elsewhere (up prints it)
+        variables["VOXSHAPE_WEB_PORT"] = str(free_loopback_port())
     robots = [r for r in variables.get("VOXSHAPE_ROBOTS", "").split(",") if r]
     if robots and variables.get("VOXSHAPE_ROBOT") not in robots:
         variables["VOXSHAPE_ROBOT"] = robots[0]  # the one a simulated teacher watches
@@ -331,7 +399,9 @@ def open_session(args: argparse.Namespace) -> LocalSession:
     variables = session_variables(args)
     path = args.compose or find_compose_file()
     specs = load_topology(path, variables, tuple(args.profile))
-    session = LocalSession(specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout)
+    session = LocalSession(
+        specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout, getattr(args, "restart", True)
+    )
     taken = busy_endpoints(session.variable("router", "VOXSHAPE_LISTEN") or "")
     if taken:
         raise ConfigError(
@@ -400,6 +470,8 @@ def run(args: argparse.Namespace) -> int:
         took = session.start()
         session.say(f"ready in {took:.1f} s: router at {session.router}; Ctrl-C stops the session")
         session.say(next_steps(session))
+        if (url := web_page(session)) is not None:
+            session.say(f"teach in a browser: {url}")
         session.run()
     except ServiceDied as e:
         session.say(f"error: {e}; stopping the session")
@@ -415,6 +487,15 @@ def run(args: argparse.Namespace) -> int:
         code = 1
     session.say("stopped" if code == 0 else f"stopped with errors (exit {code})")
     return code
+
+
+def web_page(session: LocalSession) -> str | None:
+    """The address of the session's web page (docs/web.md), if compose runs one."""
+    port = session.variable("web", "VOXSHAPE_WEB_PORT")
+    if port is None:
+        return None
+    address = session.variable("web", "VOXSHAPE_WEB_ADDRESS") or "127.0.0.1"
+    return page_url(address, port, bool(session.variable("web", "VOXSHAPE_WEB_CERT")))
 
 
 def next_steps(session: LocalSession) -> str:

@@ -21,6 +21,7 @@ LOCAL_VARIABLES = {
     "VOXSHAPE_ROUTER_LISTEN": "tcp/127.0.0.1:7447",  # where the router listens
     "VOXSHAPE_VIEWER_BIND": "127.0.0.1",  # the logger's live recording: this host only
     "VOXSHAPE_WEB_BIND": "127.0.0.1",  # the viewer profile's web viewer: this host only
+    "VOXSHAPE_WEB_ADDRESS": "127.0.0.1",  # the teachers' web page: this host only
 }
 # Folders a container finds mounted at a fixed place; a local service gets the folder itself
 # (none by default: the local session is open, and speech needs no vosk model).
@@ -28,6 +29,7 @@ LOCAL_FOLDERS = {
     "VOXSHAPE_SERVICE_SECRETS": "VOXSHAPE_SECRETS",
     "VOXSHAPE_SERVICE_VOSK_MODEL": "VOXSHAPE_VOSK_MODEL",
 }
+RESTART_POLICIES = ("no", "always", "on-failure", "unless-stopped")
 # A service labelled `voxshape.bus: "false"` announces no presence (the web viewer).
 NOT_ON_BUS_LABEL = "voxshape.bus"
 
@@ -54,6 +56,7 @@ class ServiceSpec:
     depends_on: tuple[str, ...]
     profiles: tuple[str, ...]
     on_bus: bool = True  # announces its presence (its node id) once it runs
+    restart: str = "no"  # compose's restart policy: no, always, on-failure, unless-stopped
 
     @property
     def node(self) -> str:
@@ -116,6 +119,9 @@ def load_topology(
             raise TopologyError(f"{where}: `environment` must be a map")
         depends = body.get("depends_on") or []
         depends = list(depends) if isinstance(depends, dict | list) else []
+        restart = str(body.get("restart", "no"))
+        if restart not in RESTART_POLICIES:
+            raise TopologyError(f"{where}: `restart` must be one of {', '.join(RESTART_POLICIES)}")
         specs[name] = ServiceSpec(
             name=name,
             command=tuple(interpolate(c, variables, where) for c in command),
@@ -125,6 +131,7 @@ def load_topology(
             depends_on=tuple(depends),
             profiles=tuple(body.get("profiles") or ()),
             on_bus=str((body.get("labels") or {}).get(NOT_ON_BUS_LABEL, "true")) != "false",
+            restart=restart,
         )
     chosen = {n: s for n, s in specs.items() if not s.profiles or set(s.profiles) & set(profiles)}
     return _dependencies_first(chosen, path)

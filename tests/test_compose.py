@@ -41,7 +41,9 @@ def test_docker_compose_accepts_the_file(profiles):
     assert result.returncode == 0, result.stderr
     services = yaml.safe_load(result.stdout)["services"]
     # docker-compose 1.29 lists the services of every profile in `config`
-    assert {"router", "logger", "sim", "learner", "arbiter", "speech", *PROFILES} == set(services)
+    assert {"router", "logger", "sim", "learner", "arbiter", "speech", "web", *PROFILES} == set(
+        services
+    )
 
 
 def test_every_container_is_hardened():
@@ -92,7 +94,12 @@ def test_every_service_joins_a_secured_router_and_announces_itself(
     """`voxshape up` runs compose's commands; here with the simulated teacher's profile and
     the secrets: each service logs in as its own user with the role deploy/access.toml gives."""
     port = free_port()
-    env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_SECRETS": str(secrets)}
+    env = {
+        **os.environ,
+        "VOXSHAPE_SESSION": session_id,
+        "VOXSHAPE_SECRETS": str(secrets),
+        "VOXSHAPE_WEB_PORT": str(free_port()),
+    }
     env.pop("VOXSHAPE_USER", None)
     up = spawn(
         [VOXSHAPE, "up", "--port", str(port), "--profile", "simteacher", "--ready-timeout", "60"],

@@ -43,7 +43,8 @@ def read_until(proc: subprocess.Popen, pattern: str, timeout: float = 30.0) -> l
 def start_up(spawn, session_id: str, cwd: Path, *extra: str) -> tuple[subprocess.Popen, int]:
     """`voxshape up` in `cwd` (its services write under ./runs), on a free port."""
     port = free_port()
-    env = {**os.environ, "VOXSHAPE_SESSION": session_id}
+    # the web page on a port of its own: another session's may have 8080
+    env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_WEB_PORT": str(free_port())}
     proc = spawn(
         [VOXSHAPE, "up", "--port", str(port), *extra],
         env=env,
@@ -57,6 +58,7 @@ def start_up(spawn, session_id: str, cwd: Path, *extra: str) -> tuple[subprocess
 def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id, tmp_path):
     up, port = start_up(spawn, session_id, tmp_path)
     lines = read_until(up, r"ready in")
+    lines += read_until(up, r"teach in a browser: http://127\.0\.0\.1:\d+/")
     children = [int(m.group(1)) for line in lines if (m := re.search(r"\(pid (\d+)\)", line))]
     assert children, lines
     status = subprocess.run(
@@ -331,3 +333,53 @@ def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str
             if isinstance(event, Input) and isinstance(event.message, LearningSummary):
                 states[event.message.robot] = event.message.states
     return states
+
+
+def child_pids(lines: list[str]) -> dict[str, int]:
+    """The pid of each service `voxshape up` says it started (the latest start wins)."""
+    started = (re.search(r"\| started (\S+) \(pid (\d+)\)", line) for line in lines)
+    return {m.group(1): int(m.group(2)) for m in started if m}
+
+
+def test_a_killed_service_is_restarted_and_the_session_goes_on(spawn, session_id, tmp_path):
+    up, _ = start_up(spawn, session_id, tmp_path)
+    learner = child_pids(read_until(up, r"ready in"))["learner"]
+    os.kill(learner, signal.SIGKILL)
+    lines = read_until(up, r"started learner \(pid \d+\)")
+    assert any("learner was killed by SIGKILL: restarting it in 0.5 s" in x for x in lines), lines
+    assert child_pids(lines)["learner"] != learner
+    read_until(up, r"learner +\| .*learning")  # the new one resumes (its log says so)
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=30)
+    assert up.returncode == 0, rest
+
+
+def test_with_no_restart_a_killed_service_stops_the_session(spawn, session_id, tmp_path):
+    up, _ = start_up(spawn, session_id, tmp_path, "--no-restart")
+    os.kill(child_pids(read_until(up, r"ready in"))["learner"], signal.SIGKILL)
+    out, _ = up.communicate(timeout=60)
+    assert up.returncode == 1, out
+    assert "error: service 'learner' was killed by SIGKILL; stopping the session" in out
+
+
+def test_a_service_that_keeps_dying_is_given_up_after_its_restarts(spawn, session_id, tmp_path):
+    compose = compose_with(
+        tmp_path,
+        """
+  flaky:
+    command: ["voxshape", "listen", "--duration", "0.5"]
+    restart: always
+    environment:
+      VOXSHAPE_SESSION: ${VOXSHAPE_SESSION:-default}
+      VOXSHAPE_NODE: flaky
+      VOXSHAPE_CONNECT: ${VOXSHAPE_ROUTER:-tcp/router:7447}
+    depends_on:
+      router:
+        condition: service_healthy
+""",
+    )
+    up, _ = start_up(spawn, session_id, tmp_path, "--compose", str(compose))
+    out, _ = up.communicate(timeout=120)
+    assert up.returncode == 1, out
+    assert out.count("flaky exited with 0: restarting it in") == 5, out
+    assert "service 'flaky' exited with 0 (5 restarts within 60 s: given up)" in out

@@ -49,6 +49,7 @@ from services.web.gateway import (
     vocabulary_json,
 )
 from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
+from tests.test_launcher import read_until
 
 # -- the pure core -----------------------------------------------------------------------------
 
@@ -489,3 +490,33 @@ def test_voxshape_web_stops_cleanly_on_sigterm(spawn, router, session_id):
             timeout=30,
         )
     assert taken.returncode == 2 and "cannot serve the page on 127.0.0.1:" in taken.stderr
+
+
+def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
+    spawn, session_id, tmp_path
+):
+    web_port = free_port()
+    env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_WEB_PORT": str(web_port)}
+    demo = spawn(
+        [VOXSHAPE, "demo", "--web", "--speech", "mock", "--port", str(free_port())],
+        env=env,
+        text=True,
+        stderr=subprocess.STDOUT,
+        cwd=tmp_path,
+    )
+    lines = read_until(demo, r"teach it in a browser: |error", timeout=120)
+    assert lines[-1].endswith(f"teach it in a browser: http://127.0.0.1:{web_port}/"), lines
+    assert any("at 1x real time, taught by you in a browser" in line for line in lines), lines
+    assert not any("sim-teacher" in line for line in lines), lines
+
+    async def look() -> None:
+        async with aiohttp.ClientSession() as http:
+            ws, welcome = await open_page(http, web_port, {"teacher": "ana"})
+            assert welcome["type"] == "welcome" and welcome["map"]["name"].startswith("Task 1")
+            obs, _ = await until(ws, lambda m: m["type"] == "obs", timeout=60)
+            assert obs["robot"] == "r1" and len(obs["laser"]) == 180
+            await ws.close()
+
+    asyncio.run(look())
+    demo.send_signal(signal.SIGINT)
+    demo.communicate(timeout=120)

@@ -63,6 +63,7 @@ from services.runtime import (
 from services.runtime.clock import ClockSync
 from services.sim.maps import load_map
 from services.teacher.board import Board
+from services.web import page_url
 from services.web.gateway import (
     MAX_BINARY_BYTES,
     MAX_TEXT_BYTES,
@@ -142,13 +143,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
     parser.add_argument("--static", type=Path, default=STATIC, help="folder of the page")
-
-
-def page_url(address: str, port: int, https: bool) -> str:
-    """Where a browser on this host opens the page."""
-    host = "localhost" if address in ("0.0.0.0", "::", "") else address
-    host = f"[{host}]" if ":" in host else host
-    return f"{'https' if https else 'http'}://{host}:{port}/"
 
 
 def run(args: argparse.Namespace) -> int:
