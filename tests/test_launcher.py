@@ -383,3 +383,11 @@ def test_a_service_that_keeps_dying_is_given_up_after_its_restarts(spawn, sessio
     assert up.returncode == 1, out
     assert out.count("flaky exited with 0: restarting it in") == 5, out
     assert "service 'flaky' exited with 0 (5 restarts within 60 s: given up)" in out
+
+
+def test_restart_policies_come_from_compose(tmp_path):
+    specs = load_topology(COMPOSE, local_variables({}), ("simteacher", "viewer"))
+    assert {s.restart for s in specs} == {"unless-stopped"}
+    bad = compose_with(tmp_path, '\n  odd:\n    command: ["true"]\n    restart: sometimes\n')
+    with pytest.raises(TopologyError, match="`restart` must be one of no, always"):
+        load_topology(bad, local_variables({}))
