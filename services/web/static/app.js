@@ -32,7 +32,8 @@ const state = {
   curve: {}, // robot -> [{episode, return, steps, interventions}]
   said: [], // say messages sent
   framesDrawn: 0,
-  frames: [], // {robot, step, stamp, received, drawn}: performance.now() ms, stamp gateway ms
+  frames: [], // {robot, step, stamp, wall_time, received, drawn}: received and drawn are
+  // performance.now() ms, stamp (forwarded) gateway ms, wall_time (published) simulator ms
   drawn: {}, // robot -> pose last drawn {x, y, theta, step}
   clock: null,
   mic: { talking: false, chunks: 0, sentMs: 0, pressMs: 0, error: null, starts: 0, stops: 0 },
@@ -279,7 +280,7 @@ function frame() {
     state.framesDrawn++;
     for (const robot of pending) {
       const o = state.obs[robot];
-      state.frames.push({ robot, step: o.step, stamp: o.stamp, received: o.received, drawn: now });
+      state.frames.push({ robot, step: o.step, stamp: o.stamp, wall_time: o.wall_time, received: o.received, drawn: now });
     }
     pending.clear();
     if (state.frames.length > MAX_FRAMES) state.frames.splice(0, state.frames.length - MAX_FRAMES);
