@@ -213,7 +213,8 @@ function notice(msg) {
   const li = document.createElement("li");
   li.className = noticeClass(msg.kind);
   li.dataset.kind = msg.kind;
-  li.textContent = (msg.late ? "late answer: " : "") + msg.text;
+  li.textContent = msg.text; // the terminal client's line ("late answer: ..." when late)
+  if (msg.late) li.classList.add("late");
   if (msg.heard) {
     const heard = document.createElement("div");
     heard.className = "heard";
