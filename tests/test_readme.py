@@ -51,6 +51,10 @@ COVERED: dict[str, tuple[str, ...]] = {
     "voxshape up --robots r1,r2 --rtf 5": (
         "tests.test_launcher::test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes",
     ),
+    "voxshape web": (
+        "tests.test_web::test_a_browser_teaches_through_the_page",
+        "tests.test_web::test_voxshape_web_stops_cleanly_on_sigterm",
+    ),
     "voxshape demo --web": (
         "tests.test_web::test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher",
         "tests.test_web::test_a_browser_teaches_through_the_page",
