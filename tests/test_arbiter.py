@@ -464,3 +464,22 @@ def test_the_step_timeline_is_bounded_and_starts_over_on_a_restart():
     assert timeline.spread(shown(10), shown(11)) is None  # forgotten: too late
     assert not timeline.add(0, shown(60), 0, True)  # a restarted simulator
     assert len(timeline) == 1 and timeline.latest_step == 0
+
+
+def test_a_just_started_arbiter_holds_words_for_a_robot_until_it_is_seen():
+    """Restarted, it may recover a teacher's utterances before the robot's observations."""
+    a = Arbiter(ArbiterConfig(), VOCABULARY, started_at=shown(30))
+    said = utterance("ana", "r1", "good", shown(15))  # said before the arbiter started
+    assert a.on_utterance(said, shown(30)) == []  # held: r1 not seen yet
+    out = []
+    for k in range(30):  # recovered: they arrive late, in a burst
+        a.on_observation(observation("r1", k, shown(k)), shown(30) + 0.001 * k)
+    assert a.on_tick(shown(31)) == []  # still starting
+    out = a.on_tick(shown(30) + 3.0)
+    assert feedback(out) and notices(out)[0].kind == "understood"
+    late = Arbiter(ArbiterConfig(), VOCABULARY, started_at=T0)
+    assert late.on_utterance(utterance("ana", "r9", "good", T0 - 1), T0) == []
+    (notice,) = notices(late.on_tick(T0 + 3.0))  # nobody came: unknown after the wait
+    assert notice.kind == "unknown_robot"
+    live = late.on_utterance(utterance("ana", "r8", "good", T0 + 1), T0 + 1)
+    assert notices(live)[0].kind == "unknown_robot"  # said after the start: told at once

@@ -382,6 +382,125 @@ def test_when_speech_dies_the_teacher_is_told_and_typed_words_still_work(
     assert (straight.text, straight.engine) == ("bad", "typed")
 
 
+OUTAGE_S = 10.0  # how long a service stays down in the outage tests
+
+
+def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
+    spawn, router, session_id, client_config, tmp_path
+):
+    """The teacher's audio is a kept output and the speech service's input a recovering one:
+    a word spoken during a 10 s outage is recognized by the restarted service."""
+    clip = Path(__file__).parent / "fixtures" / "speech" / "en-voc-turn-left-kal-diphone.wav"
+    speech = service(spawn, "speech", router, session_id, "speech")
+    with Node("test", client_config("observer")) as node:
+        node.watch_presence(role="speech")
+        wait_present(node, {"speech"})
+        speech.send_signal(signal.SIGKILL)
+        speech.wait(10)
+        killed = time.monotonic()
+        node.input("utterance", teacher_key(session_id, "ana", "utterance"))
+        teach = service(
+            spawn,
+            "teach",
+            router,
+            session_id,
+            "teach",
+            *("--teacher", "ana", "--robot", "r1", "--json", "--wav", str(clip), "--fast"),
+            *("--wait-speech", "0", "--linger", str(OUTAGE_S + 30)),
+            stdout=subprocess.PIPE,
+            cwd=tmp_path,
+        )
+        time.sleep(max(0.0, OUTAGE_S - (time.monotonic() - killed)))
+        speech = service(spawn, "speech", router, session_id, "speech")
+        restarted = time.monotonic()
+        (heard,) = collect(node, 1, Utterance, timeout=40)
+        recognized = time.monotonic()
+        teach.send_signal(signal.SIGTERM)
+        teach.wait(30)
+    code, counters, err = stop(speech)
+    assert code == 0, err
+    figures(
+        "speech down while a word is said",
+        down_s=round(restarted - killed, 2),
+        recognized_after_restart_s=round(recognized - restarted, 2),
+        recovered_chunks=counters.get("received.audio", 0),
+    )
+    assert heard.text == "turn left" and heard.teacher == "ana"
+
+
+def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
+    spawn, router, session_id, client_config, tmp_path
+):
+    """The arbiter, killed for 10 s while a teacher types, recovers the utterances and the
+    robot's steps it missed and publishes their feedback; feedback ids derive from the
+    utterances, so what it had published before the kill is not taken twice."""
+    paced_sim(spawn, router, session_id)
+    arbiter = service(spawn, "arbiter", router, session_id, "arbiter", cwd=tmp_path)
+    learning = learner(spawn, router, session_id, tmp_path / "learner.npz", every=1.0)
+    with Node("test", client_config("observer")) as node:
+        node.watch_presence()
+        wait_present(node, {"sim", "arbiter", "learner"})
+        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        teach = service(
+            spawn,
+            "teach",
+            router,
+            session_id,
+            "teach",
+            *("--teacher", "ana", "--robot", "r1", "--json", "--linger", "30"),
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            cwd=tmp_path,
+        )
+        teach.stdin.write("good\n")
+        teach.stdin.flush()
+        before = collect(node, 1, CreditedFeedback, timeout=20)
+        arbiter.send_signal(signal.SIGKILL)
+        arbiter.wait(10)
+        killed = time.monotonic()
+        for word in ("bad", "left", "excellent"):
+            time.sleep(OUTAGE_S / 4)
+            teach.stdin.write(f"{word}\n")
+            teach.stdin.flush()
+        time.sleep(max(0.0, OUTAGE_S - (time.monotonic() - killed)))
+        arbiter = service(spawn, "arbiter", router, session_id, "arbiter", cwd=tmp_path)
+        restarted = time.monotonic()
+        seen = {before[0].id: before[0]}  # by id: feedback derived again has the same id
+        copies, deadline = 0, time.monotonic() + 30
+        while len(seen) < 4 and time.monotonic() < deadline:
+            event = node.poll(0.1)
+            if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
+                copies += event.message.id in seen
+                seen[event.message.id] = event.message
+        published = time.monotonic()
+        teach.stdin.close()
+        teach.wait(60)
+    time.sleep(2)  # the learner's last feedback, then its checkpoint on stopping
+    code, _, err = stop(learning)
+    assert code == 0, err
+    code, counters, err = stop(arbiter)
+    assert code == 0, err
+    taken = checkpoint_meta(tmp_path / "learner.npz")["feedback_taken"]
+    figures(
+        "arbiter down while words are typed",
+        down_s=round(restarted - killed, 2),
+        feedback_after_restart_s=round(published - restarted, 2),
+        recovered_utterances=counters.get("received.utterance", 0),
+        copies_seen=copies,
+        taken_by_learner=len(taken),
+        refused={k: v for k, v in counters.items() if ".rejected." in k or "missed" in k},
+        recovered_obs=counters.get("received.obs", 0),
+    )
+    said = sorted((f.kind, f.reward, f.command) for f in seen.values())
+    assert said == [
+        ("command", None, "left"),
+        ("reward", -10.0, None),
+        ("reward", 10.0, None),
+        ("reward", 50.0, None),
+    ]
+    assert sorted(taken) == sorted(seen)  # each exactly once, the copies skipped by id
+
+
 # -- a teacher flooding -------------------------------------------------------------------------
 def test_a_flooding_teacher_is_rate_limited_and_another_is_unaffected(
     spawn, router, session_id, client_config, tmp_path

@@ -22,6 +22,7 @@ the step they credit and published (TeachingStats) with each teacher's statistic
 
 from __future__ import annotations
 
+import hashlib
 from collections import Counter, OrderedDict
 from dataclasses import dataclass, field
 
@@ -47,6 +48,11 @@ from services.arbiter.merge import Agreement, Judgement, Merged, Merger
 
 FUTURE_TOLERANCE = 0.25  # s: an onset later than its arrival by more is a clock error
 EPISODES_KEPT = 16  # per robot, awaiting their final statistics
+# An arbiter that has just (re)started holds utterances for robots it has not seen yet this
+# long: the observations it recovers from the simulator may come after the utterances, and
+# all of them are needed to know the steps the words are about.
+STARTING_S = 3.0
+MAX_HELD = 1024
 PROBE_RATE, PROBE_BURST = 10.0, 20.0  # clock probes per second per teacher
 MAX_TEXT = 500
 
@@ -92,8 +98,19 @@ class _Teacher:
     delay: ReactionDelay
 
 
+def feedback_id(robot: str, kind: str, sources: tuple[str, ...]) -> str:
+    """A feedback message's id, derived from the utterances it comes from: an arbiter that
+    restarts and derives it again from the utterances it recovers gives it the same id, so a
+    learner that took it before skips it."""
+    key = "|".join((robot, kind, *sorted(sources))).encode()
+    return hashlib.blake2b(key, digest_size=16).hexdigest()
+
+
 class Arbiter:
-    def __init__(self, config: ArbiterConfig, vocabulary: Vocabulary) -> None:
+    def __init__(
+        self, config: ArbiterConfig, vocabulary: Vocabulary, started_at: float | None = None
+    ) -> None:
+        """`started_at`: when it started, on its clock (default: its first input's arrival)."""
         self.config = config
         self.vocabulary = vocabulary
         self.counters: Counter[str] = Counter()
@@ -106,10 +123,13 @@ class Arbiter:
         self._notices = Throttle(config.notice_every)
         self._robots: dict[str, _Robot] = {}
         self._teachers: dict[str, _Teacher] = {}
+        self._started_at = float("inf") if started_at is None else started_at
+        self._held: list[tuple[Utterance, _Teacher, float]] = []  # for robots not seen yet
 
     # -- inputs ---------------------------------------------------------------------------
     def on_observation(self, obs: Observation, received_at: float) -> list[Message]:
         """The step clock of a robot: timing, salient events, episodes."""
+        self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(obs.robot)
         if robot is None:
             if len(self._robots) >= self.config.max_robots:
@@ -137,7 +157,7 @@ class Arbiter:
         self, utterance: Utterance, received_at: float, key_teacher: str | None = None
     ) -> list[Message]:
         """What an utterance becomes: feedback for the learner and a notice for the teacher."""
-        teacher_id, robot_id = utterance.teacher, utterance.robot
+        teacher_id = utterance.teacher
         if key_teacher is not None and key_teacher != teacher_id:
             self.counters["rejected.teacher_mismatch"] += 1
             return []
@@ -147,7 +167,25 @@ class Arbiter:
         teacher = self._teacher(teacher_id)
         if teacher is None:
             return []
+        return self._utterance(utterance, teacher, received_at)
+
+    def _utterance(
+        self, utterance: Utterance, teacher: _Teacher, received_at: float
+    ) -> list[Message]:
+        teacher_id, robot_id = utterance.teacher, utterance.robot
+        self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(robot_id)
+        said_before_start = self.clocks.to_arbiter(teacher_id, utterance.onset) < self._started_at
+        if (
+            robot is None
+            and said_before_start
+            and received_at - self._started_at < STARTING_S
+            and len(self._held) < MAX_HELD
+        ):
+            # recovered by an arbiter just (re)started: the robot's recovered observations
+            # may come after it
+            self._held.append((utterance, teacher, received_at))
+            return []
         if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
             robot = None  # its simulator went quiet: nothing to credit
         tally = robot.tally(teacher_id) if robot is not None else _Tally()
@@ -184,6 +222,14 @@ class Arbiter:
         text = f"understood {utterance.text!r}: {said}"
         return [*out, self._notice(utterance, "understood", text, meaning.name)]
 
+    def _release(self, now: float) -> list[Message]:
+        """The held utterances, in order, once the start is over (the robot's recovered
+        observations have come by then, and its steps are known)."""
+        if not self._held or now - self._started_at < STARTING_S:
+            return []
+        held, self._held = self._held, []
+        return [m for u, teacher, _ in held for m in self._utterance(u, teacher, now)]
+
     def on_clock_probe(
         self, probe: ClockProbe, received_at: float, now: float, key_teacher: str | None = None
     ) -> list[Message]:
@@ -210,6 +256,7 @@ class Arbiter:
         """Merged feedback that is due, and statistics: changed ones at most every
         `stats_every` seconds, and each episode's final ones `settle` seconds after it ended."""
         out: list[Message] = [self._feedback(m) for m in self.merger.due(now)]
+        out += self._release(now)
         for robot_id, robot in self._robots.items():
             for number, episode in list(robot.episodes.items()):
                 settled = (
@@ -268,6 +315,7 @@ class Arbiter:
         step, episode = latest or (robot.timeline.latest_step, robot.timeline.latest_episode)
         self.counters["commands"] += 1
         feedback = CreditedFeedback(
+            id=feedback_id(utterance.robot, "command", (utterance.id,)),
             robot=utterance.robot,
             kind="command",
             reward=None,
@@ -351,6 +399,7 @@ class Arbiter:
             self.counters["reward_clipped"] += 1
         self.counters["feedback"] += 1
         return CreditedFeedback(
+            id=feedback_id(merged.robot, "reward", merged.sources),
             robot=merged.robot,
             kind="reward",
             reward=max(-bound, min(bound, merged.reward)),

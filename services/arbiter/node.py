@@ -48,7 +48,9 @@ from services.runtime.logs import worth_logging
 
 TICK = 0.1  # seconds: merge windows and statistics are checked this often
 FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
-UTTERANCE_RECOVERY_S = 5.0  # a (re)joining arbiter asks for this much; older is too late
+# A (re)joining arbiter asks for this much of the teachers' and speech's kept utterances:
+# as much as it remembers of the robots' steps (ArbiterConfig.history_seconds).
+UTTERANCE_RECOVERY_S = 30.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -170,10 +172,10 @@ class _Publisher:
 def run(args: argparse.Namespace) -> int:
     config = config_from(args)
     vocabulary = load_vocabulary(args.vocabulary)
-    arbiter = Arbiter(config, vocabulary)
+    arbiter = Arbiter(config, vocabulary, started_at=time.time())
     with Node("arbiter", bus_config("arbiter", args)) as node:
         publish = _Publisher(node)
-        node.input("obs", robot_key(node.session_id, "*", "obs"))
+        node.input("obs", robot_key(node.session_id, "*", "obs"), recover=UTTERANCE_RECOVERY_S)
         node.input(
             "utterance",
             teacher_key(node.session_id, "*", "utterance"),

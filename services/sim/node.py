@@ -26,6 +26,9 @@ from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
 
 LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
+# Observations kept per robot for an arbiter that restarts (a minute of paced steps at 1x):
+# from them it rebuilds the step clock that utterances said meanwhile are credited on.
+OBS_KEPT = 600
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -93,7 +96,10 @@ def run(args: argparse.Namespace) -> int:
             stepper = Stepper(sim, args.clock, timeout, node.counters)
             for r in robots:
                 node.input("action", robot_key(node.session_id, r, "action"))
-            obs = {r: node.output("obs", robot_key(node.session_id, r, "obs")) for r in robots}
+            obs = {
+                r: node.output("obs", robot_key(node.session_id, r, "obs"), keep=OBS_KEPT)
+                for r in robots
+            }
             episode = {
                 r: node.output("episode", robot_key(node.session_id, r, "episode")) for r in robots
             }

@@ -60,6 +60,7 @@ from services.simteacher.teacher import (
     TeacherProfile,
 )
 from services.speech.synthesis import LEAD_S, VOICE, Voice
+from services.teacher.node import AUDIO_KEPT, UTTERANCES_KEPT
 from services.teacher.sources import wav_stream
 
 
@@ -228,7 +229,8 @@ def run(args: argparse.Namespace) -> int:
         node.input("obs", robot_key(session, robot, "obs"))
         node.input("notice", teacher_key(session, teacher_id, "notice"))
         topic = "audio" if voice else "said"
-        out = node.output(topic, teacher_key(session, teacher_id, topic))
+        keep = AUDIO_KEPT if voice else UTTERANCES_KEPT  # for a restarted speech service
+        out = node.output(topic, teacher_key(session, teacher_id, topic), keep=keep)
         node.log.info(
             "teaching",
             extra=fields(

@@ -3,6 +3,7 @@
 Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk)
          voxshape/<session>/teacher/*/said       text said (mock)
 Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
+                                                   (kept: an arbiter that missed it recovers it)
          voxshape/<session>/teacher/<t>/notice     speech heard but rejected ("not recognized")
 """
 
@@ -42,6 +43,10 @@ from services.speech.streams import AudioStreams, StreamLimits
 from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized
 
 TICK_S = 0.02  # idle streams and due mock results are looked at this often
+# A (re)starting speech service asks the teachers' kept audio and said text for this much:
+# what they said while it (or the router) was down is recognized when it is back.
+SPEECH_RECOVERY_S = 30.0
+UTTERANCES_KEPT = 256  # utterances kept for an arbiter that missed them
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -139,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         core: AudioTranscriber | MockTranscriber
         if engine is not None:
             core = MockTranscriber(engine, node.counters)
-            node.input("said", teacher_key(node.session_id, "*", "said"))
+            node.input("said", teacher_key(node.session_id, "*", "said"), recover=SPEECH_RECOVERY_S)
             node.log.info("listening", extra=fields(engine="mock", error_rate=args.error_rate))
         else:
             assert recognizer is not None
@@ -147,7 +152,9 @@ def run(args: argparse.Namespace) -> int:
             limits = StreamLimits(args.max_streams, args.idle_timeout)
             streams = AudioStreams(limits=limits, counters=node.counters, report=report)
             core = AudioTranscriber(recognizer, streams, report)
-            node.input("audio", teacher_key(node.session_id, "*", "audio"))
+            node.input(
+                "audio", teacher_key(node.session_id, "*", "audio"), recover=SPEECH_RECOVERY_S
+            )
             node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
         outputs: dict[tuple[str, str], Output] = {}
 
@@ -156,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
                 topic = "utterance" if isinstance(r, Utterance) else "notice"
                 if (r.teacher, topic) not in outputs:
                     key = teacher_key(node.session_id, r.teacher, topic)
-                    outputs[r.teacher, topic] = node.output(topic, key)
+                    keep = UTTERANCES_KEPT if topic == "utterance" else 0
+                    outputs[r.teacher, topic] = node.output(topic, key, keep=keep)
                 outputs[r.teacher, topic].put(r)
                 if isinstance(r, Utterance):
                     heard = fields(

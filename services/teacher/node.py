@@ -50,7 +50,6 @@ from protocol import (
     teacher_key,
 )
 from protocol.messages import SAMPLE_RATE
-from protocol.vocabulary import LANGUAGES
 from services.runtime import (
     ConfigError,
     Input,
@@ -77,6 +76,9 @@ from services.teacher.sources import (
 )
 
 TICK_S = 0.02
+# Kept for a speech service or arbiter that missed them (restarted, or the router was): as
+# much as SPEECH_RECOVERY_S (services/speech/node.py) asks for, 50 ms a chunk.
+AUDIO_KEPT = 800
 ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
 UTTERANCES_KEPT = 256  # typed utterances kept for an arbiter that missed them
 
@@ -92,7 +94,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "login name)",
     )
     parser.add_argument(
-        "--language", choices=LANGUAGES, default=env("VOXSHAPE_LANGUAGE", "en"), help="of typing"
+        "--language",
+        default=env("VOXSHAPE_LANGUAGE", "en"),
+        help="of typing: one of the vocabulary's (en, es; VOXSHAPE_LANGUAGE)",
     )
     source = parser.add_mutually_exclusive_group()
     source.add_argument(
@@ -153,6 +157,9 @@ def run(args: argparse.Namespace) -> int:
     if min(args.linger, args.status_every, args.wait_speech) < 0:
         raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
     vocabulary = load_vocabulary(args.vocabulary)
+    if not (args.wav or args.mic) and args.language not in vocabulary.languages:
+        known = ", ".join(vocabulary.languages)  # typing needs phrases in its language
+        raise ConfigError(f"--language {args.language}: the vocabulary has {known} only")
     screen = Screen(args.json)
     session = bus.session
     hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
@@ -216,16 +223,19 @@ def run(args: argparse.Namespace) -> int:
         node.watch_presence(role="speech")
         outputs: dict[type, Output] = {}
         if args.wav or args.mic:
-            outputs[AudioChunk] = node.output("audio", teacher_key(session, teacher, "audio"))
+            outputs[AudioChunk] = node.output(
+                "audio", teacher_key(session, teacher, "audio"), keep=AUDIO_KEPT
+            )
         else:
             outputs[Utterance] = node.output(
                 "utterance", teacher_key(session, teacher, "utterance"), keep=UTTERANCES_KEPT
             )
         if args.through_speech:
-            outputs[Said] = node.output("said", teacher_key(session, teacher, "said"))
+            outputs[Said] = node.output(
+                "said", teacher_key(session, teacher, "said"), keep=UTTERANCES_KEPT
+            )
         if args.wav or args.mic or args.through_speech:
-            speech_input = outputs[AudioChunk if speech.use == "audio" else Said]
-            _wait_for_speech(node, speech_input, speech, board, screen, args.wait_speech)
+            _wait_for_speech(node, speech, board, screen, args.wait_speech)
         if args.wav:
             start = time.time()
             sender: Sender = _Scheduled(wav_stream(recordings, teacher, robot, start, args.fast))
@@ -249,15 +259,15 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _wait_for_speech(
-    node: Node, out: Output, speech: SpeechWatch, board: Board, screen: Screen, seconds: float
+    node: Node, speech: SpeechWatch, board: Board, screen: Screen, seconds: float
 ) -> None:
-    """Until a speech node is present and something subscribes to what this teacher sends
-    (presence alone comes a moment before the subscription; a logger subscribes to all)."""
+    """Until a speech node is present. What is sent before its subscription reaches this
+    client is not lost: the output is kept, and the speech service recovers it."""
     deadline = time.monotonic() + seconds
-    while not (speech.available and out.has_subscribers()) and time.monotonic() < deadline:
+    while not speech.available and time.monotonic() < deadline:
         event = node.poll(0.05)
         _show_event(event, speech, board, screen)
-    if not (speech.available and out.has_subscribers()):
+    if not speech.available:
         screen.note(
             "warning",
             f"no speech service listens in session {node.session_id!r} yet: what you say may be "
