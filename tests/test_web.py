@@ -10,6 +10,7 @@ import json
 import os
 import signal
 import socket
+import ssl
 import subprocess
 import threading
 import time
@@ -520,3 +521,39 @@ def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
     asyncio.run(look())
     demo.send_signal(signal.SIGINT)
     demo.communicate(timeout=120)
+
+
+def test_the_page_is_served_over_https_with_the_certificates_voxshape_certs_makes(
+    spawn, router, session_id, tmp_path
+):
+    """Browsers allow the microphone only on localhost or over HTTPS: `voxshape certs` makes
+    the router's certificate, which the page serves with; a client trusting the CA gets the
+    page and the WebSocket over TLS."""
+    secrets = tmp_path / "secrets"
+    subprocess.run([VOXSHAPE, "certs", str(secrets)], check=True, capture_output=True)
+    https = ["--https-cert", str(secrets / "router.pem")]
+    https += ["--https-key", str(secrets / "router.key")]
+    port = start_web(spawn, [*bus_args(router, session_id, "web"), *https])
+    trusted = ssl.create_default_context(cafile=str(secrets / "ca.pem"))
+
+    async def fetch() -> tuple[int, str, dict]:
+        async with aiohttp.ClientSession() as http:
+            async with http.get(f"https://localhost:{port}/", ssl=trusted) as page:
+                text = await page.text()
+            origin = f"https://localhost:{port}"
+            ws = await http.ws_connect(f"{origin}/ws", origin=origin, ssl=trusted)
+            await ws.send_json({"type": "login", "teacher": "ana", "user": None, "password": None})
+            welcome = await ws.receive_json(timeout=15)
+            await ws.close()
+            return page.status, text, welcome
+
+    status, text, welcome = asyncio.run(fetch())
+    assert status == 200 and "<html" in text.lower()
+    assert welcome["type"] == "welcome" and welcome["teacher"] == "ana"
+    with pytest.raises(aiohttp.ClientConnectorCertificateError):  # not trusted without the CA
+        asyncio.run(_get(f"https://localhost:{port}/"))
+
+
+async def _get(url: str) -> int:
+    async with aiohttp.ClientSession() as http, http.get(url) as page:
+        return page.status
