@@ -80,7 +80,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=defaults.distractors,
         help="dictionary words competing with the vocabulary (0: no rejection; more rejects "
-        "more and loses more of the vocabulary, docs/speech.md#accuracy)",
+        "more and loses more of the vocabulary; default by language: English 1000, Spanish "
+        "600, docs/speech.md#accuracy)",
     )
     ps.add_argument("--distractor-weight", type=float, default=defaults.distractor_weight)
     mock = parser.add_argument_group("mock engine")
@@ -192,7 +193,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _audio_engine(args: argparse.Namespace, vocabulary: Vocabulary) -> Recognizer:
-    if args.distractors < 0 or args.distractor_weight <= 0:
+    if (args.distractors is not None and args.distractors < 0) or args.distractor_weight <= 0:
         raise ConfigError("--distractors must be >= 0 and --distractor-weight > 0")
     settings = PocketsphinxSettings(
         distractors=args.distractors, distractor_weight=args.distractor_weight

@@ -19,25 +19,33 @@ added before decoding.
 from __future__ import annotations
 
 import random
+from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from protocol.vocabulary import Vocabulary, normalize
+from services.speech import spanish
 from services.speech.engines import EngineError, Recognition, written_phrases
 
-SPANISH_MODEL_HINT = (
-    "pocketsphinx ships only a US-English model: Spanish needs a CMU Sphinx Spanish acoustic "
-    "model and dictionary (e.g. cmusphinx-es-5.2 from "
-    "https://sourceforge.net/projects/cmusphinx/files/Acoustic%20and%20Language%20Models/), "
-    "given with --model DIR --dictionary FILE; or use --engine vosk with a Spanish vosk model"
+MODEL_HINT = (
+    "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "
+    "English phones): another language needs a CMU Sphinx acoustic model and dictionary, "
+    "given with --model DIR --dictionary FILE; or use --engine vosk with a vosk model"
 )
+SPANISH_SUFFIX = "-es"  # a Spanish word's name in the English dictionary ("no-es", not "no")
+
+
+# Distractors by language (measured: docs/speech.md#accuracy): Spanish words spelt in English
+# phones match their speech less well than English words theirs, so fewer compete.
+DISTRACTORS = {"en": 1000, "es": 600}
 
 
 @dataclass(frozen=True)
 class PocketsphinxSettings:
-    distractors: int = 1000  # dictionary words competing with the vocabulary (0: no rejection)
+    # dictionary words competing with the vocabulary (0: no rejection; None: DISTRACTORS')
+    distractors: int | None = None
     distractor_weight: float = 1e-4  # their total prior against the vocabulary's 1
     distractor_min_distance: int = 2  # phone edits from any vocabulary word, at least
     distractor_max_phones: int = 6
@@ -82,8 +90,9 @@ class PocketsphinxRecognizer:
 
         self.language = language
         self.settings = settings or PocketsphinxSettings()
-        if language != "en" and (model is None or dictionary is None):
-            raise EngineError(f"no pocketsphinx model for {language!r}: {SPANISH_MODEL_HINT}")
+        by_rule = language == "es" and model is None and dictionary is None
+        if language not in ("en", "es") and (model is None or dictionary is None):
+            raise EngineError(f"no pocketsphinx model for {language!r}: {MODEL_HINT}")
         for what, path in (("model", model), ("dictionary", dictionary)):
             if path is not None and not Path(path).exists():
                 raise EngineError(f"pocketsphinx {what} {str(path)!r} does not exist")
@@ -96,9 +105,14 @@ class PocketsphinxRecognizer:
         except (RuntimeError, ValueError) as e:
             raise EngineError(f"pocketsphinx cannot load model {hmm!r}: {e}") from None
         lexicon = read_dictionary(dict_path)
+        self._spanish: dict[str, list[tuple[str, ...]]] = defaultdict(list)
         self.unpronounceable: list[str] = []  # phrases left out: a word has no pronunciation
         self._phrases: dict[tuple[str, ...], str] = {}
         for key, written in written_phrases(vocabulary, language).items():
+            if by_rule:  # Spanish words by rule, under names of their own
+                for said in spanish.spoken_forms(key):
+                    self._phrases[tuple(self._add_spanish(w) for w in said)] = written
+                continue
             words = tuple(key.split())
             if all(self._ensure_word(w, written, lexicon) for w in words):
                 self._phrases[words] = written
@@ -124,19 +138,32 @@ class PocketsphinxRecognizer:
                 return True
         return False
 
+    def _add_spanish(self, word: str) -> str:
+        """Puts a Spanish word in the decoder's dictionary with its pronunciations by rule;
+        returns the name it has there."""
+        name = word + SPANISH_SUFFIX
+        if self._decoder.lookup_word(name) is None:
+            for k, pron in enumerate(spanish.pronunciations(word), 1):
+                self._decoder.add_word(name if k == 1 else f"{name}({k})", " ".join(pron), True)
+                self._spanish[name].append(pron)
+        return name
+
     def _distractors(self, lexicon: dict, vocabulary_words: set[str]) -> list[str]:
         s = self.settings
-        if s.distractors <= 0:
+        wanted = DISTRACTORS.get(self.language, 1000) if s.distractors is None else s.distractors
+        if wanted <= 0:
             return []
         # every pronunciation of a vocabulary word (all of them are in the decoder by now)
         spoken = {tuple(self._decoder.lookup_word(w).split()) for w in vocabulary_words}
         spoken |= {p for w in vocabulary_words for p in lexicon.get(w, [])}
+        spoken |= {p for prons in self._spanish.values() for p in prons}
         candidates = sorted(
             w
             for w, prons in lexicon.items()
             if w.isascii()
             and w.isalpha()
             and w not in vocabulary_words
+            and w + SPANISH_SUFFIX not in vocabulary_words  # English "final" for "final-es"
             and all(len(p) <= s.distractor_max_phones for p in prons)
         )
         random.Random(s.seed).shuffle(candidates)
@@ -150,7 +177,7 @@ class PocketsphinxRecognizer:
                 for v in spoken
             ):
                 chosen.append(word)
-                if len(chosen) == s.distractors:
+                if len(chosen) == wanted:
                     break
         return chosen
 
