@@ -35,6 +35,9 @@ Reward = Annotated[float, Range(-1e6, 1e6)]
 Range01 = Annotated[float, Range(0.0, 1.0)]
 Text = Annotated[str, Size(max=500)]
 Name = Annotated[str, Size(min=1, max=32)]
+# A vocabulary's language: an ISO 639 code. Any a vocabulary file holds may travel (en, es, ko...).
+LANGUAGE_PATTERN = r"[a-z]{2,3}"
+Language = Annotated[str, Match(LANGUAGE_PATTERN, "an ISO 639 code: 2-3 lowercase letters (en)")]
 
 # The discrete actions of the robot; an action's id on the wire is its index here.
 ACTION_NAMES: tuple[str, ...] = ("stop", "forward", "back", "left", "right")
@@ -173,7 +176,7 @@ class Utterance(Message):
     end: WallTime  # teacher clock
     recognized_at: WallTime  # recognizer's clock
     engine: Name  # "vosk", "pocketsphinx", "mock", "typed", ...
-    language: Literal["en", "es"]
+    language: Language
     alternatives: Annotated[tuple[Alternative, ...], Size(max=10)]
 
     def check(self) -> None:
@@ -192,7 +195,7 @@ class Said(Message):
     teacher: Id
     robot: Id
     text: Text
-    language: Literal["en", "es"]
+    language: Language
     onset: WallTime  # teacher clock: the teacher started speaking
     end: WallTime  # teacher clock
 

@@ -10,9 +10,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
-from protocol.messages import ACTION_NAMES
+from protocol.messages import ACTION_NAMES, LANGUAGE_PATTERN
 
 DEFAULT_PATH = Path(__file__).with_name("vocabulary.toml")
+# The built-in vocabulary's languages. A user's file may add any other ISO 639 code (its phrases
+# then travel in utterances of that language; docs/speech.md, adding a language).
 LANGUAGES = ("en", "es")
 Kind = Literal["qualifier", "goal", "command"]
 _KINDS = ("qualifier", "goal", "command")
@@ -47,10 +49,17 @@ class Vocabulary:
         """The meaning of a whole utterance, or None if it is not in the vocabulary."""
         return self._index.get(normalize(text))
 
+    @property
+    def languages(self) -> tuple[str, ...]:
+        """The languages with at least one phrase, in the order the file first uses them."""
+        seen = (lang for m in self.meanings.values() for lang, p in m.phrases.items() if p)
+        return tuple(dict.fromkeys(seen))
+
     def phrases(self, language: str) -> list[str]:
         """Every phrase of one language, as written (for recognizer grammars)."""
-        if language not in LANGUAGES:
-            raise VocabularyError(f"unknown language {language!r}; known: {', '.join(LANGUAGES)}")
+        if language not in self.languages:
+            known = ", ".join(self.languages)
+            raise VocabularyError(f"unknown language {language!r}; this vocabulary has {known}")
         return [p for m in self.meanings.values() for p in m.phrases.get(language, ())]
 
     def words(self, language: str) -> list[str]:
@@ -98,10 +107,14 @@ def parse_vocabulary(data: dict, source: str = "<vocabulary>") -> Vocabulary:
 
 
 def _parse_meaning(name: str, entry: dict, where: str) -> Meaning:
-    allowed = {"kind", "reward", "action", *LANGUAGES}
-    unknown = sorted(set(entry) - allowed)
+    # every key but these names a language: the built-in ones, or another ISO 639 code
+    fields = {"kind", "reward", "action"}
+    unknown = sorted(k for k in entry if k not in fields and not re.fullmatch(LANGUAGE_PATTERN, k))
     if unknown:
-        raise VocabularyError(f"{where}: unknown key {unknown[0]!r}; allowed: {sorted(allowed)}")
+        raise VocabularyError(
+            f"{where}: unknown key {unknown[0]!r}; allowed: {sorted(fields)} and languages, "
+            f"as ISO 639 codes of 2-3 lowercase letters ({', '.join(LANGUAGES)}, ko, ...)"
+        )
     kind = entry.get("kind")
     if kind not in _KINDS:
         raise VocabularyError(f"{where}: unknown meaning kind {kind!r}; use one of {_KINDS}")
@@ -120,11 +133,11 @@ def _parse_meaning(name: str, entry: dict, where: str) -> Meaning:
         if action is not None:
             raise VocabularyError(f"{where}: a {kind} has a reward, not an action")
     phrases = {}
-    for language in LANGUAGES:
+    for language in dict.fromkeys([*LANGUAGES, *(k for k in entry if k not in fields)]):
         listed = entry.get(language, [])
         if not isinstance(listed, list) or not all(isinstance(p, str) for p in listed):
             raise VocabularyError(f"{where}: `{language}` must be a list of strings")
         phrases[language] = tuple(listed)
     if not any(phrases.values()):
-        raise VocabularyError(f"{where}: no phrases in any of {LANGUAGES}")
+        raise VocabularyError(f"{where}: no phrases in any language")
     return Meaning(name, kind, None if reward is None else float(reward), action, phrases)

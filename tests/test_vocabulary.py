@@ -79,9 +79,21 @@ def test_phrases_and_words_per_language(vocab):
         vocab.phrases("fr")
 
 
+def test_a_vocabulary_may_add_a_language(tmp_path):
+    from protocol.vocabulary import LANGUAGES
+
+    assert load_vocabulary().languages == LANGUAGES  # the built-in file's, in its order
+    path = write(tmp_path, 'version = 1\n[good]\nkind="qualifier"\nreward=10\nko=["좋아"]\n')
+    korean = load_vocabulary(path)
+    assert korean.languages == ("ko",) and korean.phrases("ko") == ["좋아"]
+    assert korean.lookup("좋아").name == "good"
+    with pytest.raises(VocabularyError, match="unknown language 'en'; this vocabulary has ko"):
+        korean.phrases("en")
+
+
 def write(tmp_path, text):
     path = tmp_path / "vocab.toml"
-    path.write_text(text)
+    path.write_text(text, encoding="utf-8")
     return path
 
 
@@ -102,7 +114,8 @@ def write(tmp_path, text):
         ('version = 1\n[x]\nkind="qualifier"\nreward=true\nen=["x"]\n', "needs a numeric `reward`"),
         ('version = 1\n[x]\nkind="qualifier"\nreward=nan\nen=["x"]\n', "not finite"),
         ('version = 1\n[x]\nkind="command"\naction="left"\nreward=3\nen=["x"]\n', "not a reward"),
-        ('version = 1\n[x]\nkind="qualifier"\nreward=1\nfr=["x"]\n', "unknown key 'fr'"),
+        ('version = 1\n[x]\nkind="qualifier"\nreward=1\nFrench=["x"]\n', "unknown key 'French'"),
+        ('version = 1\n[x]\nkind="qualifier"\nreward=1\nko="x"\n', "`ko` must be a list"),
         ('version = 1\n[x]\nkind="qualifier"\nreward=1\n', "no phrases"),
         ('version = 1\n[x]\nkind="qualifier"\nreward=1\nen=["?!"]\n', "has no words"),
         ('version = 1\n[x]\nkind="qualifier"\nreward=1\nen="x"\n', "must be a list of strings"),

@@ -21,7 +21,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Literal
 
-from protocol.vocabulary import LANGUAGES, Vocabulary, normalize
+from protocol.vocabulary import Vocabulary, normalize
 from services.speech.engines import written_phrases
 
 ErrorKind = Literal["misheard", "dropped", "inserted"]
@@ -64,7 +64,7 @@ class MockRecognizer:
     def __init__(self, vocabulary: Vocabulary, settings: MockSettings | None = None) -> None:
         self.settings = settings or MockSettings()
         self.counters: Counter[str] = Counter()
-        self._written = {language: written_phrases(vocabulary, language) for language in LANGUAGES}
+        self._written = {lang: written_phrases(vocabulary, lang) for lang in vocabulary.languages}
         self._rng = random.Random(self.settings.seed)
 
     def hear(self, text: str, language: str) -> list[Heard]:

@@ -24,7 +24,6 @@ from protocol import (
     parse_key,
     teacher_key,
 )
-from protocol.vocabulary import LANGUAGES
 from services.runtime import (
     ConfigError,
     Input,
@@ -61,9 +60,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--language",
-        choices=LANGUAGES,
         default=env("VOXSHAPE_LANGUAGE", "en"),
-        help="language of the audio engines (VOXSHAPE_LANGUAGE); the mock takes each message's",
+        help="language of the audio engines, one of the vocabulary's (en, es; VOXSHAPE_LANGUAGE); "
+        "the mock takes each message's",
     )
     parser.add_argument(
         "--model",
@@ -72,7 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "model folder instead of the bundled US-English one",
     )
     parser.add_argument("--dictionary", type=Path, help="pocketsphinx: pronunciation dictionary")
-    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
+    parser.add_argument(
+        "--vocabulary",
+        type=Path,
+        default=env("VOXSHAPE_VOCABULARY"),
+        help="vocabulary file (default: built in; VOXSHAPE_VOCABULARY, as the arbiter's)",
+    )
     ps = parser.add_argument_group("pocketsphinx rejection of words outside the vocabulary")
     defaults = PocketsphinxSettings()
     ps.add_argument(
@@ -128,6 +132,12 @@ def mock_settings(args: argparse.Namespace) -> MockSettings:
 
 def run(args: argparse.Namespace) -> int:
     vocabulary = load_vocabulary(args.vocabulary)
+    if args.engine != "mock" and args.language not in vocabulary.languages:
+        raise ConfigError(
+            f"--language {args.language}: the vocabulary has no phrases in it; it has "
+            f"{', '.join(vocabulary.languages)} (another language needs a --vocabulary file "
+            "with its phrases, docs/speech.md)"
+        )
     bus = bus_config("speech", args)
     if args.max_streams < 1 or args.idle_timeout <= 0:
         raise ConfigError("--max-streams must be >= 1 and --idle-timeout > 0")
@@ -209,9 +219,13 @@ def _audio_engine(args: argparse.Namespace, vocabulary: Vocabulary) -> Recognize
 def _describe(recognizer: Recognizer, node: Node) -> None:
     missing = getattr(recognizer, "unpronounceable", [])
     if missing:
+        fix = (
+            "say them with words the model knows"
+            if recognizer.engine == "vosk"
+            else "add it with --dictionary"
+        )
         node.log.warning(
-            "phrases left out: a word has no pronunciation in the dictionary (add it with "
-            "--dictionary)",
+            f"phrases left out: a word is not in the {recognizer.engine} lexicon ({fix})",
             extra=fields(phrases=",".join(missing)),
         )
     node.log.info(

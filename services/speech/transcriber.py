@@ -84,7 +84,7 @@ class AudioTranscriber:
             end=segment.end,
             recognized_at=now,
             engine=self.recognizer.engine,
-            language=self.recognizer.language,  # type: ignore[arg-type]
+            language=self.recognizer.language,
             alternatives=tuple(
                 Alternative(text=text, confidence=confidence)
                 for text, confidence in result.alternatives[:10]
