@@ -4,13 +4,22 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shlex
 import sys
 from pathlib import Path
 
 from services.experiment import distributed
+from services.experiment.cluster import ClusterError
 from services.experiment.inprocess import SETTINGS, RunSpec
-from services.experiment.paper import TASKS, PoolError, experiment, pool
+from services.experiment.paper import (
+    TASKS,
+    PoolError,
+    ResumeError,
+    RunsFailed,
+    experiment,
+    pool,
+)
 from services.experiment.sweep import sweep
 from services.learner.config import (
     SettingsError,
@@ -79,6 +88,21 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     )
     parser.add_argument("--out", type=Path, default=Path(out))
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
+    parser.add_argument(
+        "--cluster",
+        default=os.environ.get("VOXSHAPE_CLUSTER") or None,
+        metavar="ADDRESS",
+        help="run on this Ray cluster instead of local processes: auto, ray://HOST:10001 or "
+        "the head's HOST:6379 (VOXSHAPE_CLUSTER; needs voxshape[cluster])",
+    )
+    parser.add_argument(
+        "--resume",
+        type=Path,
+        default=None,
+        metavar="DIR",
+        help="finish the interrupted experiment in DIR (in place of --out): the runs in its "
+        "runs.jsonl are kept, the others run",
+    )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_settings_argument(parser)
     parser.add_argument(
@@ -188,10 +212,25 @@ def run(args: argparse.Namespace) -> int:
         except SettingsError as e:
             print(f"voxshape experiment: {e}", file=sys.stderr)
             return 2
-    if args.experiment == "sweep":
-        return run_sweep(args)
     if args.experiment == "distributed":
         return run_distributed(args)
+    if args.resume is not None:
+        args.out = args.resume
+    try:
+        return run_sweep(args) if args.experiment == "sweep" else run_paper(args)
+    except (ClusterError, ResumeError) as e:
+        print(f"voxshape experiment: {e}", file=sys.stderr)
+        return 2
+    except RunsFailed as e:
+        print(
+            f"voxshape experiment: {e}\nno tables written; the finished runs are in "
+            f"{args.out / 'runs.jsonl'}: add --resume {args.out} to run the rest",
+            file=sys.stderr,
+        )
+        return 1
+
+
+def run_paper(args: argparse.Namespace) -> int:
     command = command_line()
     summary = experiment(
         args.out,
@@ -205,6 +244,8 @@ def run(args: argparse.Namespace) -> int:
         learner=tuple(args.set),
         teacher=tuple(args.teacher),
         profile=args.teacher_profile,
+        cluster=args.cluster,
+        resume=args.resume is not None,
     )
     print((args.out / "report.md").read_text())
     print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
@@ -246,6 +287,8 @@ def run_sweep(args: argparse.Namespace) -> int:
         learner=tuple(args.set),
         teacher=tuple(args.teacher),
         profile=args.teacher_profile,
+        cluster=args.cluster,
+        resume=args.resume is not None,
     )
     print((args.out / "sweep.md").read_text())
     print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")

@@ -22,7 +22,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec
-from services.experiment.paper import LABELS, run_all, speedup_interval, task_means
+from services.experiment.paper import (
+    LABELS,
+    run_all,
+    speedup_interval,
+    start_log,
+    task_means,
+)
 from services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 FEEDBACK, TRACES = "rl+f", "rl+t+f"
@@ -205,9 +211,12 @@ def sweep(
     learner: tuple[str, ...] = (),
     teacher: tuple[str, ...] = (),
     profile: str = "person",
+    cluster: str | None = None,
+    resume: bool = False,
 ) -> list[dict]:
     """Runs the sweep; writes sweep.json, sweep.md and sweep.png to `out`; points but the
-    rate's change the simulated teacher's `profile`."""
+    rate's change the simulated teacher's `profile`; `cluster` and `resume` as in
+    paper.experiment."""
     assert SETTINGS[FEEDBACK].feedback
     points = points_of(noise, delay, frequency, rate)
     jobs = [
@@ -218,9 +227,10 @@ def sweep(
     ]
     results: dict[Point, list[RunResult]] = {p: [] for p in points}
     out.mkdir(parents=True, exist_ok=True)
-    (out / "runs.jsonl").unlink(missing_ok=True)
-    done = run_all([spec for _, spec in jobs], workers, progress, log=out / "runs.jsonl")
-    for (point, _), result in zip(jobs, done, strict=True):
+    specs = [spec for _, spec in jobs]
+    done = start_log(out / "runs.jsonl", specs, resume)
+    ran = run_all(specs, workers, progress, out / "runs.jsonl", cluster=cluster, done=done)
+    for (point, _), result in zip(jobs, ran, strict=True):
         results[point].append(result)
     rows = summarize_points(points, results, tasks)
     (out / "sweep.json").write_text(
