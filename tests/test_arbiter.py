@@ -483,3 +483,22 @@ def test_a_just_started_arbiter_holds_words_for_a_robot_until_it_is_seen():
     assert notice.kind == "unknown_robot"
     live = late.on_utterance(utterance("ana", "r8", "good", T0 + 1), T0 + 1)
     assert notices(live)[0].kind == "unknown_robot"  # said after the start: told at once
+
+
+def test_what_a_restarted_arbiter_recovers_is_not_taken_for_a_flood():
+    """Restarted, it recovers the last seconds of each teacher's words at once (20 here, more
+    than the burst of 8): said at the teacher's pace before it started, each is credited. A
+    burst of words claiming to be old that arrives later is still a flood."""
+    a = Arbiter(ArbiterConfig(rate=4.0, burst=8.0), VOCABULARY, started_at=shown(300))
+    for k in range(300):  # the robot's recovered observations come first
+        a.on_observation(observation("r1", k, shown(k)), shown(300) + 0.0001 * k)
+    out = []
+    for i in range(20):  # said a word every 10 steps (a second), recovered in 20 ms
+        said = utterance("ana", "r1", "good", shown(100 + 10 * i))
+        out += a.on_utterance(said, shown(300) + 0.1 + 0.001 * i)
+    assert len(feedback(out)) == 20 and a.counters["rejected.rate_limited"] == 0
+    later = []
+    for i in range(20):  # 5 s after the start, words said before it: not recovered
+        said = utterance("bob", "r1", "good", shown(250 + i))
+        later += a.on_utterance(said, shown(300) + 5 + 0.001 * i)
+    assert len(feedback(later)) == 8 and a.counters["rejected.rate_limited"] == 12

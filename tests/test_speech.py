@@ -332,3 +332,15 @@ def test_mock_results_come_out_when_their_latency_is_due():
     assert utterance.recognized_at == 100.5
     assert core.on_said("bob", said, now=101.0) == []  # said on another teacher's key
     assert core.counters["said.wrong_teacher"] == 1
+
+
+def test_a_said_text_heard_again_keeps_its_utterance_id():
+    """A restarted speech service hears again what the teacher's kept output recovers: the
+    same ids, so the arbiter drops the copies instead of crediting the words twice."""
+    said = Said(teacher="ana", robot="r1", text="good", language="en", onset=10.0, end=10.4)
+    other = Said(teacher="ana", robot="r1", text="good", language="en", onset=11.0, end=11.4)
+    heard = []
+    for seed in (0, 1):  # the service before its crash, and after
+        core = MockTranscriber(MockRecognizer(VOCABULARY, MockSettings(latency_s=0.0, seed=seed)))
+        heard.append([u.id for s in (said, other) for u in core.on_said("ana", s, now=100.0)])
+    assert heard[0] == heard[1] and len(set(heard[0])) == 2

@@ -170,8 +170,13 @@ class Arbiter:
         return self._utterance(utterance, teacher, received_at)
 
     def _utterance(
-        self, utterance: Utterance, teacher: _Teacher, received_at: float
+        self,
+        utterance: Utterance,
+        teacher: _Teacher,
+        received_at: float,
+        arrived_at: float | None = None,
     ) -> list[Message]:
+        """`arrived_at`: when a held utterance arrived (default: `received_at`)."""
         teacher_id, robot_id = utterance.teacher, utterance.robot
         self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(robot_id)
@@ -192,7 +197,11 @@ class Arbiter:
         tally.utterances += 1
         pace = robot.timeline.pace if robot is not None else 1.0
         scale = self.config.time_scale(teacher_id, pace)  # for its rate, and its delays below
-        if not self._rates.allow(teacher_id, received_at, scale):
+        # What a (re)started arbiter recovers on joining (said before it started, arrived in
+        # its first seconds) comes at once but was said at its own pace: not a flood.
+        arrived = received_at if arrived_at is None else arrived_at
+        recovered = said_before_start and arrived - self._started_at < STARTING_S
+        if not recovered and not self._rates.allow(teacher_id, received_at, scale):
             return self._ignore("rate_limited", utterance, tally, received_at)
         if robot is None:
             return self._ignore("unknown_robot", utterance, tally, received_at)
@@ -228,7 +237,7 @@ class Arbiter:
         if not self._held or now - self._started_at < STARTING_S:
             return []
         held, self._held = self._held, []
-        return [m for u, teacher, _ in held for m in self._utterance(u, teacher, now)]
+        return [m for u, teacher, at in held for m in self._utterance(u, teacher, now, at)]
 
     def on_clock_probe(
         self, probe: ClockProbe, received_at: float, now: float, key_teacher: str | None = None

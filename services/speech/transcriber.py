@@ -10,6 +10,7 @@ teacher's clock.
 
 from __future__ import annotations
 
+import hashlib
 import heapq
 import itertools
 from collections import Counter
@@ -109,8 +110,9 @@ class MockTranscriber:
             notice = not_recognized(said.teacher, said.robot, self.mock.engine)
             due = now + self.mock.settings.latency_s
             heapq.heappush(self._due, (due, next(self._order), notice))
-        for heard in heard_all:
+        for index, heard in enumerate(heard_all):
             utterance = Utterance(
+                id=heard_id(said.id, index),
                 teacher=said.teacher,
                 robot=said.robot,
                 text=heard.text,
@@ -139,6 +141,13 @@ class MockTranscriber:
         out = [_recognized_at(u, max(now, due)) for due, _, u in sorted(self._due)]
         self._due.clear()
         return out
+
+
+def heard_id(said_id: str, index: int) -> str:
+    """The id of the `index`-th utterance heard in a said text, derived from the text's id: a
+    restarted speech service that hears again what a teacher's kept output recovers gives it
+    the id it had, so the arbiter drops the copy instead of crediting the word twice."""
+    return hashlib.blake2b(f"{said_id}|{index}".encode(), digest_size=16).hexdigest()
 
 
 def _recognized_at(result: Recognized, when: float) -> Recognized:
