@@ -75,15 +75,19 @@ def open_stream(
     output: Path,
     world: Map | None,
     serve: tuple[str, int] | None = None,
+    footer: bool = True,
 ) -> tuple[rr.RecordingStream, str | None]:
     """A recording stream writing `output` and, if `serve` = (bind, port), serving viewers
-    (late ones get the history). Returns the stream and the URL viewers connect to."""
+    (late ones get the history). Returns the stream and the URL viewers connect to.
+    `footer`: end the file with rerun's index of its chunks (faster to open), which the stream
+    holds in memory until it closes: a follower sends ~10 chunks a second per entity, and that
+    index grew by ~27 MB a minute with four robots (benchmarks/soak.py), so it writes none."""
     import rerun as rr
 
     from services.logger.recording import APPLICATION, blueprint
 
     stream = rr.RecordingStream(APPLICATION, recording_id=recording_id)
-    sinks: list = [rr.FileSink(str(output))]
+    sinks: list = [rr.FileSink(str(output), write_footer=footer)]
     url = None
     if serve is not None:
         bind, port = serve
@@ -234,7 +238,11 @@ def run(args: argparse.Namespace) -> int:
     from services.logger.recording import Recorder
 
     stream, url = open_stream(
-        recording_id, output, world, (args.serve_bind, port) if port else None
+        recording_id,
+        output,
+        world,
+        (args.serve_bind, port) if port else None,
+        footer=not args.follow,
     )
     recorder = Recorder(stream, world)
     recorder.start()
