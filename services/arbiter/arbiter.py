@@ -52,6 +52,7 @@ EPISODES_KEPT = 16  # per robot, awaiting their final statistics
 # long: the observations it recovers from the simulator may come after the utterances, and
 # all of them are needed to know the steps the words are about.
 STARTING_S = 3.0
+RATE_LOOKBACK_S = 30.0  # words said this long before they arrive (what inputs recover)
 MAX_HELD = 1024
 PROBE_RATE, PROBE_BURST = 10.0, 20.0  # clock probes per second per teacher
 MAX_TEXT = 500
@@ -170,13 +171,8 @@ class Arbiter:
         return self._utterance(utterance, teacher, received_at)
 
     def _utterance(
-        self,
-        utterance: Utterance,
-        teacher: _Teacher,
-        received_at: float,
-        arrived_at: float | None = None,
+        self, utterance: Utterance, teacher: _Teacher, received_at: float
     ) -> list[Message]:
-        """`arrived_at`: when a held utterance arrived (default: `received_at`)."""
         teacher_id, robot_id = utterance.teacher, utterance.robot
         self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(robot_id)
@@ -197,11 +193,12 @@ class Arbiter:
         tally.utterances += 1
         pace = robot.timeline.pace if robot is not None else 1.0
         scale = self.config.time_scale(teacher_id, pace)  # for its rate, and its delays below
-        # What a (re)started arbiter recovers on joining (said before it started, arrived in
-        # its first seconds) comes at once but was said at its own pace: not a flood.
-        arrived = received_at if arrived_at is None else arrived_at
-        recovered = said_before_start and arrived - self._started_at < STARTING_S
-        if not recovered and not self._rates.allow(teacher_id, received_at, scale):
+        # A teacher's rate is judged by when each word was said (its end, on this clock, within
+        # the last RATE_LOOKBACK_S): words recovered after a restart, or queued while the arbiter
+        # was frozen or the router down, arrive at once but were said at the teacher's pace.
+        said_at = self.clocks.to_arbiter(teacher_id, utterance.end)
+        said_at = min(received_at, max(received_at - RATE_LOOKBACK_S, said_at))
+        if not self._rates.allow(teacher_id, said_at, scale):
             return self._ignore("rate_limited", utterance, tally, received_at)
         if robot is None:
             return self._ignore("unknown_robot", utterance, tally, received_at)
@@ -237,7 +234,7 @@ class Arbiter:
         if not self._held or now - self._started_at < STARTING_S:
             return []
         held, self._held = self._held, []
-        return [m for u, teacher, at in held for m in self._utterance(u, teacher, now, at)]
+        return [m for u, teacher, _ in held for m in self._utterance(u, teacher, now)]
 
     def on_clock_probe(
         self, probe: ClockProbe, received_at: float, now: float, key_teacher: str | None = None

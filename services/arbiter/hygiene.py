@@ -37,7 +37,7 @@ class TokenBucket:
     def take(self, now: float, scale: float = 1.0) -> bool:
         elapsed = max(0.0, now - self.updated) / max(scale, 1e-9)  # set back: refills nothing
         self.tokens = min(self.burst, self.tokens + elapsed * self.rate)
-        self.updated = now
+        self.updated = max(self.updated, now)  # nor later: an earlier time refills once
         if self.tokens >= 1.0:
             self.tokens -= 1.0
             return True
