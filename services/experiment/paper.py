@@ -1,7 +1,8 @@
 """`voxshape experiment paper`: the paper's Section 4 again, with many more runs.
 
 4 tasks x 4 settings x N seeds of services/experiment/inprocess.py, in parallel processes (one
-per core). Writes to the output directory:
+per core), or as Ray tasks on a cluster (`--cluster`: cluster.py). Writes to the output
+directory:
 
 - results.json: every run, and per task and setting the means (episodes, learning time,
   interventions, share converged) with 95% confidence intervals; the speedup of each setting
@@ -10,7 +11,8 @@ per core). Writes to the output directory:
 - report.md: Tables 2 and 3 in the paper's layout, ours beside the paper's numbers; averages and
   speedups beside the paper's over the same built-in tasks (map files have no paper figure);
 - figure2.png: episode duration against episode, one line per setting (the paper's Figure 2);
-- runs.jsonl: each run as it finishes, with the RunSpec it ran (setting, teacher, learner).
+- runs.jsonl: each run as it finishes, with the RunSpec it ran (setting, teacher, learner);
+  `--resume DIR` keeps those runs and runs the others.
 
 `voxshape experiment pool DIR DIR...` writes the same three files for the runs of several
 outputs taken as one experiment (seeds 0-9 and the held-out 10-19: 20 seeds).
