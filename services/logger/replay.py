@@ -107,7 +107,7 @@ def open_stream(
 
 
 def close_stream(stream: rr.RecordingStream) -> None:
-    """Flushes and closes every sink (the .rrd gets its footer)."""
+    """Flushes and closes every sink (a one-shot replay's .rrd gets its footer)."""
     try:
         stream.flush()
     finally:
