@@ -504,3 +504,20 @@ def test_words_that_arrive_at_once_but_were_said_at_a_pace_are_no_flood():
         said = utterance("bob", "r1", "good", shown(290))
         at_once += a.on_utterance(said, shown(300) + 0.2 + 0.001 * i)
     assert len(feedback(at_once)) == 8 and a.counters["rejected.rate_limited"] == 12
+
+
+def test_a_restarted_arbiter_drops_long_recovered_words_before_its_rate_limit():
+    """Restarted, it recovers all the speech service kept (256 words a teacher), most said
+    long before: those were answered by the arbiter before it, and must not use up the rate
+    that the words said during its outage need."""
+    a = Arbiter(ArbiterConfig(rate=4.0, burst=8.0), VOCABULARY, started_at=shown(1000))
+    for k in range(700, 1000):  # its recovered observations
+        a.on_observation(observation("r1", k, shown(k)), shown(1000) + 0.0001 * k)
+    old = [utterance("ana", "r1", "good", shown(k)) for k in range(0, 600, 3)]  # 40-100 s ago
+    new = [utterance("ana", "r1", "bad", shown(k)) for k in range(900, 1000, 10)]  # the outage
+    out = []
+    for i, said in enumerate(old + new):
+        out += a.on_utterance(said, shown(1000) + 0.1 + 0.001 * i)
+    taken = {s for fb in feedback(out) for s in fb.sources}
+    assert taken == {u.id for u in new}
+    assert a.counters["rejected.stale"] == len(old) and a.counters["rejected.rate_limited"] == 0

@@ -187,6 +187,12 @@ class Arbiter:
             # may come after it
             self._held.append((utterance, teacher, received_at))
             return []
+        said_at = self.clocks.to_arbiter(teacher_id, utterance.end)
+        if said_before_start and said_at < received_at - RATE_LOOKBACK_S:
+            # recovered from long before this arbiter started (speech keeps 256 a teacher):
+            # answered by the one before, its steps forgotten; no token of the rate taken
+            self.counters["rejected.stale"] += 1
+            return []
         if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
             robot = None  # its simulator went quiet: nothing to credit
         tally = robot.tally(teacher_id) if robot is not None else _Tally()
@@ -196,7 +202,6 @@ class Arbiter:
         # A teacher's rate is judged by when each word was said (its end, on this clock, within
         # the last RATE_LOOKBACK_S): words recovered after a restart, or queued while the arbiter
         # was frozen or the router down, arrive at once but were said at the teacher's pace.
-        said_at = self.clocks.to_arbiter(teacher_id, utterance.end)
         said_at = min(received_at, max(received_at - RATE_LOOKBACK_S, said_at))
         if not self._rates.allow(teacher_id, said_at, scale):
             return self._ignore("rate_limited", utterance, tally, received_at)
