@@ -447,7 +447,7 @@ def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
             router,
             session_id,
             "teach",
-            *("--teacher", "ana", "--robot", "r1", "--json", "--linger", "30"),
+            *("--teacher", "ana", "--robot", "r1", "--json", "--linger", "1"),
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             cwd=tmp_path,
