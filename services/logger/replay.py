@@ -70,6 +70,12 @@ class ScanThinning:
         return self._behind % self.keep_one_in == 1
 
 
+# What the live server keeps for viewers that join late; rerun drops the oldest beyond it.
+# The default, 25% of the machine's memory, let the renderer grow ~37 MB a minute with four
+# robots at real time for hours (benchmarks/soak.py): this bounds it.
+VIEWER_HISTORY = "256MiB"
+
+
 def open_stream(
     recording_id: str,
     output: Path,
@@ -92,7 +98,7 @@ def open_stream(
     if serve is not None:
         bind, port = serve
         if port_is_free(bind, port):
-            server = rr.GrpcServerSink(bind, port, server_memory_limit="25%")
+            server = rr.GrpcServerSink(bind, port, server_memory_limit=VIEWER_HISTORY)
             sinks.append(server)
             url = server.uri
         else:
