@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import os
 import signal
-import socket
 import statistics
 import subprocess
 import sys
@@ -38,6 +37,7 @@ sys.path.insert(0, str(ROOT))
 
 from protocol import Observation, Utterance, robot_key, teacher_key  # noqa: E402
 from services.runtime import Input, Node, bus_config, free_loopback_port  # noqa: E402
+from services.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
 from services.speech.audio import read_wav  # noqa: E402
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -56,7 +56,7 @@ class Session:
         self.router = f"tcp/127.0.0.1:{port}"
         self.children: list[subprocess.Popen] = []
         self.start("router", "router", "--listen", self.router, bus=False)
-        wait_for_port(port)
+        wait_for_port(port, timeout=30.0)
 
     def start(self, command: str, node: str, *argv: str, bus: bool = True) -> subprocess.Popen:
         flags = ["--session", self.id, "--node", node]
@@ -94,16 +94,6 @@ class Session:
             connect_timeout=5.0,
         )
         return Node("bench", config)
-
-
-def wait_for_port(port: int, timeout: float = 30.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise TimeoutError(f"nothing listening on 127.0.0.1:{port} after {timeout} s")
 
 
 def padded_wav(folder: Path) -> Path:
@@ -203,7 +193,7 @@ def measure(session: Session, wav: Path, args: argparse.Namespace, sync_playwrig
     session.start("speech", "speech")
     port = free_loopback_port()
     session.start("web", "web", "--port", str(port))
-    wait_for_port(port)
+    wait_for_port(port, timeout=30.0)
     url = f"http://127.0.0.1:{port}/"
     sim = session.start("sim", "sim", "--robot", "r1", "--rtf", "1", "--seed", "1")
     time.sleep(3.0)  # every service joined

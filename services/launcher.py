@@ -37,6 +37,7 @@ from services.runtime import (
     bus_config,
     free_loopback_port,
 )
+from services.runtime.config import tcp_address
 from services.sim.maps import load_map
 from services.topology import ServiceSpec, find_compose_file, load_topology, local_variables
 from services.web import page_url
@@ -416,11 +417,8 @@ def busy_endpoints(endpoints: str) -> list[str]:
     """The tcp/tls endpoints of a comma list that something already listens on."""
     busy = []
     for endpoint in filter(None, endpoints.split(",")):
-        protocol, _, address = endpoint.partition("/")
-        host, _, port = address.rpartition(":")
-        if protocol not in ("tcp", "tls") or not port.isdigit():
-            continue
-        if not _can_listen(host.strip("[]") or "0.0.0.0", int(port)):
+        address = tcp_address(endpoint)
+        if address is not None and not _can_listen(address[0] or "0.0.0.0", address[1]):
             busy.append(endpoint)
     return busy
 

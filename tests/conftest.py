@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -18,19 +17,10 @@ import pytest
 
 from services.runtime import BusConfig, Input, Node, Presence, bus_config
 from services.runtime import free_loopback_port as free_port
+from services.runtime.config import wait_for_loopback_port as wait_for_port
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
-
-
-def wait_for_port(port: int, timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        with socket.socket() as s:
-            if s.connect_ex(("127.0.0.1", port)) == 0:
-                return
-        time.sleep(0.05)
-    raise TimeoutError(f"nothing listening on 127.0.0.1:{port} after {timeout} s")
 
 
 @pytest.fixture

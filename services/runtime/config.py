@@ -34,6 +34,7 @@ import json
 import os
 import re
 import socket
+import time
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -147,6 +148,27 @@ class BusConfig:
         for path, value in self.extra:
             config.insert_json5(path, value)
         return config
+
+
+def tcp_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of a tcp/ or tls/ endpoint, its zenoh metadata (?... #...) aside; None
+    for other protocols or no port. The host is bare: an IPv6 one without its brackets."""
+    protocol, _, address = endpoint.partition("/")
+    host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
+    if protocol not in ("tcp", "tls") or not port.isdigit():
+        return None
+    return host.strip("[]"), int(port)
+
+
+def wait_for_loopback_port(port: int, timeout: float = 15.0) -> None:
+    """Until something listens on 127.0.0.1:`port`; TimeoutError after `timeout` seconds."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return
+        time.sleep(0.05)
+    raise TimeoutError(f"nothing listening on 127.0.0.1:{port} after {timeout} s")
 
 
 def free_loopback_port() -> int:

@@ -44,7 +44,7 @@ from zenoh.ext import (
 
 from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
 from protocol.dataflow import Direction, check
-from services.runtime.config import BusConfig
+from services.runtime.config import BusConfig, tcp_address
 from services.runtime.logs import fields, worth_logging
 
 HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
@@ -146,15 +146,11 @@ def _bus_error(config: BusConfig, text: str, answering: bool = False) -> BusErro
 
 def _router_answers(endpoints: tuple[str, ...], timeout: float = 0.5) -> bool:
     """Whether something accepts TCP connections at one of the tcp/ or tls/ endpoints."""
-    for endpoint in endpoints:
-        protocol, _, address = endpoint.partition("/")
-        if protocol not in ("tcp", "tls"):
-            continue
-        host, _, port = address.split("#")[0].split("?")[0].rpartition(":")
+    for address in filter(None, map(tcp_address, endpoints)):
         try:
-            with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            with socket.create_connection(address, timeout=timeout):
                 return True
-        except (OSError, ValueError):
+        except OSError:
             continue
     return False
 
