@@ -1,14 +1,23 @@
-"""The speech engines on WAV fixtures: accuracy, false accepts, real-time factor.
+"""The speech engines on WAV fixtures: accuracy, false accepts, latency, real-time factor.
 
-    .venv/bin/python benchmarks/speech.py                          # the committed fixtures
+    .venv/bin/python benchmarks/speech.py                            # the committed fixtures
     .venv/bin/python benchmarks/speech.py --synthesize /tmp/speech   # the larger set first
-    .venv/bin/python benchmarks/speech.py --fixtures DIR --json
+    .venv/bin/python benchmarks/speech.py --fixtures DIR --split tune --language es
+    .venv/bin/python benchmarks/speech.py --fixtures DIR --markdown  # docs/speech.md's tables
 
---synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng and sox;
-festival adds two more natural US voices). Engines: pocketsphinx; vosk when VOSK_MODEL_PATH or
---vosk-model points at a model; the mock on the clips' texts. `accuracy` is on clean English
-(the phrase exactly), `meaning_accuracy` counts a phrase of the same meaning, and
-`false_accept_rate` is on words outside the vocabulary (unrelated and near misses).
+--synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng, sox and
+festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
+(other voices, other outside words, level/telephone/reverb conditions) is never looked at while
+tuning; --split measures one of them only. Engines: pocketsphinx in English and in Spanish;
+vosk in both when VOSK_MODEL_PATH or --vosk-model points at a model; --language keeps the
+engines of one language. The mock runs on the clips' texts.
+
+Per engine: `accuracy` is on the tuning split's clean speech in the engine's language (the
+phrase exactly), `meaning_accuracy` counts a phrase of the same meaning, `held_out_accuracy` is
+the same on the held-out voices; `false_accept_rate` (and `held_out_false_accept_rate`) is on
+everything outside the engine's vocabulary: unrelated words, near misses, and speech in the
+other language. Latency runs from the end of the speech to the utterance: the segmenter's wait
+plus decoding.
 """
 
 from __future__ import annotations
@@ -19,6 +28,7 @@ import os
 import subprocess
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -31,33 +41,40 @@ from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
 from services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "speech"
+ENGINES = [("pocketsphinx", "en"), ("pocketsphinx", "es"), ("vosk", "en"), ("vosk", "es")]
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fixtures", type=Path, default=FIXTURES)
     parser.add_argument("--synthesize", type=Path, metavar="DIR", help="make the larger set")
-    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    parser.add_argument("--split", choices=["tune", "held-out", "all"], default="all")
+    parser.add_argument("--language", choices=["en", "es", "all"], default="all")
+    output = parser.add_mutually_exclusive_group()
+    output.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    output.add_argument("--markdown", action="store_true", help="tables for docs/speech.md")
     parser.add_argument("--vosk-model", type=Path, default=os.environ.get("VOSK_MODEL_PATH"))
-    parser.add_argument("--distractors", type=int, default=PocketsphinxSettings().distractors)
-    parser.add_argument(
-        "--distractor-weight", type=float, default=PocketsphinxSettings().distractor_weight
-    )
+    parser.add_argument("--distractors", type=int, help="default: each language's own")
+    parser.add_argument("--distractor-weight", type=float, help="default: the engine's")
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
     args = parser.parse_args()
-    folder = args.fixtures
+    folder, synthesis_s = args.fixtures, None
     if args.synthesize:
         script = FIXTURES / "make_fixtures.py"
+        t0 = time.perf_counter()
         subprocess.run([sys.executable, str(script), "--full", str(args.synthesize)], check=True)
+        synthesis_s = round(time.perf_counter() - t0, 1)
         folder = args.synthesize
     vocabulary = load_vocabulary()
-    clips = bench.load_clips(folder)
+    clips = [c for c in bench.load_clips(folder) if args.split in ("all", c.split)]
+    # only the settings given on the command line; the rest are each engine's defaults
+    given = {"distractors": args.distractors, "distractor_weight": args.distractor_weight}
+    settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
-    settings = PocketsphinxSettings(args.distractors, args.distractor_weight)
-    engines = [("pocketsphinx", "en", None)]
-    if args.vosk_model:
-        engines += [("vosk", "en", args.vosk_model), ("vosk", "es", args.vosk_model)]
-    for engine, language, model in engines:
+    for engine, language in ENGINES:
+        if args.language not in ("all", language) or (engine == "vosk" and not args.vosk_model):
+            continue
+        model = args.vosk_model if engine == "vosk" else None
         try:
             t0 = time.perf_counter()
             recognizer = open_recognizer(engine, vocabulary, language, model, None, settings)
@@ -65,34 +82,100 @@ def main() -> int:
         except EngineError as e:
             print(f"{engine} ({language}): skipped: {e}", file=sys.stderr)
             continue
+        t0 = time.perf_counter()
         summary = bench.run(clips, recognizer).summary(vocabulary)
-        summary["language"], summary["load_s"] = language, round(load_s, 2)
+        summary["load_s"], summary["run_s"] = round(load_s, 2), round(time.perf_counter() - t0)
+        print(f"{engine} ({language}): {len(clips)} clips in {summary['run_s']} s", file=sys.stderr)
         results.append(summary)
     mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
     summary = bench.run_mock(clips, mock).summary(vocabulary)
     summary["error_rate_setting"] = args.mock_error_rate
     results.append(summary)
+    counts = Counter(c.split for c in clips)
     if args.json:
-        print(json.dumps({"fixtures": str(folder), "clips": len(clips), "engines": results}))
-    else:
-        print(f"{len(clips)} clips in {folder}")
-        for r in results:
-            print_summary(r)
+        head = {"fixtures": str(folder), "clips": len(clips), "splits": counts}
+        print(json.dumps({**head, "synthesis_s": synthesis_s, "engines": results}))
+        return 0
+    made = f", synthesized in {synthesis_s} s" if synthesis_s is not None else ""
+    splits = ", ".join(f"{n} {s}" for s, n in sorted(counts.items(), reverse=True))
+    print(f"{len(clips)} clips ({splits}) in {folder}{made}")
+    for r in results:
+        (print_markdown if args.markdown else print_summary)(r)
     return 0
 
 
-def print_summary(r: dict) -> None:
-    print(
-        f"\n{r['engine']}: accuracy {r['accuracy']} (same meaning {r['meaning_accuracy']}) on "
-        f"clean English, false accepts {r['false_accept_rate']} outside the vocabulary, "
-        f"real-time factor {r['realtime_factor']}, onset error p50 {r['onset_error_p50_s']} s"
+def _name(r: dict) -> str:
+    return f"{r['engine']} ({r['language']})" if r["language"] else r["engine"]
+
+
+def _headline(r: dict) -> str:
+    language = {"en": "English", "es": "Spanish", None: "English"}.get(r["language"], "")
+    return (
+        f"accuracy {_f(r['accuracy'])} (same meaning {_f(r['meaning_accuracy'])}) on clean "
+        f"{language} of the tuning voices, {_f(r['held_out_accuracy'])} "
+        f"({_f(r['held_out_meaning_accuracy'])}) of the held-out ones; false accepts "
+        f"{_f(r['false_accept_rate'])} tune, {_f(r['held_out_false_accept_rate'])} held out; "
+        f"latency p50 {_f(r['latency_p50_s'])} s, p95 {_f(r['latency_p95_s'])} s; "
+        f"real-time factor {r['realtime_factor']}; onset error p50 {r['onset_error_p50_s']} s"
     )
-    print(f"  {'group':<48} {'n':>4} {'accuracy':>9} {'meaning':>8} {'accepted':>9}")
-    for name, g in r["groups"].items():
+
+
+def _rows(r: dict, table: str) -> list[tuple[str, str, dict]]:
+    """(split, name, figures) of the conditions or voices table; the mock's names carry the
+    language, as it hears every language."""
+    rows = []
+    for split, languages in r[table].items():
+        for language, groups in languages.items():
+            for name, g in groups.items():
+                rows.append((split, name if r["language"] else f"{language} {name}", g))
+    return rows
+
+
+def print_summary(r: dict) -> None:
+    print(f"\n{_name(r)}: {_headline(r)}")
+    print(f"  {'split':<9} {'condition or voice (clean)':<40} {'n':>4} {'accuracy':>9} "
+          f"{'meaning':>8} {'accepted':>9}")  # fmt: skip
+    for split, name, g in _rows(r, "conditions") + _rows(r, "voices"):
         print(
-            f"  {name:<48} {g['n']:>4} {_f(g['accuracy']):>9} {_f(g['meaning_accuracy']):>8} "
-            f"{_f(g['accept_rate']):>9}"
+            f"  {split:<9} {name:<40} {g['n']:>4} {_f(g['accuracy']):>9} "
+            f"{_f(g['meaning_accuracy']):>8} {_f(g['accept_rate']):>9}"
         )
+    for split, kinds in [(s, k) for s, k in r["false_accepts"].items() if k]:
+        accepted = ", ".join(f"{k} {g['accepted']}/{g['n']}" for k, g in kinds.items())
+        print(f"  false accepts, {split}: {accepted}")
+
+
+def print_markdown(r: dict) -> None:
+    print(f"\n### {_name(r)}\n\n{r['clips']} clips. {_headline(r)}.")
+    if "run_s" in r:
+        print(f"Loaded in {r['load_s']} s, measured in {r['run_s']} s.")
+    tables = [("conditions", "condition"), ("voices", "voice (clean)")]
+    for table, title in tables[: 2 if r["language"] else 1]:
+        print(
+            f"\n| split | {title} | n | accuracy | meaning | accepted |\n|---|---|---|---|---|---|"
+        )
+        for split, name, g in _rows(r, table):
+            figures = (g["accuracy"], g["meaning_accuracy"], g["accept_rate"])
+            print(f"| {split} | {name} | {g['n']} | " + " | ".join(map(_f, figures)) + " |")
+    kinds = ["unrelated", "near", bench.OTHER_LANGUAGE]
+    print(f"\n| false accepts | {' | '.join(kinds)} |\n|---|---|---|---|")
+    for split, found in [(s, f) for s, f in r["false_accepts"].items() if f]:
+        cells = [_share(found[k]) if k in found else "-" for k in kinds]
+        print(f"| {split} | {' | '.join(cells)} |")
+    if r["language"] is None:
+        return  # the mock takes text: no latency, and its per-phrase figures are its dice
+    print("\n| latency p50 | latency p95 | real-time factor | onset error p50 |\n|---|---|---|---|")
+    print(
+        f"| {_f(r['latency_p50_s'])} s | {_f(r['latency_p95_s'])} s | "
+        f"{r['realtime_factor']} | {_f(r['onset_error_p50_s'])} s |"
+    )
+    print("\n| phrase | tuning accuracy | held-out accuracy |\n|---|---|---|")
+    for word, by_split in r["per_word_accuracy"].items():
+        print(f"| {word.split(':', 1)[1]} | {_f(by_split['tune'])} | {_f(by_split['held-out'])} |")
+
+
+def _share(g: dict) -> str:
+    return f"{_f(g['rate'])} ({g['accepted']}/{g['n']})"
 
 
 def _f(value: float | None) -> str:

@@ -4,7 +4,10 @@ Each clip goes through what the service does with a teacher's stream: quiet befo
 it (a low noise floor, as a microphone has), the segmenter, then the recognizer on every
 segment found. A vocabulary clip is correct when exactly one phrase was recognized and it is
 the one spoken; `meaning_accuracy` also counts a phrase of the same meaning ("backwards" for
-"backward"). An out-of-vocabulary clip is a false accept when anything was recognized.
+"backward"). A clip outside the engine's vocabulary is a false accept when anything was
+recognized: unrelated words, near misses of vocabulary words, and speech in another language
+than the engine's. Each clip has a condition ("clean", "white 10 dB", "telephone"...) and a
+split: "tune", what engine settings may be chosen on, or "held-out", what they never are.
 """
 
 from __future__ import annotations
@@ -21,12 +24,15 @@ import numpy as np
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
 from services.speech.audio import chunks, read_wav
-from services.speech.engines import Recognizer
+from services.speech.engines import Recognizer, written_phrases
 from services.speech.mock import MockRecognizer
 from services.speech.segmenter import Segmenter, SegmenterConfig
 
 QUIET_S = 0.5  # quiet around each clean clip
 QUIET_NOISE = 8.0  # std dev of that quiet (int16 units, about -72 dBFS)
+SPLITS = ("tune", "held-out")
+OUTSIDE = {"oov": "unrelated", "near": "near"}  # outside words by clip kind
+OTHER_LANGUAGE = "other language"
 
 
 @dataclass(frozen=True)
@@ -40,10 +46,8 @@ class Clip:
     snr_db: float
     speech_start_s: float
     speech_end_s: float
-
-    @property
-    def condition(self) -> str:
-        return "clean" if self.noise == "none" else f"{self.noise} {self.snr_db:g} dB"
+    condition: str = "clean"  # "clean", "white 10 dB", "level -20 dBFS", "telephone"...
+    split: str = "tune"  # or "held-out"
 
 
 @dataclass
@@ -53,30 +57,40 @@ class Outcome:
     onset_error_s: float | None  # first segment's onset minus the true speech start
     recognize_s: float
     audio_s: float
+    latency_s: float | None = None  # end of speech to the last utterance heard
 
 
 def load_clips(folder: Path) -> list[Clip]:
-    """The clips listed in `folder/manifest.csv` (written by make_fixtures.py)."""
+    """The clips listed in `folder/manifest.csv` (written by make_fixtures.py). Manifests
+    without condition and split (the committed ones) are clean or noisy, all "tune"."""
     with (folder / "manifest.csv").open(newline="") as f:
-        return [
+        rows = list(csv.DictReader(f))
+    clips = []
+    for row in rows:
+        noise, snr_db = row["noise"], float(row["snr_db"])
+        noisy = f"{noise} {snr_db:g} dB"
+        clips.append(
             Clip(
                 path=folder / row["file"],
                 text=row["text"],
                 language=row["language"],
                 kind=row["kind"],
                 voice=row["voice"],
-                noise=row["noise"],
-                snr_db=float(row["snr_db"]),
+                noise=noise,
+                snr_db=snr_db,
                 speech_start_s=float(row["speech_start_s"]),
                 speech_end_s=float(row["speech_end_s"]),
+                condition=row.get("condition") or ("clean" if noise == "none" else noisy),
+                split=row.get("split") or "tune",
             )
-            for row in csv.DictReader(f)
-        ]
+        )
+    return clips
 
 
 def as_stream(clip: Clip, seed: int = 0) -> tuple[np.ndarray, float]:
     """The clip with quiet around it, as a teacher's stream would carry it; and where the
-    clip starts in it (seconds). Noisy clips carry their own noise before and after."""
+    clip starts in it (seconds). Noisy clips carry their own noise before and after; every
+    other one (clean, level, telephone, reverb) gets the quiet."""
     samples = read_wav(clip.path)
     if clip.noise != "none":
         return samples, 0.0
@@ -92,22 +106,26 @@ def transcribe_clip(
 ) -> Outcome:
     samples, offset = as_stream(clip)
     segmenter = Segmenter(segmenter_config)
-    segments = []
-    for piece in chunks(samples, SAMPLE_RATE // 20):  # 50 ms chunks, as the teacher sends
-        segments += segmenter.feed(piece)
-    segments += segmenter.flush()
-    heard, spent, audio = [], 0.0, 0.0
-    for segment in segments:
+    step = SAMPLE_RATE // 20  # 50 ms chunks, as the teacher sends
+    segments = []  # (segment, stream time when the segmenter gave it out)
+    for i, piece in enumerate(chunks(samples, step)):
+        at = min((i + 1) * step, len(samples)) / SAMPLE_RATE  # the end of this chunk
+        segments += [(s, at) for s in segmenter.feed(piece)]
+    segments += [(s, len(samples) / SAMPLE_RATE) for s in segmenter.flush()]
+    heard, spent, audio, latency = [], 0.0, 0.0, None
+    for segment, at in segments:
         t0 = time.perf_counter()
         result = recognizer.recognize(segment.samples)
-        spent += time.perf_counter() - t0
+        took = time.perf_counter() - t0
+        spent += took
         audio += len(segment.samples) / SAMPLE_RATE
         if result is not None:
             heard.append(result.text)
+            latency = at + took - (offset + clip.speech_end_s)
     onset_error = (
-        segments[0].start / SAMPLE_RATE - offset - clip.speech_start_s if segments else None
+        segments[0][0].start / SAMPLE_RATE - offset - clip.speech_start_s if segments else None
     )
-    return Outcome(clip, heard, onset_error, spent, audio)
+    return Outcome(clip, heard, onset_error, spent, audio, latency)
 
 
 @dataclass
@@ -131,55 +149,105 @@ class Report:
     outcomes: list[Outcome] = field(default_factory=list)
 
     def summary(self, vocabulary: Vocabulary) -> dict:
-        groups: dict[str, Tally] = defaultdict(Tally)
-        words: dict[str, Tally] = defaultdict(Tally)
+        """The headline figures (tune/held-out, clean, the engine's language; the mock's is
+        English), then accuracy by split, language and condition, by voice on clean speech,
+        false accepts by split and kind, and accuracy per phrase."""
+        conditions: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
+        voices: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
+        outside: dict[tuple[str, str], Tally] = defaultdict(Tally)
+        words: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
+        own = written_phrases(vocabulary, self.language) if self.language else {}
         for o in self.outcomes:
             c = o.clip
             accepted = bool(o.heard)
             if self.language is not None and c.language != self.language:
-                # speech in another language is outside this engine's vocabulary too
-                groups[f"{c.language} speech to the {self.language} engine"].add(
-                    False, False, accepted
-                )
+                # speech in another language is outside this engine's vocabulary too, unless
+                # it is also one of its phrases ("terrible" is English and Spanish)
+                if normalize(c.text) not in own:
+                    outside[c.split, OTHER_LANGUAGE].add(False, False, accepted)
             elif c.kind == "vocabulary":
-                correct = o.heard == [c.text] or [normalize(h) for h in o.heard] == [
-                    normalize(c.text)
-                ]
+                correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
                 meaning = len(o.heard) == 1 and (
                     vocabulary.lookup(o.heard[0]) is vocabulary.lookup(c.text)
                 )
-                keys = [f"{c.language} {c.condition}", f"{c.language} {c.condition} {c.voice}"]
-                for key in keys:
-                    groups[key].add(correct, meaning, accepted)
-                words[f"{c.language}:{c.text}"].add(correct, meaning, accepted)
+                conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
+                if c.condition == "clean":
+                    voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
+                if c.split != "tune" or c.condition == "clean":
+                    words[c.language, c.text, c.split].add(correct, meaning, accepted)
             else:
-                for key in (f"oov {c.language}", f"oov {c.language} {c.kind}"):
-                    groups[key].add(False, False, accepted)
-        english_clean = groups.get("en clean", Tally())
-        oov = [g for k, g in groups.items() if k.startswith("oov") and len(k.split()) == 2]
-        oov_n = sum(g.n for g in oov)
+                outside[c.split, OUTSIDE.get(c.kind, c.kind)].add(False, False, accepted)
+        language = self.language or "en"
+        tune, held_out = (conditions.get((s, language, "clean"), Tally()) for s in SPLITS)
+        rejected = {s: _sum(t for k, t in outside.items() if k[0] == s) for s in SPLITS}
         spent = sum(o.recognize_s for o in self.outcomes)
         audio = sum(o.audio_s for o in self.outcomes)
         onsets = [abs(o.onset_error_s) for o in self.outcomes if o.onset_error_s is not None]
+        latencies = [o.latency_s for o in self.outcomes if o.latency_s is not None]
         return {
             "engine": self.engine,
+            "language": self.language,
             "clips": len(self.outcomes),
-            "accuracy": _ratio(english_clean.correct, english_clean.n),
-            "meaning_accuracy": _ratio(english_clean.same_meaning, english_clean.n),
-            "false_accept_rate": _ratio(sum(g.accepted for g in oov), oov_n),
+            "accuracy": _ratio(tune.correct, tune.n),
+            "meaning_accuracy": _ratio(tune.same_meaning, tune.n),
+            "held_out_accuracy": _ratio(held_out.correct, held_out.n),
+            "held_out_meaning_accuracy": _ratio(held_out.same_meaning, held_out.n),
+            "false_accept_rate": _ratio(rejected["tune"].accepted, rejected["tune"].n),
+            "held_out_false_accept_rate": _ratio(
+                rejected["held-out"].accepted, rejected["held-out"].n
+            ),
             "realtime_factor": round(spent / audio, 4) if audio else None,
-            "onset_error_p50_s": round(float(np.median(onsets)), 3) if onsets else None,
-            "groups": {
-                k: {
-                    "n": g.n,
-                    "accuracy": _ratio(g.correct, g.n),
-                    "meaning_accuracy": _ratio(g.same_meaning, g.n),
-                    "accept_rate": _ratio(g.accepted, g.n),
+            "onset_error_p50_s": _percentile(onsets, 50),
+            "latency_p50_s": _percentile(latencies, 50),
+            "latency_p95_s": _percentile(latencies, 95),
+            "conditions": _nested(conditions),
+            "voices": _nested(voices),
+            "false_accepts": {
+                split: {
+                    kind: {"n": t.n, "accepted": t.accepted, "rate": _ratio(t.accepted, t.n)}
+                    for (s, kind), t in sorted(outside.items())
+                    if s == split
                 }
-                for k, g in sorted(groups.items())
+                for split in SPLITS
             },
-            "per_word_accuracy": {k: _ratio(t.correct, t.n) for k, t in sorted(words.items())},
+            "per_word_accuracy": {
+                f"{lang}:{text}": {
+                    split: _accuracy(words.get((lang, text, split))) for split in SPLITS
+                }
+                for lang, text in sorted({k[:2] for k in words})
+            },
         }
+
+
+def _sum(tallies: Iterable[Tally]) -> Tally:
+    total = Tally()
+    for t in tallies:
+        total.n, total.accepted = total.n + t.n, total.accepted + t.accepted
+    return total
+
+
+def _nested(tallies: dict[tuple[str, ...], Tally]) -> dict:
+    """{(split, ..., name): tally} as {split: {...: {name: figures}}}, splits in order."""
+    out: dict = {}
+    for key in sorted(tallies, key=lambda k: (SPLITS.index(k[0]), k[1:])):
+        t, node = tallies[key], out
+        for part in key[:-1]:
+            node = node.setdefault(part, {})
+        node[key[-1]] = {
+            "n": t.n,
+            "accuracy": _ratio(t.correct, t.n),
+            "meaning_accuracy": _ratio(t.same_meaning, t.n),
+            "accept_rate": _ratio(t.accepted, t.n),
+        }
+    return out
+
+
+def _accuracy(tally: Tally | None) -> float | None:
+    return _ratio(tally.correct, tally.n) if tally else None
+
+
+def _percentile(values: list[float], q: float) -> float | None:
+    return round(float(np.percentile(values, q)), 3) if values else None
 
 
 def _ratio(a: int, b: int) -> float | None:
