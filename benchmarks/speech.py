@@ -16,8 +16,8 @@ Per engine: `accuracy` is on the tuning split's clean speech in the engine's lan
 phrase exactly), `meaning_accuracy` counts a phrase of the same meaning, `held_out_accuracy` is
 the same on the held-out voices; `false_accept_rate` (and `held_out_false_accept_rate`) is on
 everything outside the engine's vocabulary: unrelated words, near misses, and speech in the
-other language. Latency runs from the end of the speech to the utterance: the segmenter's wait
-plus decoding.
+other language (unless heard as a phrase of the same meaning). Latency runs from the end of
+the speech to the utterance: the segmenter's wait plus decoding.
 """
 
 from __future__ import annotations
@@ -56,6 +56,11 @@ def main() -> int:
     parser.add_argument("--vosk-model", type=Path, default=os.environ.get("VOSK_MODEL_PATH"))
     parser.add_argument("--distractors", type=int, help="default: each language's own")
     parser.add_argument("--distractor-weight", type=float, help="default: the engine's")
+    parser.add_argument(
+        "--raw-confidence",
+        action="store_true",
+        help="pocketsphinx's lattice posterior as confidence (to calibrate it)",
+    )
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
     args = parser.parse_args()
     folder, synthesis_s = args.fixtures, None
@@ -69,6 +74,7 @@ def main() -> int:
     clips = [c for c in bench.load_clips(folder) if args.split in ("all", c.split)]
     # only the settings given on the command line; the rest are each engine's defaults
     given = {"distractors": args.distractors, "distractor_weight": args.distractor_weight}
+    given["calibrated"] = False if args.raw_confidence else None
     settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
     for engine, language in ENGINES:
@@ -169,9 +175,19 @@ def print_markdown(r: dict) -> None:
         f"| {_f(r['latency_p50_s'])} s | {_f(r['latency_p95_s'])} s | "
         f"{r['realtime_factor']} | {_f(r['onset_error_p50_s'])} s |"
     )
+    bands = list(bench.CONFIDENCE_BANDS)
+    print(f"\n| recognized with confidence from | {' | '.join(map(str, bands))} |")
+    print("|---" * (len(bands) + 1) + "|")
+    for split, found in [(s, f) for s, f in r["calibration"].items() if f]:
+        cells = [_calibration(found.get(f"{b:g}")) for b in bands]
+        print(f"| {split}: right / recognized | {' | '.join(cells)} |")
     print("\n| phrase | tuning accuracy | held-out accuracy |\n|---|---|---|")
     for word, by_split in r["per_word_accuracy"].items():
         print(f"| {word.split(':', 1)[1]} | {_f(by_split['tune'])} | {_f(by_split['held-out'])} |")
+
+
+def _calibration(g: dict | None) -> str:
+    return f"{g['right']}/{g['n']}" if g else "-"
 
 
 def _share(g: dict) -> str:

@@ -2,12 +2,15 @@
 
 Each clip goes through what the service does with a teacher's stream: quiet before and after
 it (a low noise floor, as a microphone has), the segmenter, then the recognizer on every
-segment found. A vocabulary clip is correct when exactly one phrase was recognized and it is
-the one spoken; `meaning_accuracy` also counts a phrase of the same meaning ("backwards" for
-"backward"). A clip outside the engine's vocabulary is a false accept when anything was
-recognized: unrelated words, near misses of vocabulary words, and speech in another language
-than the engine's. Each clip has a condition ("clean", "white 10 dB", "telephone"...) and a
-split: "tune", what engine settings may be chosen on, or "held-out", what they never are.
+segment found, and the arbiter's confidence gate (`min_confidence`: a phrase heard with less
+is not used, the teacher is asked to repeat). A vocabulary clip is correct when exactly one
+phrase passed and it is the one spoken; `meaning_accuracy` also counts a phrase of the same
+meaning ("backwards" for "backward"). A clip outside the engine's vocabulary is a false
+accept when anything passed: unrelated words, near misses of vocabulary words, and speech
+in another language than the engine's (unless heard as a phrase of the same meaning,
+"excelente" for "excellent"). Each clip has a condition ("clean", "white 10 dB",
+"telephone"...) and a split: "tune", what engine settings may be chosen on, or "held-out",
+what they never are.
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import numpy as np
 
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
+from services.arbiter.config import ArbiterConfig
 from services.speech.audio import chunks, read_wav
 from services.speech.engines import Recognizer, written_phrases
 from services.speech.mock import MockRecognizer
@@ -33,6 +37,8 @@ QUIET_NOISE = 8.0  # std dev of that quiet (int16 units, about -72 dBFS)
 SPLITS = ("tune", "held-out")
 OUTSIDE = {"oov": "unrelated", "near": "near"}  # outside words by clip kind
 OTHER_LANGUAGE = "other language"
+MIN_CONFIDENCE = ArbiterConfig().min_confidence  # the arbiter's gate
+CONFIDENCE_BANDS = (0.0, 0.25, 0.5, 0.75, 0.9)  # lower bounds, for the calibration table
 
 
 @dataclass(frozen=True)
@@ -53,11 +59,12 @@ class Clip:
 @dataclass
 class Outcome:
     clip: Clip
-    heard: list[str]
+    heard: list[str]  # the phrases that passed the confidence gate
     onset_error_s: float | None  # first segment's onset minus the true speech start
     recognize_s: float
     audio_s: float
     latency_s: float | None = None  # end of speech to the last utterance heard
+    recognized: list[tuple[str, float]] = field(default_factory=list)  # before the gate
 
 
 def load_clips(folder: Path) -> list[Clip]:
@@ -102,7 +109,10 @@ def as_stream(clip: Clip, seed: int = 0) -> tuple[np.ndarray, float]:
 
 
 def transcribe_clip(
-    clip: Clip, recognizer: Recognizer, segmenter_config: SegmenterConfig | None = None
+    clip: Clip,
+    recognizer: Recognizer,
+    segmenter_config: SegmenterConfig | None = None,
+    min_confidence: float = MIN_CONFIDENCE,
 ) -> Outcome:
     samples, offset = as_stream(clip)
     segmenter = Segmenter(segmenter_config)
@@ -112,7 +122,7 @@ def transcribe_clip(
         at = min((i + 1) * step, len(samples)) / SAMPLE_RATE  # the end of this chunk
         segments += [(s, at) for s in segmenter.feed(piece)]
     segments += [(s, len(samples) / SAMPLE_RATE) for s in segmenter.flush()]
-    heard, spent, audio, latency = [], 0.0, 0.0, None
+    heard, recognized, spent, audio, latency = [], [], 0.0, 0.0, None
     for segment, at in segments:
         t0 = time.perf_counter()
         result = recognizer.recognize(segment.samples)
@@ -120,12 +130,14 @@ def transcribe_clip(
         spent += took
         audio += len(segment.samples) / SAMPLE_RATE
         if result is not None:
+            recognized.append((result.text, result.confidence))
+        if result is not None and result.confidence >= min_confidence:
             heard.append(result.text)
             latency = at + took - (offset + clip.speech_end_s)
     onset_error = (
         segments[0][0].start / SAMPLE_RATE - offset - clip.speech_start_s if segments else None
     )
-    return Outcome(clip, heard, onset_error, spent, audio, latency)
+    return Outcome(clip, heard, onset_error, spent, audio, latency, recognized)
 
 
 @dataclass
@@ -151,20 +163,31 @@ class Report:
     def summary(self, vocabulary: Vocabulary) -> dict:
         """The headline figures (tune/held-out, clean, the engine's language; the mock's is
         English), then accuracy by split, language and condition, by voice on clean speech,
-        false accepts by split and kind, and accuracy per phrase."""
+        false accepts by split and kind, accuracy per phrase, and the calibration: of the
+        phrases recognized in vocabulary speech with a confidence in each band (before the
+        gate), the share right."""
         conditions: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
         voices: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
         outside: dict[tuple[str, str], Tally] = defaultdict(Tally)
         words: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
         own = written_phrases(vocabulary, self.language) if self.language else {}
+        bands: dict[tuple[str, float], Tally] = defaultdict(Tally)
+        language = self.language or "en"
         for o in self.outcomes:
             c = o.clip
+            mine = c.kind == "vocabulary" and c.language == language
+            for text, confidence in o.recognized if mine else ():
+                band = max(b for b in CONFIDENCE_BANDS if confidence >= b)
+                right = normalize(text) == normalize(c.text)
+                bands[c.split, band].add(right, right, confidence >= MIN_CONFIDENCE)
             accepted = bool(o.heard)
             if self.language is not None and c.language != self.language:
-                # speech in another language is outside this engine's vocabulary too, unless
-                # it is also one of its phrases ("terrible" is English and Spanish)
+                # speech in another language is outside this engine's vocabulary too; heard
+                # as a phrase of the same meaning ("excellent" as "excelente") it is right
+                meant = vocabulary.lookup(c.text) if c.kind == "vocabulary" else None
+                wrong = any(meant is None or vocabulary.lookup(h) is not meant for h in o.heard)
                 if normalize(c.text) not in own:
-                    outside[c.split, OTHER_LANGUAGE].add(False, False, accepted)
+                    outside[c.split, OTHER_LANGUAGE].add(False, False, wrong)
             elif c.kind == "vocabulary":
                 correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
                 meaning = len(o.heard) == 1 and (
@@ -177,7 +200,6 @@ class Report:
                     words[c.language, c.text, c.split].add(correct, meaning, accepted)
             else:
                 outside[c.split, OUTSIDE.get(c.kind, c.kind)].add(False, False, accepted)
-        language = self.language or "en"
         tune, held_out = (conditions.get((s, language, "clean"), Tally()) for s in SPLITS)
         rejected = {s: _sum(t for k, t in outside.items() if k[0] == s) for s in SPLITS}
         spent = sum(o.recognize_s for o in self.outcomes)
@@ -206,6 +228,14 @@ class Report:
                 split: {
                     kind: {"n": t.n, "accepted": t.accepted, "rate": _ratio(t.accepted, t.n)}
                     for (s, kind), t in sorted(outside.items())
+                    if s == split
+                }
+                for split in SPLITS
+            },
+            "calibration": {
+                split: {
+                    f"{band:g}": {"n": t.n, "right": t.correct, "share": _ratio(t.correct, t.n)}
+                    for (s, band), t in sorted(bands.items())
                     if s == split
                 }
                 for split in SPLITS
