@@ -19,7 +19,7 @@ from protocol.vocabulary import Vocabulary, normalize
 if TYPE_CHECKING:
     from services.speech.pocketsphinx_engine import PocketsphinxSettings
 
-ENGINES = ("pocketsphinx", "vosk", "mock")
+ENGINES = ("pocketsphinx", "vosk", "whisper", "mock")
 
 
 class EngineError(RuntimeError):
@@ -66,4 +66,8 @@ def open_recognizer(
         from services.speech.vosk_engine import VoskRecognizer
 
         return VoskRecognizer(vocabulary, language, model=model)
+    if engine == "whisper":
+        from services.speech.whisper_engine import WhisperRecognizer
+
+        return WhisperRecognizer(vocabulary, language, model=model)
     raise EngineError(f"unknown audio engine {engine!r}; choose one of {', '.join(ENGINES)}")

