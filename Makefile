@@ -28,7 +28,7 @@ $(STAMP): pyproject.toml
 	  install python3.11 or run make PYTHON=/path/to/python3.11")'
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,cluster]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,cluster,whisper]'
 	touch $@
 
 system-packages:

@@ -9,8 +9,9 @@
 festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
 (other voices, other outside words, level/telephone/reverb conditions) is never looked at while
 tuning; --split measures one of them only. Engines: pocketsphinx in English and in Spanish;
-vosk in both when VOSK_MODEL_PATH or --vosk-model points at a model; --language keeps the
-engines of one language. The mock runs on the clips' texts.
+whisper in English when installed (pip install -e '.[whisper]'); vosk in both when
+VOSK_MODEL_PATH or --vosk-model points at a model; --engine and --language keep some of them.
+The mock runs on the clips' texts.
 
 Per engine: `accuracy` is on the tuning split's clean speech in the engine's language (the
 phrase exactly), `meaning_accuracy` counts a phrase of the same meaning, `held_out_accuracy` is
@@ -41,7 +42,13 @@ from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
 from services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "speech"
-ENGINES = [("pocketsphinx", "en"), ("pocketsphinx", "es"), ("vosk", "en"), ("vosk", "es")]
+ENGINES = [
+    ("pocketsphinx", "en"),
+    ("pocketsphinx", "es"),
+    ("whisper", "en"),
+    ("vosk", "en"),
+    ("vosk", "es"),
+]
 
 
 def main() -> int:
@@ -53,6 +60,9 @@ def main() -> int:
     output = parser.add_mutually_exclusive_group()
     output.add_argument("--json", action="store_true", help="one JSON object on stdout")
     output.add_argument("--markdown", action="store_true", help="tables for docs/speech.md")
+    parser.add_argument(
+        "--engine", choices=["all", *dict(ENGINES)], default="all", help="default: each installed"
+    )
     parser.add_argument("--vosk-model", type=Path, default=os.environ.get("VOSK_MODEL_PATH"))
     parser.add_argument("--distractors", type=int, help="default: each language's own")
     parser.add_argument("--distractor-weight", type=float, help="default: the engine's")
@@ -78,7 +88,9 @@ def main() -> int:
     settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
     for engine, language in ENGINES:
-        if args.language not in ("all", language) or (engine == "vosk" and not args.vosk_model):
+        if args.language not in ("all", language) or args.engine not in ("all", engine):
+            continue
+        if engine == "vosk" and not args.vosk_model:
             continue
         model = args.vosk_model if engine == "vosk" else None
         try:

@@ -12,11 +12,10 @@ accepted only when the whole transcript, normalized (case, accents and punctuati
 is one phrase of the vocabulary, or that phrase repeated ("stop, stop"). Anything else, a
 word outside the vocabulary or a phrase within a longer sentence, is rejected.
 
-No prompt: the vocabulary as Whisper's initial prompt recognized more of it (0.65 -> 0.88 of
-the benchmark's clean English, tuning split) but made near misses and other speech likelier
-to come out as a phrase ("bright" as "right"): false accepts 6 -> 26 of 228 at the arbiter's
-gate. Rejecting under a confidence chosen to keep them at 6 (0.76) left +5 points on the
-benchmark's sets and -3 of 16 clean clips on the committed fixtures: not worth its threshold.
+The vocabulary is Whisper's initial prompt ("Goal, You made it, ..., Halt."): it recognized
+0.876 of the benchmark's clean English tuning split against 0.650 without, with 26 false
+accepts of 228 outside clips (mostly near misses, "bright" as "right") against 6: the same
+as pocketsphinx's default (25) at 9 points more accuracy (docs/decisions.md).
 
 The confidence is exp(avg_logprob) of the transcript: the geometric mean of its tokens'
 probabilities. no_speech_prob is not used: times (1 - no_speech_prob) it rejected more of the
@@ -118,6 +117,7 @@ class WhisperRecognizer:
             )
         self.language = language
         self._phrases = written_phrases(vocabulary, language)
+        self._prompt = ", ".join(p.capitalize() for p in self._phrases.values()) + "."
 
     def transcribe(self, samples: np.ndarray) -> tuple[str, float, float]:
         """Whisper's transcript of one utterance, its avg_logprob and no_speech_prob."""
@@ -130,6 +130,7 @@ class WhisperRecognizer:
             without_timestamps=True,
             condition_on_previous_text=False,
             vad_filter=False,  # the segmenter has already cut out the speech
+            initial_prompt=self._prompt,
         )
         segments = list(segments)
         if not segments:
