@@ -17,8 +17,6 @@ session (router, learner, simulator, pocketsphinx speech, arbiter, `voxshape web
 from __future__ import annotations
 
 import argparse
-import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -38,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from protocol import Observation, Utterance, robot_key, teacher_key  # noqa: E402
 from services.runtime import Input, Node, bus_config, free_loopback_port  # noqa: E402
 from services.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
+from services.runtime.processes import end_process  # noqa: E402
 from services.speech.audio import read_wav  # noqa: E402
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -72,13 +71,7 @@ class Session:
         return proc
 
     def end(self, proc: subprocess.Popen) -> None:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGTERM)
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            os.kill(proc.pid, signal.SIGKILL)
-            proc.wait(5)
+        end_process(proc, 10, 5)
 
     def close(self) -> None:
         for proc in reversed(self.children):

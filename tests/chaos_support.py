@@ -46,6 +46,7 @@ from protocol import (
 )
 from services.arbiter.arbiter import feedback_id
 from services.runtime import Input, Node, bus_config, free_loopback_port
+from services.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -209,24 +210,10 @@ class Session:
         last counters and each teacher's."""
         teacher_counters = {}
         for robot, proc in self.teachers.items():
-            if proc.poll() is None:
-                os.kill(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(30)
-            except subprocess.TimeoutExpired:
-                os.kill(proc.pid, signal.SIGKILL)
-                proc.wait(10)
+            end_process(proc, 30)
             text = (self.workdir / f"{teacher_name(robot)}.log").read_text()
             teacher_counters[robot] = last_counters(text.splitlines())
-        code = None
-        if self.up is not None:
-            if self.up.poll() is None:
-                os.kill(self.up.pid, signal.SIGTERM)
-            try:
-                code = self.up.wait(STOP_TIMEOUT_S)
-            except subprocess.TimeoutExpired:
-                os.kill(self.up.pid, signal.SIGKILL)
-                self.up.wait(10)
+        code = None if self.up is None else end_process(self.up, STOP_TIMEOUT_S)
         time.sleep(0.5)  # the reader thread takes the last lines
         with self._lock:
             lines = list(self.lines)

@@ -3,8 +3,6 @@ processes that are always ended (by pid) when the test is over."""
 
 from __future__ import annotations
 
-import os
-import signal
 import subprocess
 import sys
 import time
@@ -18,6 +16,7 @@ import pytest
 from services.runtime import BusConfig, Input, Node, Presence, bus_config
 from services.runtime import free_loopback_port as free_port
 from services.runtime.config import wait_for_loopback_port as wait_for_port
+from services.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -43,13 +42,7 @@ def spawn() -> Iterator[Callable[..., subprocess.Popen]]:
 
     yield start
     for proc in children:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                os.kill(proc.pid, signal.SIGKILL)
-                proc.wait(5)
+        end_process(proc, 10, 5)
 
 
 @pytest.fixture

@@ -17,7 +17,6 @@ Processes are started and stopped here, by pid, on a free loopback port.
 from __future__ import annotations
 
 import os
-import signal
 import statistics
 import subprocess
 import sys
@@ -33,6 +32,7 @@ from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult
 from services.learner.train import convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
+from services.runtime.processes import end_process
 from services.sim.maps import load_map
 from services.sim.task import SimConfig
 from services.simteacher.teacher import Confusion
@@ -186,13 +186,7 @@ def _start(command: list[str], folder: str) -> subprocess.Popen:
 
 
 def _stop(child: subprocess.Popen) -> None:
-    if child.poll() is None:
-        os.kill(child.pid, signal.SIGTERM)
-        try:
-            child.wait(STOP_WAIT_S)
-        except subprocess.TimeoutExpired:
-            os.kill(child.pid, signal.SIGKILL)
-            child.wait(STOP_WAIT_S)
+    end_process(child, STOP_WAIT_S, STOP_WAIT_S)
 
 
 def compare(spec: RunSpec, seeds: list[int]) -> dict:
