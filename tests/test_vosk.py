@@ -13,15 +13,16 @@ from pathlib import Path
 
 import pytest
 
-from protocol import AudioChunk, TeacherNotice, Utterance, load_vocabulary, teacher_key
+from protocol import TeacherNotice, Utterance, load_vocabulary, teacher_key
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import parse_vocabulary
 from services.runtime import Node
 from services.speech import bench
-from services.speech.audio import chunks, read_wav, samples_to_pcm
+from services.speech.audio import read_wav
 from services.speech.engines import EngineError
 from services.speech.streams import AudioStreams
 from services.speech.transcriber import AudioTranscriber
+from services.teacher.sources import wav_stream
 from tests.conftest import VOXSHAPE, collect, quiet
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import start_speech, stop, teach
@@ -36,7 +37,6 @@ KO_FILE = FIXTURES / "vocabulary-ko.toml"
 KO = load_vocabulary(KO_FILE)
 CLIPS = bench.load_clips(FIXTURES / "ko")
 T0 = 1_700_000_000.0  # the teacher's clock at the first sample of each stream
-CHUNK_S = 0.05
 
 
 @dataclass
@@ -78,26 +78,16 @@ class Timed:
 
 @pytest.fixture(scope="module")
 def heard(recognizer) -> list[Heard]:
-    """Each clip as a teacher's stream of 50 ms chunks through the service's core."""
+    """Each clip as `voxshape teach --wav` streams it (50 ms chunks) through the service's
+    core."""
     results = []
     for clip in CLIPS:
         samples, offset = bench.as_stream(clip)
         timed = Timed(recognizer)
         core = AudioTranscriber(timed, AudioStreams())
-        pieces = chunks(samples, int(CHUNK_S * SAMPLE_RATE))
         out = []
-        for i, piece in enumerate(pieces):
-            chunk = AudioChunk(
-                teacher="min",
-                robot="r1",
-                stream="mic-1",
-                seq=i,
-                sample_rate=SAMPLE_RATE,
-                pcm=samples_to_pcm(piece),
-                capture_time=T0 + i * CHUNK_S,
-                final=i == len(pieces) - 1,
-            )
-            out += core.on_audio("min", chunk, time.time())
+        for scheduled in wav_stream([samples], "min", "r1", T0, fast=True):
+            out += core.on_audio("min", scheduled.message, time.time())
         results.append(Heard(clip, out, T0 + offset, timed.spent_s, timed.audio_s))
     return results
 
