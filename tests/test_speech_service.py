@@ -44,6 +44,15 @@ def teach(router, session_id, cwd, *extra, stdin="", timeout=60):
     return [json.loads(line) for line in result.stdout.splitlines()]
 
 
+def speech_refuses(cwd, *args, env=None) -> str:
+    """`voxshape speech ARGS` stops at once with exit code 2 and no traceback; its stderr."""
+    result = subprocess.run(
+        [VOXSHAPE, "speech", *args], capture_output=True, text=True, timeout=60, env=env, cwd=cwd
+    )
+    assert result.returncode == 2 and "Traceback" not in result.stderr, result.stderr
+    return result.stderr
+
+
 def stop(proc) -> str:
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=20)
@@ -166,15 +175,6 @@ def test_garbage_audio_is_rejected_and_counted_and_the_service_goes_on(
 
 def test_a_missing_vosk_model_is_a_clear_error_not_a_crash(tmp_path):
     env = {k: v for k, v in os.environ.items() if k != "VOSK_MODEL_PATH"}
-    result = subprocess.run(
-        [VOXSHAPE, "speech", "--engine", "vosk", "--language", "es"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        env=env,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 2
-    assert "https://alphacephei.com/vosk/models" in result.stderr
-    assert "vosk-model-small-es-0.42" in result.stderr and "VOSK_MODEL_PATH" in result.stderr
-    assert "Traceback" not in result.stderr
+    stderr = speech_refuses(tmp_path, "--engine", "vosk", "--language", "es", env=env)
+    assert "https://alphacephei.com/vosk/models" in stderr
+    assert "vosk-model-small-es-0.42" in stderr and "VOSK_MODEL_PATH" in stderr

