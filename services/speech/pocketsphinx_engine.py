@@ -11,8 +11,8 @@ rejected worse at the same accuracy; the phone loop was also 2-7x slower. The tr
 the number of distractors is measured by `benchmarks/speech.py` (docs/speech.md#accuracy).
 
 The confidence is calibrated. The lattice posterior of the phrase hardly tells right from
-wrong: under the arbiter's gate of 0.5 it dropped 41 phrases of the tuning split's vocabulary
-speech, 33 of them right, and the clean accuracy a teacher meets fell from 0.786 to 0.726.
+wrong: the arbiter's gate of 0.5 dropped 27 phrases of the tuning split's vocabulary speech,
+22 of them right, and the clean accuracy a teacher meets fell from 0.786 to 0.726.
 So the posterior is mapped to the share of phrases recognized right at that posterior on the
 tuning split (`PRECISION_BY_POSTERIOR`; `benchmarks/speech.py --raw-confidence --split tune`
 prints the table). Rejection stays the distractors' job.

@@ -119,8 +119,8 @@ class WhisperRecognizer:
         self._phrases = written_phrases(vocabulary, language)
         self._prompt = ", ".join(p.capitalize() for p in self._phrases.values()) + "."
 
-    def transcribe(self, samples: np.ndarray) -> tuple[str, float, float]:
-        """Whisper's transcript of one utterance, its avg_logprob and no_speech_prob."""
+    def transcribe(self, samples: np.ndarray) -> tuple[str, float]:
+        """Whisper's transcript of one utterance and its avg_logprob."""
         audio = np.asarray(samples, dtype=np.float32) / 32768.0
         segments, _ = self._model.transcribe(
             audio,
@@ -134,12 +134,11 @@ class WhisperRecognizer:
         )
         segments = list(segments)
         if not segments:
-            return "", -np.inf, 1.0
-        text = " ".join(s.text for s in segments)
-        return text, min(s.avg_logprob for s in segments), max(s.no_speech_prob for s in segments)
+            return "", -np.inf
+        return " ".join(s.text for s in segments), min(s.avg_logprob for s in segments)
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        text, avg_logprob, _ = self.transcribe(samples)
+        text, avg_logprob = self.transcribe(samples)
         phrase = phrase_of(text, self._phrases)
         if phrase is None:
             return None
