@@ -41,6 +41,11 @@ MIN_CONFIDENCE = ArbiterConfig().min_confidence  # the arbiter's gate
 CONFIDENCE_BANDS = (0.0, 0.25, 0.5, 0.75, 0.9)  # lower bounds, for the calibration table
 
 
+def noise_condition(noise: str, snr_db: float) -> str:
+    """A clip's condition from its noise: "clean", or e.g. "white 10 dB"."""
+    return "clean" if noise == "none" else f"{noise} {snr_db:g} dB"
+
+
 @dataclass(frozen=True)
 class Clip:
     path: Path
@@ -75,7 +80,6 @@ def load_clips(folder: Path) -> list[Clip]:
     clips = []
     for row in rows:
         noise, snr_db = row["noise"], float(row["snr_db"])
-        noisy = f"{noise} {snr_db:g} dB"
         clips.append(
             Clip(
                 path=folder / row["file"],
@@ -87,7 +91,7 @@ def load_clips(folder: Path) -> list[Clip]:
                 snr_db=snr_db,
                 speech_start_s=float(row["speech_start_s"]),
                 speech_end_s=float(row["speech_end_s"]),
-                condition=row.get("condition") or ("clean" if noise == "none" else noisy),
+                condition=row.get("condition") or noise_condition(noise, snr_db),
                 split=row.get("split") or "tune",
             )
         )
