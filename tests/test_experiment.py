@@ -120,8 +120,16 @@ def test_experiment_paper_end_to_end(tmp_path, capsys):
     assert sorted(map(json.dumps, streamed)) == sorted(map(json.dumps, results["runs"]))
     assert len(results["runs"]) == 4 and all(r["trace_steps"] > 0 for r in results["runs"]
                                              if r["setting"] == "rl+t+f")  # fmt: skip
+    dictated = [r["trace_words"] for r in results["runs"] if r["setting"] == "rl+t+f"]
+    assert all(0 < words < r for words, r in zip(dictated, [r["trace_steps"] for r in
+               results["runs"] if r["setting"] == "rl+t+f"], strict=True))  # fmt: skip
+    assert results["trace_words"]["rl+t+f"] == sum(dictated) / 2
     report = (out / "report.md").read_text()
     assert "Table 2" in report and "Table 3" in report and "103.93" in report
+    learning = results["interventions"]["rl+t+f"]
+    assert f"| {learning:.1f} | {sum(dictated) / 2:.1f} | {learning + sum(dictated) / 2:.1f} |" in (
+        report
+    )
     assert "≥" in report and "censored" in report
     assert (out / "figure2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "report.md" in capsys.readouterr().out

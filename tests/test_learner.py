@@ -16,6 +16,7 @@ from services.learner import checkpoint
 from services.learner import node as learner_node
 from services.learner.actions import ActionSet
 from services.learner.config import LearnerConfig, SettingsError, with_settings
+from services.learner.features import pose_tiles
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
@@ -37,6 +38,8 @@ class P:
     reward: float = -1.0
     outcome: str = "running"
     step: int = 0
+    x: float = 0.0
+    y: float = 0.0
 
 
 WALL_LEFT = tuple([0.5] * 90 + [3.0] * 90)  # (beam 0 is on the right)
@@ -52,6 +55,7 @@ EXACT = LearnerConfig(
     max_hold=1,
     clear_range=None,
     use_sonar=False,
+    representation="pearson",  # a table: Q's row i is state i
     pearson_threshold=0.9,
     near_range=None,
     goal_sectors=0,
@@ -136,7 +140,7 @@ def test_the_policy_does_not_undo_its_own_turn_at_once(turned_by, epsilon, undon
 
 
 def test_near_bits_tell_a_wall_close_ahead_from_one_far_ahead():
-    space = StateSpace(replace(EXACT, pearson_threshold=None, near_range=0.6))
+    space = StateSpace(replace(EXACT, representation="keys", near_range=0.6))
     far, _ = space.classify(P(tuple([2.0] * 180)))
     close_ahead, _ = space.classify(P(tuple([2.0] * 60 + [0.4] * 60 + [2.0] * 60)))
     close_left, _ = space.classify(P(tuple([2.0] * 120 + [0.4] * 60)))
@@ -177,12 +181,12 @@ def test_a_clear_view_is_one_state():
 def test_a_new_state_starts_from_its_nearest_neighbour():
     learner = Learner(replace(EXACT, pearson_threshold=0.999), seed=0)
     first = learner._state_of(P(WALL_LEFT))
-    learner.Q[first] = [1, 2, 3, 4, 5]
+    learner.Q[first.q] = [1, 2, 3, 4, 5]
     similar = tuple([0.5] * 60 + [3.0] * 120)  # correlated, but below the threshold
     second = learner._state_of(P(similar))
-    assert second != first and list(learner.Q[second]) == [1, 2, 3, 4, 5]
+    assert second.view != first.view and list(learner.q(second)) == [1, 2, 3, 4, 5]
     elsewhere = learner._state_of(P(similar, goal_bearing=3.0))  # no neighbour with these bins
-    assert list(learner.Q[elsewhere]) == [0, 0, 0, 0, 0]
+    assert list(learner.q(elsewhere)) == [0, 0, 0, 0, 0]
 
 
 def test_the_blend_weights_actions_by_q_and_credits_them_by_weight():
@@ -294,7 +298,7 @@ def test_what_the_teacher_praised_is_kept_after_it_falls_silent_only_with_the_ac
     assert (chosen[-20:] == [FORWARD] * 20) is kept  # additive: -1 a step unlearns the praise
 
 
-ADVISED = replace(EXACT, shaping="action_bias", goal_sectors=8, pearson_threshold=None)
+ADVISED = replace(EXACT, shaping="action_bias", goal_sectors=8, representation="keys")
 
 
 def test_advice_speaks_for_the_states_that_share_a_tile_with_where_it_was_given():
@@ -305,13 +309,13 @@ def test_advice_speaks_for_the_states_that_share_a_tile_with_where_it_was_given(
     nearer = learner._state_of(replace(far, goal_distance=2.0))  # same side, another bin
     other_side = learner._state_of(replace(far, goal_distance=2.0, theta=math.pi))
     turned = learner._state_of(replace(far, goal_bearing=math.pi / 2))
-    assert learner.advice(0)[FORWARD] == pytest.approx(5.0)  # (5 + 5 + 5) / 3
+    assert learner.advice(learner._state_of(far))[FORWARD] == pytest.approx(5.0)  # (5+5+5)/3
     assert learner.advice(nearer)[FORWARD] == pytest.approx(5.0 / 3)  # the side's tile
     assert not learner.advice(other_side).any() and not learner.advice(turned).any()
     alone = Learner(replace(ADVISED, advice_generalization=()), seed=0)
     alone.step(far, forced=alone.actions.one_hot(FORWARD))
     alone.credit(step=0, weight=1.0, f=10.0)
-    assert alone.advice(0)[FORWARD] == 5.0
+    assert alone.advice(alone._state_of(far))[FORWARD] == 5.0
     assert not alone.advice(alone._state_of(replace(far, goal_distance=2.0))).any()
 
 
@@ -329,6 +333,49 @@ def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None
         if step == command_at:
             learner.command("left")
         book.record(p, learner.step(p))
+
+
+def test_a_trace_counts_the_words_a_person_says_to_dictate_it():
+    learner, book = Learner(EXACT, seed=0), TraceBook()
+    commands = ["left"] * 7 + ["forward"] * 3 + ["left"]  # left twice, forward, left
+    for step, command in enumerate([*commands, None]):
+        if command:
+            learner.command(command)
+        end = command is None
+        p = P(WALL_LEFT, outcome="goal" if end else "running", step=step)
+        book.record(p, learner.step(p))
+    assert book.words(command_steps=5) == 2 + 1 + 1
+    assert book.words(command_steps=1) == len(commands)
+
+
+def test_pose_tiles_are_offset_grids_that_wrap_around_the_heading():
+    tiles = pose_tiles(0.5, 0.5, 7.9, tilings=4, headings=8)
+    assert tiles == [(0, 0, 0, 7), (1, 0, 1, 1), (2, 1, 2, 2), (3, 1, 2, 3)]  # as tiles3
+    near = set(pose_tiles(0.75, 0.5, 7.9, tilings=4, headings=8))
+    assert len(near & set(tiles)) == 3  # a quarter of a tile away: one tiling differs
+    assert not set(pose_tiles(2.5, 0.5, 7.9, tilings=4, headings=8)) & set(tiles)
+    assert set(pose_tiles(0.5, 0.5, 0.0, 4, 8)) & set(tiles)  # heading 7.9 is next to 0
+
+
+TILED = LearnerConfig(representation="tiles", epsilon_start=0.0, epsilon_end=0.0)
+
+
+def test_with_tiles_advice_speaks_for_nearby_places_and_headings_not_far_ones():
+    learner = Learner(TILED, seed=0)
+    here = P(WALL_LEFT, x=2.0, y=2.0, theta=0.3, step=0)
+    learner.step(here, forced=learner.actions.one_hot(FORWARD))
+    learner.credit(step=0, weight=1.0, f=10.0)  # "good": H(here, forward) = alpha f
+    assert learner.advice(learner._state_of(here))[FORWARD] == pytest.approx(0.2 * 10.0)
+    nearby = learner.advice(learner._state_of(replace(here, x=2.2, theta=0.35)))[FORWARD]
+    far = learner.advice(learner._state_of(replace(here, x=6.0)))[FORWARD]
+    assert 0 < far < nearby < 0.2 * 10.0  # far shares the key alone
+    n = TILED.tilings + TILED.key_tilings
+    assert far == pytest.approx(0.2 * 10.0 * TILED.key_tilings / n)
+
+
+def test_the_tiled_learner_learns_task_1():
+    result = train("1", seed=1, config=LearnerConfig(representation="tiles"), max_episodes=80)
+    assert result.converged and result.states > 1000  # features: many places, headings
 
 
 def test_traces_are_recorded_saved_and_replayed(tmp_path):
@@ -356,24 +403,26 @@ def test_with_the_action_bias_a_replayed_trace_teaches_advice_not_values():
     assert not student.Q.any()  # the route's values stay untried (optimistic)
 
 
-def test_traces_keep_the_heading_so_goal_sectors_replay_as_they_were_lived(tmp_path):
+def test_traces_keep_the_pose_so_places_and_goal_sectors_replay_as_lived(tmp_path):
     student = Learner(replace(EXACT, goal_sectors=8), seed=0)
     left = student.actions.one_hot(LEFT, "teacher")
     book = TraceBook()
     for step, theta in enumerate((0.0, math.pi / 2, math.pi)):
         end = step == 2
-        p = P(WALL_LEFT, theta=theta, outcome="goal" if end else "running", step=step)
+        p = P(WALL_LEFT, theta=theta, outcome="goal" if end else "running", step=step, x=step)
         book.record(p, None if end else left)
     book.save(tmp_path / "traces.npz")
     loaded = TraceBook.load(tmp_path / "traces.npz")
     assert [p.theta for p, _ in loaded.episodes[0]] == [0.0, math.pi / 2, math.pi]
-    assert loaded.headings
-    with np.load(tmp_path / "traces.npz") as z:  # a file saved before headings were kept
-        np.savez(tmp_path / "old.npz", **{k: z[k] for k in z.files if k != "theta"})
+    assert [p.x for p, _ in loaded.episodes[0]] == [0.0, 1.0, 2.0] and loaded.poses
+    with np.load(tmp_path / "traces.npz") as z:  # a file saved with headings alone
+        arrays = {k: z[k] for k in z.files if k != "pose"}
+        np.savez(tmp_path / "old.npz", **arrays, theta=z["pose"][:, 2])
     old = TraceBook.load(tmp_path / "old.npz")
-    assert not old.headings and [p.theta for p, _ in old.episodes[0]] == [0.0] * 3
+    assert not old.poses and [p.theta for p, _ in old.episodes[0]] == [0.0, math.pi / 2, math.pi]
+    assert [p.x for p, _ in old.episodes[0]] == [0.0] * 3
     assert loaded.replay(student) == 3
-    assert len(student.states) == 3  # one goal sector per heading: three sides of the goal
+    assert len(student.features) == 3  # one goal sector per heading: three sides of the goal
 
 
 def test_the_words_potential_is_learnt_by_place_and_shapes_every_update():
@@ -384,36 +433,47 @@ def test_the_words_potential_is_learnt_by_place_and_shapes_every_update():
     s_far = learner.s
     learner.step(near, forced=learner.actions.one_hot(FORWARD))  # the decision at step 1
     s_near = learner.s
-    assert learner._place(s_far) != learner._place(s_near)
+    assert not np.array_equal(s_far.place, s_near.place)
     assert learner.credit(step=1, weight=1.0, f=10.0)  # "good" there
-    assert learner.Phi[learner._place(s_near)] == pytest.approx(0.5 * 10.0)  # share 1
+    assert learner.phi(s_near) == pytest.approx(0.5 * 10.0)  # share 1
     decay = config.gamma * config.lam  # the far decision, one back: e = gamma lambda
-    assert learner.Phi[learner._place(s_far)] == pytest.approx(0.5 * decay * 10.0)
+    assert learner.phi(s_far) == pytest.approx(0.5 * decay * 10.0)
     before = learner.Q.copy()
-    q_near = learner.Q[s_near].copy()
+    q_near = learner.q(s_near).copy()
     learner.step(P(WALL_LEFT, goal_distance=0.5, step=2), forced=learner.actions.one_hot(FORWARD))
     # the update of (near, forward) gained F = gamma Phi(s') - Phi(s) with s' = s: (gamma-1) Phi
     r, gamma, alpha = -1.0, config.gamma, config.alpha
-    shaping = (gamma - 1) * learner.Phi[learner._place(s_near)]
+    shaping = (gamma - 1) * learner.phi(s_near)
     delta = r + shaping + gamma * q_near[FORWARD] - q_near[FORWARD]
-    assert learner.Q[s_near][FORWARD] - before[s_near][FORWARD] == pytest.approx(alpha * delta)
+    change = learner.Q[s_near.q] - before[s_near.q]
+    assert change[0, FORWARD] == pytest.approx(alpha * delta)
 
 
-@pytest.mark.parametrize("config", [EXACT, ADVISED, replace(ADVISED, potential_rate=0.5)])
+@pytest.mark.parametrize(
+    "config",
+    [EXACT, ADVISED, replace(ADVISED, potential_rate=0.5), LearnerConfig()],
+    ids=["pearson", "keys", "keys-potential", "tiles"],
+)
 def test_checkpoint_round_trip(tmp_path, config):
     learner = Learner(config, seed=3)
     run_episode(learner, TraceBook())
-    learner.credit(step=2, weight=1.0, f=10.0)
+    run_episode(learner, TraceBook())
+    assert learner.credit(step=2, weight=1.0, f=10.0)
     path = tmp_path / "learner.npz"
     checkpoint.save(learner, path)
     back = checkpoint.load(path, config)
     assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
-    assert np.array_equal(back.H_tiles, learner.H_tiles)  # the advice tiles, summed again
-    assert (config.shaping == "action_bias") == back.H_tiles.any()
-    assert back.states.keys == learner.states.keys and back.episode == learner.episode
-    assert np.allclose(np.array(back.states.prototypes), np.array(learner.states.prototypes))
+    assert np.array_equal(back.Phi, learner.Phi)
+    assert (config.shaping == "action_bias") == back.H.any()
+    assert back.features.coordinates() == learner.features.coordinates()
+    assert back.episode == learner.episode
     assert back.rng.random() == learner.rng.random()  # the random stream goes on
-    assert back.Phi == learner.Phi
+    # the same learner: the next episode goes as it would have, late credit included
+    run_episode(back, TraceBook())
+    run_episode(learner, TraceBook())
+    assert back.credit(step=1, weight=1.0, f=-10.0) and learner.credit(step=1, weight=1.0, f=-10.0)
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
+    assert np.array_equal(back.Phi, learner.Phi)
 
 
 def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):
@@ -445,7 +505,7 @@ def test_a_checkpoint_is_peeked_at_without_restoring_it(tmp_path):
     run_episode(learner, TraceBook())
     path = tmp_path / "learner.npz"
     checkpoint.save(learner, path)
-    assert checkpoint.peek(path) == (learner.episode, len(learner.states)) != (0, 0)
+    assert checkpoint.peek(path) == (learner.episode, len(learner.Q)) != (0, 0)
     path.write_bytes(b"garbage")
     assert checkpoint.peek(path) is None and checkpoint.peek(tmp_path / "none.npz") is None
 
@@ -466,41 +526,20 @@ def test_the_learner_service_drives_every_robot_each_with_its_own_checkpoint():
         learner_node.checkpoint_path(Path("x.npz"), "s", "r1", 2)
 
 
-def test_goal_sectors_must_match_and_checkpoints_from_before_them_resume(tmp_path):
+def test_goal_sectors_must_match_and_checkpoints_of_another_version_are_refused(tmp_path):
     path = tmp_path / "learner.npz"
     learner = Learner(EXACT, seed=0)
     run_episode(learner, TraceBook())
     checkpoint.save(learner, path)
     with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
         checkpoint.load(path, replace(EXACT, goal_sectors=8))
-    with np.load(path) as saved:  # as written before the goal sector existed
+    with np.load(path) as saved:
         arrays = dict(saved)
     meta = json.loads(str(arrays["meta"]))
-    del meta["config"]["goal_sectors"]
-    arrays.update(meta=np.array(json.dumps(meta)), keys=arrays["keys"][:, :4])
-    old = tmp_path / "old.npz"
-    np.savez(old, **arrays)
-    back = checkpoint.load(old, EXACT)
-    assert back.states.keys == learner.states.keys and np.array_equal(back.Q, learner.Q)
-    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
-        checkpoint.load(old, replace(EXACT, goal_sectors=8))  # learnt without, not the default
-
-
-def test_a_checkpoint_learnt_with_a_removed_setting_is_refused(tmp_path):
-    path, learner = tmp_path / "learner.npz", Learner(EXACT)
-    learner.step(P(WALL_LEFT))
-    checkpoint.save(learner, path)
-    with np.load(path) as data:
-        arrays = dict(data)
-    meta = json.loads(str(arrays["meta"]))
-    meta["config"]["goal_prior"] = True
-    arrays["meta"] = np.array(json.dumps(meta))
-    np.savez(path, **arrays)
-    with pytest.raises(checkpoint.CheckpointError, match=r"learnt with goal_prior, .*start afresh"):
-        checkpoint.load(path, EXACT)
-    meta["config"]["goal_prior"] = False  # saved before it was removed, off: resumes
+    meta["version"] = 2  # saved by a build whose states were a table
     np.savez(path, **(arrays | {"meta": np.array(json.dumps(meta))}))
-    assert checkpoint.load(path, EXACT).states.keys
+    with pytest.raises(checkpoint.CheckpointError, match=r"version 2, .* start afresh"):
+        checkpoint.load(path, EXACT)
 
 
 def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():

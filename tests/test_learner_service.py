@@ -7,6 +7,8 @@ import re
 import signal
 import uuid
 
+import pytest
+
 from protocol import (
     ACTION_NAMES,
     Action,
@@ -29,7 +31,7 @@ def feedback(step: int, **kind) -> CreditedFeedback:
     )
 
 
-def start_learner(spawn, router, session_id, path):
+def start_learner(spawn, router, session_id, path, representation):
     return spawn(
         [
             VOXSHAPE,
@@ -41,13 +43,16 @@ def start_learner(spawn, router, session_id, path):
             "1",
             "--seed",
             "0",
+            "--set",
+            f"representation={representation}",
         ],
         text=True,
     )
 
 
+@pytest.mark.parametrize("representation", ["keys", "tiles"])
 def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
-    spawn, router, session_id, client_config, tmp_path
+    spawn, router, session_id, client_config, tmp_path, representation
 ):
     path = tmp_path / "learner.npz"
     spawn(
@@ -63,7 +68,7 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
             "0",
         ]
     )
-    learner = start_learner(spawn, router, session_id, path)
+    learner = start_learner(spawn, router, session_id, path, representation)
     with Node("test", client_config("teacher")) as node:
         node.input("learning", robot_key(session_id, "r1", "learning"))
         node.input("action", robot_key(session_id, "r1", "action"))
@@ -87,7 +92,7 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
     assert path.is_file()
     states = int(re.search(r"learning robot=r1 .* states=(\d+)", err).group(1))
     assert states == 0  # a fresh start ...
-    again = start_learner(spawn, router, session_id, path)
+    again = start_learner(spawn, router, session_id, path, representation)
     with Node("test", client_config("watcher")) as node:
         node.input("learning", robot_key(session_id, "r1", "learning"))
         collect(node, 5, LearningSummary, timeout=30)

@@ -87,6 +87,7 @@ class RunResult:
     delay_learned: bool  # the arbiter learnt the teacher's reaction delay
     delay_window_s: tuple[float, float]  # the arbiter's window at the end (seconds)
     counters: dict[str, int]
+    trace_words: int = 0  # the commands a person says to dictate the traces (TraceBook.words)
     spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     def to_json(self) -> dict:
@@ -117,7 +118,7 @@ def run(spec: RunSpec, reference: bool = False) -> RunResult:
     )
     heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance), a heap
     fast = not reference
-    sim_config = SimConfig(sensor_reach=learner.states.reach if fast else None, fast=fast)
+    sim_config = SimConfig(sensor_reach=learner.features.reach if fast else None, fast=fast)
     sim = Simulation(m, (ROBOT,), sim_config, seed=spec.seed)
     now, order = START, 0
     durations: list[float] = []
@@ -163,6 +164,7 @@ def run(spec: RunSpec, reference: bool = False) -> RunResult:
         learning_time_s=round(progress.learning_time, 1),
         interventions=progress.interventions,
         trace_steps=sum(len(e) for e in book.episodes) if book else 0,
+        trace_words=book.words(learner_config.command_steps) if book else 0,
         durations_s=durations,
         delay_learned=arbiter.delay_learned(TEACHER),
         delay_window_s=(round(window.lo, 3), round(window.hi, 3)),

@@ -265,7 +265,7 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
             if not runs:
                 continue
             cell = {"runs": len(runs)}
-            for key in ("episodes", "learning_time_s", "interventions"):
+            for key in ("episodes", "learning_time_s", "interventions", "trace_words"):
                 cell[key], cell[f"{key}_ci95"] = mean_ci(getattr(r, key) for r in runs)
             cell["converged_fraction"] = sum(r.converged for r in runs) / len(runs)
             cells[task][setting] = cell
@@ -283,6 +283,11 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
         for s in settings
         if SETTINGS[s].feedback
     }
+    trace_words = {
+        s: statistics.fmean(cells[t][s]["trace_words"] for t in tasks if s in cells[t])
+        for s in settings
+        if SETTINGS[s].feedback
+    }
     built_in = [t for t in tasks if t in TASKS]
     return {
         "seeds": seeds,
@@ -295,6 +300,7 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
             cells[t]["rl"]["converged_fraction"] < 1 for t in tasks if "rl" in cells[t]
         ),
         "interventions": interventions,
+        "trace_words": trace_words,
         "runs": [r.to_json() for r in results],
     }
 
@@ -497,6 +503,21 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     if mixed:
         lines.append(
             _built_in_row(summary, built_in, feedback, "interventions", paper["interventions"])
+        )
+    lines += [
+        "",
+        "Every word a teacher says per run, mean over the tasks: the words understood while "
+        "the robot learns, the commands said to dictate the initial traces (a command lasts "
+        "`command_steps` steps, so a run of one command takes a word per that many steps), "
+        "and their sum.",
+        "",
+        "| setting | while learning | dictating traces | in all |",
+        "|---|---|---|---|",
+    ]
+    for s in feedback:
+        learning, dictating = summary["interventions"][s], summary["trace_words"][s]
+        lines.append(
+            f"| {LABELS[s]} | {learning:.1f} | {dictating:.1f} | {learning + dictating:.1f} |"
         )
     noisy, perfect = "rl+t+f", "rl+t+f-perfect"
     if "2" in summary["tasks"] and {noisy, perfect} <= set(summary["tasks"]["2"]):

@@ -28,12 +28,19 @@ import numpy as np
 
 from services.learner.actions import N_ACTIONS
 from services.learner.config import LearnerConfig
+from services.learner.features import State
 from services.learner.sarsa import Learner, Visit
-from services.learner.states import KEY_FIELDS
 
-VERSION = 2
+VERSION = 3
 # Settings that decide what a state or an action is: a table learnt with others is useless.
 REPRESENTATION = (
+    "representation",
+    "tilings",
+    "tile_width",
+    "heading_tiles",
+    "key_tilings",
+    "pearson_threshold",
+    "advice_generalization",
     "laser_sectors",
     "use_sonar",
     "goal_features",
@@ -44,14 +51,9 @@ REPRESENTATION = (
     "near_sectors",
     "goal_sectors",
 )
-# What a setting was in checkpoints saved before it was named (when it is not its default).
-UNNAMED = {"goal_sectors": 0}
-# Representation settings since removed, with the value that means "off": a checkpoint
-# learnt with another value is refused.
-DROPPED = {"goal_prior": False}
-ARRAYS = ("Q", "H", "prototypes", "keys", "meta")
-# The recent visits and the potential by place (not in older checkpoints).
-OPTIONAL_ARRAYS = ("visits", "visit_weights", "potential")
+PARTS = ("q", "advice", "place", "view")  # a state's features, for Q, H and Phi, its key
+# The recent visits: their steps, episode and action weights, and their state's features.
+ARRAYS = ("Q", "H", "Phi", "meta", "visits", "visit_weights", *(f"visit_{p}" for p in PARTS))
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.learner")
 
@@ -97,28 +99,27 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
         "rng": learner.rng.bit_generator.state,
         "step": progress.step,
         "feedback_taken": list(progress.taken),
+        "features": learner.features.coordinates(),
     }
     visits = list(learner.recent)
-    keys = sorted(learner.states.keys, key=learner.states.keys.get)
-    prototypes = (
-        np.array(learner.states.prototypes) if learner.states.prototypes else np.zeros((0, 0))
-    )
     tmp = path.with_name(path.name + ".tmp")
     with tmp.open("wb") as f:
         np.savez(
             f,
             Q=learner.Q,
             H=learner.H,
-            prototypes=prototypes,
-            keys=np.array(keys, dtype=np.int64).reshape(len(keys), len(KEY_FIELDS)),
+            Phi=learner.Phi,
             meta=np.array(json.dumps(meta)),
-            visits=np.array(
-                [(v.first, v.last, v.episode, v.state) for v in visits], dtype=np.int64
-            ).reshape(len(visits), 4),
+            visits=np.array([(v.first, v.last, v.episode) for v in visits], dtype=np.int64).reshape(
+                len(visits), 3
+            ),
             visit_weights=np.array([v.weights for v in visits]).reshape(len(visits), N_ACTIONS),
-            potential=np.array(
-                [(*place, phi) for place, phi in learner.Phi.items()], dtype=float
-            ).reshape(len(learner.Phi), 3),
+            **{
+                f"visit_{part}": np.array(
+                    [getattr(v.state, part) for v in visits] or np.zeros((0, 0)), dtype=np.int64
+                )
+                for part in PARTS
+            },
         )
         f.flush()
         os.fsync(f.fileno())
@@ -135,66 +136,57 @@ def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
 def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner, Bookmark]:
     try:
         with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            if meta.get("version") != VERSION:
+                raise CheckpointError(
+                    f"{path}: checkpoint version {meta.get('version')!r}, this "
+                    f"build reads {VERSION}: start afresh with another file"
+                )
             arrays = {name: data[name] for name in ARRAYS}
-            arrays |= {name: data[name] for name in OPTIONAL_ARRAYS if name in data.files}
     except FileNotFoundError:
         raise CheckpointError(f"{path}: no such checkpoint") from None
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
         raise CheckpointError(f"{path}: corrupt checkpoint ({type(e).__name__}: {e})") from None
-    try:
-        meta = json.loads(str(arrays["meta"]))
-    except json.JSONDecodeError as e:
-        raise CheckpointError(f"{path}: corrupt metadata ({e})") from None
-    if meta.get("version") != VERSION:
-        raise CheckpointError(
-            f"{path}: checkpoint version {meta.get('version')!r}, this "
-            f"build reads {VERSION}: start afresh with another file"
-        )
     saved = meta["config"]
-    ours, defaults = (_as_saved(c) for c in (config, LearnerConfig()))
-    # A setting a checkpoint does not name was not there yet: it learnt without it.
-    changed = [k for k in REPRESENTATION if ours[k] != saved.get(k, UNNAMED.get(k, defaults[k]))]
-    dropped = [k for k in DROPPED if saved.get(k, DROPPED[k]) != DROPPED[k]]
-    if dropped:
-        raise CheckpointError(
-            f"{path}: learnt with {', '.join(dropped)}, settings this build no longer has "
-            "(docs/decisions.md); start afresh with another file"
-        )
+    ours = _as_saved(config)
+    changed = [k for k in REPRESENTATION if ours[k] != saved.get(k)]
     if changed:
         raise CheckpointError(
             f"{path}: learnt with other state settings ({', '.join(changed)})"
             "; use the same settings or start afresh with another file"
         )
-    q, h, keys = arrays["Q"], arrays["H"], arrays["keys"]
-    if q.shape != h.shape or q.shape != (len(keys), N_ACTIONS):
-        raise CheckpointError(f"{path}: inconsistent tables {q.shape}, {h.shape}, {keys.shape}")
     learner = Learner(config, seed)
-    learner.states.restore(arrays["prototypes"], keys)
-    learner.Q, learner.H, learner.e = q.copy(), h.copy(), np.zeros_like(q)
-    learner.sum_advice_tiles()
+    learner.features.restore(meta["features"])
+    q, h, phi = arrays["Q"], arrays["H"], arrays["Phi"]
+    if (len(q), len(h), len(phi)) != learner.features.sizes or q.shape[1:] != (N_ACTIONS,):
+        raise CheckpointError(
+            f"{path}: inconsistent tables {q.shape}, {h.shape}, {phi.shape} for "
+            f"{learner.features.sizes} features; start afresh with another file"
+        )
+    learner.Q, learner.H, learner.Phi, learner.e = q.copy(), h.copy(), phi.copy(), np.zeros_like(q)
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]
-    for distance, sector, phi in arrays.get("potential", np.zeros((0, 3))):
-        learner.Phi[(int(distance), int(sector))] = float(phi)
-    visits, weights = arrays.get("visits"), arrays.get("visit_weights")
-    if visits is not None and weights is not None and weights.shape == (len(visits), N_ACTIONS):
-        learner.recent.extend(
-            Visit(int(first), int(last), int(episode), int(state), w.copy())
-            for (first, last, episode, state), w in zip(visits, weights, strict=True)
-            if 0 <= state < len(q)
+    learner.recent.extend(
+        Visit(int(first), int(last), int(episode), State(x, advice, place, int(view)), w.copy())
+        for (first, last, episode), w, x, advice, place, view in zip(
+            arrays["visits"],
+            arrays["visit_weights"],
+            *(arrays[f"visit_{part}"] for part in PARTS),
+            strict=True,
         )
+    )
     return learner, Bookmark.of(meta.get("step"), meta.get("feedback_taken", []))
 
 
 def peek(path: Path) -> tuple[int, int] | None:
-    """The episodes and states of the checkpoint at `path`, read without restoring it (to
+    """The episodes and features of the checkpoint at `path`, read without restoring it (to
     say what a session resumes); None if there is none or it cannot be read."""
     try:
         with np.load(path, allow_pickle=False) as data:
-            meta, keys = json.loads(str(data["meta"])), data["keys"]
-            return int(meta["episode"]), len(keys)
+            meta = json.loads(str(data["meta"]))
+            return int(meta["episode"]), len(data["Q"])
     except (OSError, ValueError, KeyError, TypeError, zipfile.BadZipFile, EOFError):
         return None
 

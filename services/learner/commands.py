@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
         def on_episode(episode: object, learner: object) -> None:
             bar.update(1)
             bar.set_postfix(
-                outcome=episode.outcome, steps=episode.steps, states=len(learner.states)
+                outcome=episode.outcome, steps=episode.steps, states=len(learner.features)
             )
 
         result = train(args.task, args.seed, config, args.max_episodes, on_episode=on_episode)

@@ -18,12 +18,21 @@ class LearnerConfig:
     """The learner's settings; docs/learner.md explains them and docs/decisions.md records
     the measurements behind the defaults."""
 
-    # -- state representation (Pearson prototypes, after Millan et al. 2002) ---------------
+    # -- state representation (features.py) ----------------------------------------------
+    # "tiles": tile coding of the pose plus the key below; "keys": a table over the key
+    # (near bits and goal bins); "pearson": the paper's, keys with Pearson prototypes.
+    representation: Literal["tiles", "keys", "pearson"] = "keys"
+    tilings: int = 8  # offset grids over (x, y, heading)
+    tile_width: float = 1.0  # metres of a tile's side
+    heading_tiles: int = 8  # headings per turn in a tiling
+    place_tiles: bool = False
+    trace_places: bool = False
+    key_tilings: int = 32  # the key's weight in a tiled state, as this many tilings of it
+    # Pearson prototypes (after Millan et al. 2002): a reading whose best correlation with
+    # the prototypes is below the threshold is a new prototype.
     laser_sectors: int = 12  # the 180 beams summarised as the nearest range per sector
     use_sonar: bool = True  # append the 8 rear sonar ranges to the sensor vector
-    # A reading whose best correlation with the prototypes is below this is a new prototype.
-    # None: no prototypes, the state is the near bits and the goal bins alone.
-    pearson_threshold: float | None = None
+    pearson_threshold: float = 0.9
     goal_features: bool = True  # add the quantised goal bearing and distance to the state
     bearing_bins: int = 8  # 45 degrees each, the first centred straight ahead
     distance_edges: tuple[float, ...] = (1.0, 2.5)  # metres: bins [0,1) [1,2.5) [2.5,inf)
@@ -34,7 +43,7 @@ class LearnerConfig:
     # (metres): Pearson's correlation ignores scale. None: off.
     near_range: float | None = 0.6
     near_sectors: int = 3
-    init_from_neighbour: bool = True  # a new state starts with its nearest state's Q-values
+    init_from_neighbour: bool = True  # a new prototype's state starts with its nearest's Q
     # Readings with nothing nearer than this (metres) share one "clear" prototype. None: off.
     clear_range: float | None = 1.0
 
@@ -78,15 +87,20 @@ class LearnerConfig:
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
     feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
+    advice: Literal["sum", "regression"] = "sum"
     bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
-    # Fields of the state the advice generalizes over: one coarse tiling per field, each
-    # ignoring it; the policy's H(s) is the mean of the state's own and its tiles'. (): off.
+    # With "keys": fields of the key the advice generalizes over, one coarse tiling per
+    # field ignoring it; the policy's H(s) is the mean of the state's own and its tiles'.
     advice_generalization: tuple[str, ...] = ("distance", "sector")
 
-    # The potential the teacher's words imply: Phi over the state's goal distance and
-    # sector, moved towards each word's reward at this rate (0: off); every update's reward
+    # The potential the teacher's words imply: Phi over the state's place features, moved
+    # towards each word's reward at this rate (0: off); every update's reward
     # gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum).
     potential_rate: float = 0.25
+    # "levels": Phi of the judged steps moves towards the word's reward; "differences": a
+    # word says how Phi changed over the potential_span steps it judged.
+    potential: Literal["levels", "differences"] = "levels"
+    potential_span: int = 10
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
@@ -97,6 +111,10 @@ class LearnerConfig:
     replay_every: int = 10  # replay the teacher's traces again every this many episodes (0: once)
 
     def __post_init__(self) -> None:
+        if self.representation not in ("tiles", "keys", "pearson"):
+            raise ValueError(f"representation {self.representation!r}: one of tiles, keys, pearson")
+        if self.tilings < 1 or self.tile_width <= 0 or self.heading_tiles < 1:
+            raise ValueError("need tilings >= 1, tile_width > 0 metres, heading_tiles >= 1")
         unknown = set(self.advice_generalization) - set(KEY_FIELDS)
         if unknown:
             raise ValueError(

@@ -175,18 +175,18 @@ def drive(
         extra=fields(
             robot=robot,
             checkpoint=path,
-            states=len(learner.states),
+            states=len(learner.features),
             episodes=learner.episode,
             resumed_at_step=bookmark.step if bookmark.step is not None else "-",
             feedback_taken=len(bookmark.taken),
         ),
     )
     initial = TraceBook.load(traces) if traces else None
-    if initial and not initial.headings and learner.config.goal_sectors:
+    if initial and not initial.poses:
         node.log.warning(
-            "initial traces without headings: replayed facing 0 rad, so their goal "
-            "sectors are wrong; record them again (headings are saved now), or run "
-            "with --set goal_sectors=0",
+            "initial traces saved without the robot's position: replayed at (0, 0), so "
+            "they teach the wrong places; record them again (poses are saved now), or run "
+            "with --set representation=keys",
             extra=fields(traces=traces),
         )
     if initial:

@@ -4,7 +4,8 @@ One control step (`Learner.step`), with s the previous state and a the action ta
 
     observe r, s'              r = R_RL, the simulator's reward for the step; if the teacher
                                selected a, r <- h(r, a) = r + command_reward (bounded)
-    hold a?                    while s' == s, and for a's first min_hold steps, a goes on:
+    hold a?                    while s' looks as s (the same key), and for a's first
+                               min_hold steps, a goes on:
                                r accumulates as G = sum gamma^i r_i over its k steps, and
                                the update below uses G and gamma^k (SARSA over the states'
                                changes), `_holds`
@@ -24,12 +25,15 @@ and each action's trace grows by its weight, so each is credited in proportion t
 so the arbiter credits it to past steps with weights, and `credit` applies g's bounded f
 after the fact (late credit, which approximates on-time feedback: see its docstring).
 
+Q, H and Phi are linear over the state's binary features (features.py): Q(s, .) is the mean
+of the rows of Q of s's active features, and e has a row per feature, so the update reads as
+the table's (a table is one feature per state) and moves every state sharing a feature.
+
 That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
 action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
 policy ranks Q + beta H and Q learns from R_RL alone, on the robot's own steps (a replayed
-trace, `replay=True`, teaches H alone). With advice_generalization the policy's H(s) is the
-mean of H[s] and the sums of H over the state's advice tiles (coarser tilings, states.py), so
-what was said in a state also speaks for the states that share a tile with it.
+trace, `replay=True`, teaches H alone). H(s) is the mean of the rows of H of the state's
+advice features, so what was said in a state also speaks for the states sharing one.
 """
 
 from __future__ import annotations
@@ -43,10 +47,10 @@ import numpy as np
 from protocol import ACTION_NAMES, CreditedFeedback
 from services.learner.actions import N_ACTIONS, ActionSet, Decision
 from services.learner.config import LearnerConfig
-from services.learner.states import Percept, StateSpace
+from services.learner.features import PosePercept, State, representation
 
 
-class LearnerPercept(Percept, Protocol):
+class LearnerPercept(PosePercept, Protocol):
     reward: float  # R_RL of the step that led here
     outcome: str  # "running" unless the episode ended here
     step: int  # the observation's step id (feedback is credited to these)
@@ -59,23 +63,22 @@ class Visit:
     first: int
     last: int
     episode: int
-    state: int
+    state: State
     weights: np.ndarray
 
 
 class Learner:
     def __init__(self, config: LearnerConfig | None = None, seed: int | None = None) -> None:
         self.config = c = config or LearnerConfig()
-        self.states = StateSpace(c)
+        self.features = representation(c)
         self.actions = ActionSet(c)
-        self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per state
-        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
+        self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per feature
+        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces, a row per feature of Q
         self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
-        self.H_tiles = np.zeros((0, N_ACTIONS))  # H summed over each advice tile
-        self.Phi: dict[tuple[int, int], float] = {}  # potential by place (potential_rate)
+        self.Phi = np.zeros(0)  # the potential the words imply (potential_rate)
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
-        self.s: int | None = None  # the previous state ...
+        self.s: State | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
         self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
         self.commands: deque[int] = deque()  # teacher's actions still to take
@@ -114,17 +117,17 @@ class Learner:
         self.counters["decisions"] += 1
         return a_next
 
-    def _update(self, s_next: int, a_next: Decision | None) -> None:
+    def _update(self, s_next: State, a_next: Decision | None) -> None:
         """The SARSA(lambda) update for (s, a), held k steps for a return G (discount is
         gamma^k); a_next is None when s' is terminal."""
-        c = self.config
-        q_next = 0.0 if a_next is None else a_next.weights @ self.Q[s_next]
-        shaping = (0.0 if a_next is None else self.discount * self._phi(s_next)) - self._phi(self.s)
-        delta = self.G + shaping + self.discount * q_next - self.a.weights @ self.Q[self.s]
+        c, x = self.config, self.s.q  # x: the features of s
+        q_next = 0.0 if a_next is None else a_next.weights @ self.q(s_next)
+        shaping = (0.0 if a_next is None else self.discount * self.phi(s_next)) - self.phi(self.s)
+        delta = self.G + shaping + self.discount * q_next - self.a.weights @ self.q(self.s)
         if c.traces == "replacing":  # e(s, a) <- 1, by each action's weight in a
-            self.e[self.s] = np.maximum(self.e[self.s], self.a.weights)
+            self.e[x] = np.maximum(self.e[x], self.a.weights)
         else:  # e(s, a) <- e(s, a) + 1
-            self.e[self.s] += self.a.weights
+            self.e[x] += self.a.weights
         self.Q += c.alpha * delta * self.e
         self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
         self.td_error = float(delta)
@@ -139,13 +142,13 @@ class Learner:
         self.discount *= self.config.gamma
         self.held += 1
 
-    def _holds(self, s_next: int, ended: bool, forced: Decision | None) -> bool:
+    def _holds(self, s_next: State, ended: bool, forced: Decision | None) -> bool:
         """Action holding: the policy's action goes on while the state stays the same, and
         for its first min_hold steps, at most max_hold steps; a teacher's action, a forced
         one, a pending command or the episode's end make a decision at once."""
         c = self.config
         return (
-            (s_next == self.s or self.held < c.min_hold)
+            (s_next.view == self.s.view or self.held < c.min_hold)
             and not ended
             and forced is None
             and not self.commands
@@ -153,12 +156,12 @@ class Learner:
             and self.held < c.max_hold
         )
 
-    def _select(self, s: int) -> Decision:
+    def _select(self, s: State) -> Decision:
         """a' from s': a pending command, else epsilon-greedy (or the blend) over Q, plus
         beta H with the action bias, never the turn that undoes the policy's own turn."""
         if self.commands:
             return self.actions.one_hot(self.commands.popleft(), "teacher")
-        q = self.Q[s]
+        q = self.q(s)
         if self.config.shaping == "action_bias":
             q = q + self.config.bias_weight * self.advice(s)
         barred = None
@@ -166,7 +169,7 @@ class Learner:
             barred = self.actions.undoing.get(self.a.discrete)
         return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
 
-    def _h(self, r: float, s: int, a: Decision) -> float:
+    def _h(self, r: float, s: State, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
         bonus = float(
             np.clip(
@@ -174,7 +177,11 @@ class Learner:
             )
         )
         if self.config.shaping == "action_bias":
-            self._advise([s], (self.config.alpha * bonus * a.weights)[None, :])
+            target = bonus - self.advice(s) if self.config.advice == "regression" else bonus
+            if s.route is not None:
+                _add_rows(self.H, [s.route], (self.config.alpha * target * a.weights)[None, :])
+                return r
+            self._advise([s], (self.config.alpha * target * a.weights)[None, :])
             return r
         return r + bonus
 
@@ -214,22 +221,41 @@ class Learner:
             visits.append(visit)
             traces.append(trace)
             trace *= c.gamma * c.lam
-        if c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
+        if c.potential_rate and c.potential == "differences":
+            self._judge_difference(index, step, weight, f)
+        elif c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
             for visit, trace in zip(visits, traces, strict=True):
-                place = self._place(visit.state)
-                phi = self.Phi.get(place, 0.0)
-                self.Phi[place] = phi + c.potential_rate * weight * trace * (f - phi)
+                place = visit.state.place
+                self.Phi[place] += c.potential_rate * weight * trace * (f - self.phi(visit.state))
         scale = c.alpha * weight * f
         changes = np.array([scale * t for t in traces])[:, None] * np.array(
             [v.weights for v in visits]
         )
         states = [v.state for v in visits]
-        if c.shaping == "action_bias":
+        if c.shaping == "action_bias" and c.advice == "regression":  # H(s_j) towards f
+            errors = np.array([f - self.advice(s) for s in states])
+            self._advise(states, changes / f * errors if f else changes)
+        elif c.shaping == "action_bias":
             self._advise(states, changes)
-        else:
-            np.add.at(self.Q, states, changes)  # in order, as one update after another
+        else:  # in order, as one update after another
+            _add_rows(self.Q, [s.q for s in states], changes)
         self.counters["feedback_credited"] += 1
         return True
+
+    def _judge_difference(self, index: int, step: int, weight: float, f: float) -> None:
+        """A word judges the last potential_span steps: Phi rose by f from where the robot
+        was then to where it is at `step`; both ends move towards that difference."""
+        c, end = self.config, self.recent[index]
+        start = end
+        for j in range(index - 1, -1, -1):
+            if self.recent[j].episode != end.episode:
+                break
+            start = self.recent[j]
+            if start.first <= step - c.potential_span:
+                break
+        change = c.potential_rate * weight * (f - self.phi(end.state) + self.phi(start.state)) / 2
+        self.Phi[end.state.place] += change
+        self.Phi[start.state.place] -= change
 
     def take(self, feedback: CreditedFeedback) -> list[int]:
         """The arbiter's credited feedback: a command, or a reward credited to its steps;
@@ -248,45 +274,43 @@ class Learner:
         self.commands.extend([index] * self.config.command_steps)
         self.counters["commands"] += 1
 
-    # -- the teacher's advice (shaping="action_bias") ---------------------------------------
-    def advice(self, s: int) -> np.ndarray:
-        """H(s, .) as the policy weighs it: the state's own, with its tiles' (if any)."""
-        tiles = self.states.tiles[s]
-        return (self.H[s] + self.H_tiles[tiles].sum(axis=0)) / (1 + len(tiles))
+    # -- the values, linear over the state's features ---------------------------------------
+    def q(self, s: State) -> np.ndarray:
+        """Q(s, .): the mean of the rows of Q of the state's features."""
+        return self.Q[s.q].sum(axis=0) / len(s.q)
 
-    def _advise(self, states: list[int], changes: np.ndarray) -> None:
-        """H(s) += change for each state and its change (rows), in order, and its tiles."""
-        np.add.at(self.H, states, changes)
-        tiles = [(t, i) for i, s in enumerate(states) for t in self.states.tiles[s]]
-        if tiles:
-            rows, which = zip(*tiles, strict=True)
-            np.add.at(self.H_tiles, list(rows), changes[list(which)])
+    def advice(self, s: State) -> np.ndarray:
+        """H(s, .) as the policy weighs it: the mean of the rows of its advice features."""
+        h = self.H[s.advice].sum(axis=0) / len(s.advice)
+        if s.route is not None:
+            h = h + self.H[s.route].sum(axis=0) / len(s.route)
+        return h
 
-    def sum_advice_tiles(self) -> None:
-        """H_tiles from H (after H was restored)."""
-        self.H_tiles = np.zeros((len(self.states.tile_ids), N_ACTIONS))
-        for s, tiles in enumerate(self.states.tiles):
-            self.H_tiles[tiles] += self.H[s]
+    def phi(self, s: State) -> float:
+        """Phi(s), the potential the teacher's words imply (0 when potential_rate is 0)."""
+        return float(self.Phi[s.place].sum()) / len(s.place) if self.config.potential_rate else 0.0
 
-    # -- the potential the teacher's words imply (potential_rate) -------------------------
-    def _place(self, s: int) -> tuple[int, int]:
-        """Where state s is relative to the goal: its distance bin and goal sector."""
-        key = self.states.key_of[s]
-        return key[3], key[4]
-
-    def _phi(self, s: int) -> float:
-        return self.Phi.get(self._place(s), 0.0) if self.config.potential_rate else 0.0
+    def _advise(self, states: list[State], changes: np.ndarray) -> None:
+        """H(s) += change for each state and its change (rows), in order."""
+        _add_rows(self.H, [s.advice for s in states], changes)
 
     # -- states and episodes ------------------------------------------------------------
-    def _state_of(self, p: Percept) -> int:
-        s, parent = self.states.classify(p)
-        if s == len(self.Q):  # a new state: a new row, from its nearest neighbour if asked
-            row = self.Q[parent] if parent is not None and self.config.init_from_neighbour else 0
-            self.Q = np.vstack([self.Q, np.zeros(N_ACTIONS) + row])
-            self.H = np.vstack([self.H, np.zeros(N_ACTIONS)])
-            new_tiles = len(self.states.tile_ids) - len(self.H_tiles)
-            self.H_tiles = np.vstack([self.H_tiles, np.zeros((new_tiles, N_ACTIONS))])
-            self.e = np.vstack([self.e, np.zeros(N_ACTIONS)])
+    def _state_of(self, p: LearnerPercept) -> State:
+        s, parent = self.features.encode(p)
+        n_q, n_advice, n_place = self.features.sizes
+        if n_q > len(self.Q):  # new features: new rows, from what is known, if asked
+            known = s.q[s.q < len(self.Q)]
+            row = 0.0
+            if self.config.init_from_neighbour and parent is not None:
+                row = self.Q[parent]  # a new state: its nearest state's values
+            elif self.config.init_from_neighbour and len(known):
+                row = self.Q[known].sum(axis=0) / len(known)  # the state's other features'
+            self.Q = np.vstack([self.Q, np.zeros((n_q - len(self.Q), N_ACTIONS)) + row])
+            self.e = np.vstack([self.e, np.zeros((n_q - len(self.e), N_ACTIONS))])
+        if n_advice > len(self.H):
+            self.H = np.vstack([self.H, np.zeros((n_advice - len(self.H), N_ACTIONS))])
+        if n_place > len(self.Phi):
+            self.Phi = np.concatenate([self.Phi, np.zeros(n_place - len(self.Phi))])
         return s
 
     def _end_episode(self) -> None:
@@ -300,3 +324,9 @@ class Learner:
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0
+
+
+def _add_rows(table: np.ndarray, rows: list[np.ndarray], changes: np.ndarray) -> None:
+    """table[r] += change for every feature r of each state's rows, in order."""
+    counts = [len(r) for r in rows]
+    np.add.at(table, np.concatenate(rows), np.repeat(changes, counts, axis=0))

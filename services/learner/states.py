@@ -8,12 +8,8 @@ tell where the goal is, nor how near the walls are: the state is (prototype, nea
 bin, goal-distance bin, goal sector), where `near` has a bit for each of the laser's right,
 front and left thirds with something within `near_range` (0 when off), the goal bins are 0
 without `goal_features`, and the goal sector (which side of the goal the robot is on, from
-odometry: `goal_sectors`) is 0 when off.
-
-Advice tiles (`advice_generalization`): coarser partitions of the states, each ignoring one
-field of the key, so what the teacher said in one state also speaks for its neighbours:
-ignoring "distance", every state on that side of the goal with the same near bits and goal
-bearing shares a tile, whatever its distance.
+odometry: `goal_sectors`) is 0 when off. Prototypes are used with representation="pearson";
+otherwise one prototype stands for all (features.py builds the learner's features on this).
 """
 
 from __future__ import annotations
@@ -25,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from services.learner.config import KEY_FIELDS, LearnerConfig
+from services.learner.config import LearnerConfig
 
 CLEAR = -1  # the prototype of readings with nothing within clear_range
 
@@ -64,9 +60,6 @@ class StateSpace:
         # (prototype, near, bearing, distance, sector)
         self.keys: dict[tuple[int, int, int, int, int], int] = {}
         self.key_of: list[tuple[int, int, int, int, int]] = []  # each state's key
-        self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
-        self.tile_ids: dict[tuple[int, ...], int] = {}  # (tiling, key without its field)
-        self.tiles: list[list[int]] = []  # each state's advice tile in every tiling (an index)
         self._matrix = np.zeros((0, 0))
 
     def __len__(self) -> int:
@@ -76,7 +69,7 @@ class StateSpace:
     def reach(self) -> float | None:
         """How far the sensors must see for a state: the near range when the near bits are
         all that reads them (0 when nothing does), else their full range (None)."""
-        if self.config.pearson_threshold is not None:
+        if self.config.representation == "pearson":
             return None
         return self.config.near_range or 0.0
 
@@ -109,7 +102,7 @@ class StateSpace:
     def classify(self, p: Percept) -> tuple[int, int | None]:
         """The state of a percept, and the state it was born from (None if not new)."""
         prototype, neighbour_prototype = 0, None  # without prototypes, one for all
-        if self.config.pearson_threshold is not None:
+        if self.config.representation == "pearson":
             vector = self.sensor_vector(p)
             clear_range = self.config.clear_range
             if clear_range is not None and vector.min() >= clear_range:
@@ -124,7 +117,6 @@ class StateSpace:
             return self.keys[key], None
         self.keys[key] = len(self.keys)
         self.key_of.append(key)
-        self._add_tiles(key)
         # The nearest existing state: same bits and bins, best-matching prototype.
         parent = (
             self.keys.get((neighbour_prototype, *key[1:]))
@@ -132,10 +124,6 @@ class StateSpace:
             else None
         )
         return self.keys[key], parent
-
-    def _add_tiles(self, key: tuple[int, int, int, int, int]) -> None:
-        coarse = ((t, *key[:i], *key[i + 1 :]) for t, i in enumerate(self.ignored))
-        self.tiles.append([self.tile_ids.setdefault(k, len(self.tile_ids)) for k in coarse])
 
     def _match(self, unit: np.ndarray) -> tuple[int, int | None]:
         """(prototype index, best other prototype when a new one was born)."""
@@ -150,14 +138,8 @@ class StateSpace:
         self._matrix = np.array(self.prototypes)
         return len(self.prototypes) - 1, best
 
-    def restore(self, prototypes: np.ndarray, keys: np.ndarray) -> None:
-        self.prototypes = list(prototypes)
+    def restore(self, prototypes: list, keys: list) -> None:
+        self.prototypes = [np.asarray(p, dtype=float) for p in prototypes]
         self._matrix = np.array(self.prototypes) if self.prototypes else np.zeros((0, 0))
-        width = len(KEY_FIELDS)  # keys saved before the goal sector had 4 fields: sector 0
-        self.keys = {
-            (*(int(v) for v in k), *(0,) * (width - len(k))): i for i, k in enumerate(keys)
-        }
+        self.keys = {tuple(int(v) for v in k): i for i, k in enumerate(keys)}
         self.key_of = list(self.keys)
-        self.tile_ids, self.tiles = {}, []
-        for key in self.keys:
-            self._add_tiles(key)

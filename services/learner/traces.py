@@ -29,7 +29,9 @@ class TracePercept:
     reward: float
     outcome: str
     step: int
-    theta: float = 0.0  # heading (goal sectors); files saved before it was kept read as 0
+    theta: float  # the pose: heading (goal sectors) and position (tiles)
+    x: float
+    y: float
 
 
 @dataclass
@@ -37,7 +39,7 @@ class TraceBook:
     """Recorded episodes: each a list of (percept, decision or None at the end)."""
 
     episodes: list[list[tuple[TracePercept, Decision | None]]] = field(default_factory=list)
-    headings: bool = True  # False: read from a file saved before headings were kept
+    poses: bool = True  # False: read from a file saved before poses were kept
     _current: list[tuple[TracePercept, Decision | None]] = field(default_factory=list)
 
     def record(self, p: LearnerPercept, decision: Decision | None) -> None:
@@ -53,6 +55,8 @@ class TraceBook:
                     p.outcome,
                     int(p.step),
                     float(p.theta),
+                    float(p.x),
+                    float(p.y),
                 ),
                 decision,
             )
@@ -61,6 +65,22 @@ class TraceBook:
             if any(d is not None and d.chooser == "teacher" for _, d in self._current):
                 self.episodes.append(self._current)
             self._current = []
+
+    def words(self, command_steps: int) -> int:
+        """The commands a person says to dictate these episodes: a command lasts
+        `command_steps` steps, so a run of L steps of one command takes ceil(L / that)."""
+        said = 0
+        for episode in self.episodes:
+            run, previous = 0, None
+            for _, decision in episode:
+                command = decision.discrete if decision and decision.chooser == "teacher" else None
+                if command != previous and run:
+                    said += -(-run // command_steps)
+                    run = 0
+                run += command is not None
+                previous = command
+            said += -(-run // command_steps)
+        return said
 
     def replay(self, learner: Learner) -> int:
         """Learns from every recorded episode; returns the number of steps replayed. The
@@ -93,7 +113,7 @@ class TraceBook:
             reward=np.array([p.reward for _, p, _ in rows]),
             outcome=np.array([OUTCOMES.index(p.outcome) for _, p, _ in rows], dtype=np.int64),
             step=np.array([p.step for _, p, _ in rows], dtype=np.int64),
-            theta=np.array([p.theta for _, p, _ in rows]),
+            pose=np.array([(p.x, p.y, p.theta) for _, p, _ in rows]).reshape(len(rows), 3),
             weights=np.array([d.weights if d else np.zeros(N_ACTIONS) for _, _, d in rows]),
             velocity=np.array([(d.v, d.omega) if d else (0.0, 0.0) for _, _, d in rows]),
             teacher=np.array([bool(d and d.chooser == "teacher") for _, _, d in rows]),
@@ -107,8 +127,11 @@ class TraceBook:
                 data = {k: z[k] for k in z.files}
         except (OSError, ValueError) as e:
             raise ValueError(f"{path}: not a trace file ({e})") from None
-        book = cls(headings="theta" in data)
-        theta = data.get("theta", np.zeros(len(data.get("episode", []))))
+        n = len(data.get("episode", []))
+        book = cls(poses="pose" in data)
+        pose = data.get("pose", np.zeros((n, 3)))
+        if "theta" in data:  # saved with headings alone, before positions were kept
+            pose[:, 2] = data["theta"]
         for i in np.unique(data["episode"]) if len(data.get("episode", [])) else []:
             rows = np.flatnonzero(data["episode"] == i)
             book.episodes.append(
@@ -122,7 +145,9 @@ class TraceBook:
                             float(data["reward"][r]),
                             OUTCOMES[int(data["outcome"][r])],
                             int(data["step"][r]),
-                            float(theta[r]),
+                            float(pose[r][2]),
+                            float(pose[r][0]),
+                            float(pose[r][1]),
                         ),
                         None
                         if data["ended"][r]

@@ -74,7 +74,7 @@ def train(
         progress.n_episodes,
         progress.learning_time,
         steps,
-        len(learner.states),
+        len(learner.features),
         progress.episodes,
     )
 

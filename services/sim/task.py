@@ -75,9 +75,17 @@ class Reading:
     outcome: Outcome
     collided: bool  # touched something during the last step
 
+    # The pose as the learner reads it, like Observation's x, y and theta.
+    @property
+    def x(self) -> float:
+        return self.pose.x
+
+    @property
+    def y(self) -> float:
+        return self.pose.y
+
     @property
     def theta(self) -> float:
-        """The heading (what the learner reads, like Observation.theta)."""
         return self.pose.theta
 
 
