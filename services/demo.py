@@ -28,7 +28,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from protocol import EpisodeEvent, TeachingStats, robot_key
+from protocol import EpisodeEvent, LearningSummary, TeachingStats, robot_key
 from services import launcher
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult
@@ -93,7 +93,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--stall-timeout",
         type=float,
         default=120.0,
-        help="seconds without an episode ending before giving up",
+        help="seconds without a step of the robot before giving up (with --web: before "
+        "warning; a session a person teaches is never given up)",
     )
 
 
@@ -118,6 +119,27 @@ class Shown:
     seconds: float
     ended_at: float  # monotonic
     interventions: int | None = None  # None until final (or given up waiting)
+
+
+@dataclass
+class StallWatch:
+    """Whether the robot makes progress: its steps advancing (pure: steps in, verdicts out).
+    An episode may last minutes at real time; a robot whose steps stop is stuck."""
+
+    timeout: float  # seconds without a new step
+    since: float  # monotonic: when the last new step (or the start) was seen
+    step: int = -1
+
+    def on_step(self, step: int, now: float) -> bool:
+        """True if this step is progress after a stall."""
+        stalled = self.stalled(now)
+        if step != self.step:
+            self.step, self.since = step, now
+            return stalled
+        return False
+
+    def stalled(self, now: float) -> bool:
+        return now - self.since > self.timeout
 
 
 @dataclass
@@ -295,6 +317,7 @@ def run(args: argparse.Namespace) -> int:
     progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
     session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
     session.input("teaching", robot_key(session_id, robot, "teaching"))
+    session.input("learning", robot_key(session_id, robot, "learning"))  # its steps
     code = 0
     t0 = time.monotonic()
     try:
@@ -302,7 +325,7 @@ def run(args: argparse.Namespace) -> int:
         session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
         if args.web:
             session.say(f"teach it in a browser: {launcher.web_page(session)}")
-        train(session, progress, args.stall_timeout)
+        train(session, progress, args.stall_timeout, interactive=args.web)
     except (launcher.ServiceDied, launcher.LaunchAborted, BusError, TimeoutError) as e:
         session.say(f"error: {e}")
         code = 1
@@ -329,17 +352,27 @@ def run(args: argparse.Namespace) -> int:
     return outputs(session, session_id, progress) or code
 
 
-def train(session: launcher.LocalSession, progress: ConvergenceWatch, stall_timeout: float) -> None:
-    """Shows episodes as they end until convergence or the episode bound."""
+def train(
+    session: launcher.LocalSession,
+    progress: ConvergenceWatch,
+    stall_timeout: float,
+    interactive: bool = False,
+) -> None:
+    """Shows episodes as they end until convergence or the episode bound. A robot whose
+    steps stop for `stall_timeout` seconds ends the demo, or with `interactive` (a person
+    teaching) is reported once per stall, and the session goes on."""
     bus = session.bus
     assert bus is not None
-    last_end, cpu_then = time.monotonic(), session.cpu_seconds()
-    done_at: float | None = None
+    stall, cpu_then = StallWatch(stall_timeout, time.monotonic()), session.cpu_seconds()
+    warned, done_at = False, None
     for event in bus.events(tick=0.5):
         now = time.monotonic()
-        if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
-            if event.message.kind != "start" and not progress.done:
-                last_end, cpu_then = now, session.cpu_seconds()
+        if isinstance(event, Input) and isinstance(event.message, LearningSummary):
+            if stall.on_step(event.message.step, now) and warned:
+                session.say(f"{progress.robot} goes on (step {event.message.step})")
+            if not stall.stalled(now):
+                warned, cpu_then = False, session.cpu_seconds()
+        elif isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
             progress.on_episode(event.message, now)
         elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
             progress.on_teaching(event.message)
@@ -351,15 +384,19 @@ def train(session: launcher.LocalSession, progress: ConvergenceWatch, stall_time
             done_at = done_at or now
             if progress.all_shown or now - done_at > FINAL_WAIT_S:
                 return
-        elif now - last_end > stall_timeout:
+        elif stall.stalled(now) and not warned:
             used = session.cpu_seconds()
             cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
-            session.print_stacks()
-            raise TimeoutError(
-                f"no episode ended for {stall_timeout:g} s: is the robot stuck? (CPU seconds "
-                f"used meanwhile: {cpu}; the sim near 0: it is blocked, not slow; each "
-                "service's threads are printed above)"
+            what = (
+                f"{progress.robot} made no step for {stall_timeout:g} s (CPU seconds used "
+                f"meanwhile: {cpu}; the sim near 0: it is blocked, not slow)"
             )
+            if interactive:
+                session.say(f"warning: {what}; the session goes on")
+                warned = True
+                continue
+            session.print_stacks()
+            raise TimeoutError(f"{what}: is the robot stuck? (each service's threads above)")
     raise KeyboardInterrupt
 
 

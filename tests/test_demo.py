@@ -12,7 +12,7 @@ import subprocess
 import pytest
 
 from protocol import EpisodeEvent, TeachingStats
-from services.demo import FINAL_WAIT_S, ConvergenceWatch, demo_table, task_title
+from services.demo import FINAL_WAIT_S, ConvergenceWatch, StallWatch, demo_table, task_title
 from services.logger.report import RobotSummary, count_episodes
 from services.runtime import free_loopback_port
 from services.sim.maps import load_map
@@ -105,6 +105,16 @@ def test_it_gives_up_at_the_episode_bound_and_ignores_other_robots():
     for n in range(3):
         progress.on_episode(ended(n, 3000, "timeout"), now=0.0)
     assert progress.done and not progress.convergence.converged
+
+
+def test_a_stall_is_steps_that_stop_not_a_long_episode():
+    watch = StallWatch(timeout=5.0, since=0.0)
+    for t in range(100):  # a 100 s episode, stepping all along: never a stall
+        watch.on_step(t * 10, now=float(t))
+        assert not watch.stalled(now=t + 0.5)
+    assert not watch.on_step(990, now=100.0)  # the same step again is no progress
+    assert not watch.stalled(now=104.0) and watch.stalled(now=105.5)
+    assert watch.on_step(1000, now=106.0) and not watch.stalled(now=106.0)  # going again
 
 
 def test_convergence_is_judged_by_the_map_the_demo_runs(monkeypatch):

@@ -499,12 +499,13 @@ def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
     web_port = free_port()
     env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_WEB_PORT": str(web_port)}
     demo = spawn(
-        [VOXSHAPE, "demo", "--web", "--speech", "mock", "--port", str(free_port())],
+        [VOXSHAPE, "demo", "--web", "--speech", "mock", "--port", str(free_port()),
+         "--stall-timeout", "3"],
         env=env,
         text=True,
         stderr=subprocess.STDOUT,
         cwd=tmp_path,
-    )
+    )  # fmt: skip
     lines = read_until(demo, r"teach it in a browser: |error", timeout=120)
     assert lines[-1].endswith(f"teach it in a browser: http://127.0.0.1:{web_port}/"), lines
     assert any("at 1x real time, taught by you in a browser" in line for line in lines), lines
@@ -519,8 +520,11 @@ def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
             await ws.close()
 
     asyncio.run(look())
+    time.sleep(8)  # at real time an untaught episode lasts longer than the stall timeout ...
+    assert demo.poll() is None  # ... and the robot's steps, not its episodes, tell a stall
     demo.send_signal(signal.SIGINT)
-    demo.communicate(timeout=120)
+    out, _ = demo.communicate(timeout=120)
+    assert "no step" not in out and "error" not in out, out
 
 
 def test_the_page_is_served_over_https_with_the_certificates_voxshape_certs_makes(
