@@ -44,6 +44,20 @@ def test_password_from_file(tmp_path):
     assert bus_config("teach", env=env).password == "s3cret"
 
 
+def test_a_teacher_with_a_user_alone_is_asked_for_the_password_or_reads_a_file(tmp_path):
+    asked = []
+    config = bus_config(
+        "teacher", flags("--user", "ana"), {}, ask=lambda p: asked.append(p) or "pw"
+    )
+    assert config.password == "pw" and asked == ["password for ana: "]
+    credentials = tmp_path / "credentials"  # as `voxshape certs` writes it
+    credentials.write_text("logger:x\nana:s3cret\n")
+    given = flags("--user", "ana", "--password-file", str(credentials))
+    assert bus_config("teacher", given, {}, ask=lambda p: "never").password == "s3cret"
+    with pytest.raises(ConfigError, match=r"--password-file .* has no line bob:<password>"):
+        bus_config("teacher", flags("--user", "bob", "--password-file", str(credentials)), {})
+
+
 @pytest.mark.parametrize(
     ("env", "error"),
     [
@@ -53,7 +67,8 @@ def test_password_from_file(tmp_path):
         ({"VOXSHAPE_NODE": "a b"}, "node: 'a b' contains ' '"),
         ({"VOXSHAPE_CONNECT_TIMEOUT": "soon"}, "VOXSHAPE_CONNECT_TIMEOUT='soon'"),
         ({"VOXSHAPE_CONNECT_TIMEOUT": "-1"}, "must be > 0"),
-        ({"VOXSHAPE_USER": "ana"}, "both VOXSHAPE_USER and VOXSHAPE_PASSWORD"),
+        ({"VOXSHAPE_USER": "ana"}, "user 'ana' needs its password: set VOXSHAPE_PASSWORD"),
+        ({"VOXSHAPE_PASSWORD": "pw"}, "a password without a user: give --user"),
         ({"VOXSHAPE_TLS_ROOT_CA": "/nonexistent/ca.pem"}, "tls-root-ca file '/nonexistent/ca.pem'"),
         ({"VOXSHAPE_CONNECT": "tls/h:7448"}, "needs the CA certificate"),
         ({"VOXSHAPE_MODE": "client", "VOXSHAPE_CONNECT": ","}, "client mode needs a router"),

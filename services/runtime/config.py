@@ -13,7 +13,7 @@ the host. Remote teachers and robots use `--mode client --connect tcp/HOST:7447`
 | VOXSHAPE_LISTEN             | --listen          | tcp/127.0.0.1:0 (router: ...:7447)      |
 | VOXSHAPE_CONNECT_TIMEOUT    | --connect-timeout | 10 (seconds to reach a router at start) |
 | VOXSHAPE_USER               | --user            | (none)                                  |
-| VOXSHAPE_PASSWORD(_FILE)    |                   | (none)                                  |
+| VOXSHAPE_PASSWORD(_FILE)    | --password-file   | (none; voxshape teach asks in a terminal) |
 | VOXSHAPE_TLS_ROOT_CA        | --tls-root-ca     | (none)                                  |
 | VOXSHAPE_TLS_CERT / _KEY    | --tls-cert/-key   | (none; needed for TLS listen and mTLS)  |
 | VOXSHAPE_TLS_MTLS           | --mtls            | false                                   |
@@ -35,7 +35,7 @@ import os
 import re
 import socket
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
@@ -97,8 +97,15 @@ class BusConfig:
             raise ConfigError("client mode needs a router to connect to: set --connect")
         if self.connect_timeout <= 0:
             raise ConfigError(f"connect timeout {self.connect_timeout} must be > 0 seconds")
-        if (self.user is None) != (self.password is None):
-            raise ConfigError("give both VOXSHAPE_USER and VOXSHAPE_PASSWORD, or neither")
+        if self.user is not None and self.password is None:
+            raise ConfigError(
+                f"user {self.user!r} needs its password: set VOXSHAPE_PASSWORD, give "
+                "--password-file FILE (VOXSHAPE_PASSWORD_FILE: the password, or user:password "
+                "lines), or run `voxshape teach` in a terminal, which asks for it; the "
+                "session's admin has it (the user's line of the secrets folder's credentials)"
+            )
+        if self.password is not None and self.user is None:
+            raise ConfigError("a password without a user: give --user (VOXSHAPE_USER) too")
         for name in ("tls_root_ca", "tls_cert", "tls_key"):
             path = getattr(self, name)
             if path is not None and not Path(path).is_file():
@@ -187,7 +194,16 @@ def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--connect", help="comma-separated endpoints, e.g. tcp/10.0.0.2:7447")
     g.add_argument("--listen", help="comma-separated endpoints to listen on")
     g.add_argument("--connect-timeout", type=float, help="seconds to wait for the router")
-    g.add_argument("--user", help="user name for the router (password: VOXSHAPE_PASSWORD)")
+    g.add_argument(
+        "--user",
+        help="user name for the router; its password from VOXSHAPE_PASSWORD, --password-file "
+        "or, for voxshape teach in a terminal, asked for",
+    )
+    g.add_argument(
+        "--password-file",
+        type=Path,
+        help="file with the user's password, or user:password lines (VOXSHAPE_PASSWORD_FILE)",
+    )
     g.add_argument("--tls-root-ca", type=Path, help="CA certificate for tls/ endpoints")
     g.add_argument("--tls-cert", type=Path, help="this node's certificate (TLS listen, mTLS)")
     g.add_argument("--tls-key", type=Path, help="this node's private key")
@@ -202,9 +218,13 @@ def _endpoints(value: str) -> tuple[str, ...]:
 
 
 def bus_config(
-    role: str, args: argparse.Namespace | None = None, env: Mapping[str, str] = os.environ
+    role: str,
+    args: argparse.Namespace | None = None,
+    env: Mapping[str, str] = os.environ,
+    ask: Callable[[str], str] | None = None,
 ) -> BusConfig:
-    """Role defaults, then VOXSHAPE_* variables, then flags; validated."""
+    """Role defaults, then VOXSHAPE_* variables, then flags; validated. A user given without
+    a password is asked for it with `ask` (a prompt), if given."""
     config = BusConfig.for_role(role)
     settings: dict = {}
     for name, parse in (
@@ -233,11 +253,16 @@ def bus_config(
             raise ConfigError(
                 f"{variable}={raw!r} is not a valid {name.replace('_', ' ')}"
             ) from None
-    if "password" not in settings and env.get("VOXSHAPE_PASSWORD_FILE"):
-        path = Path(env["VOXSHAPE_PASSWORD_FILE"])
-        settings["password"] = _password(path, settings.get("user"), "VOXSHAPE_PASSWORD_FILE")
+    flag = getattr(args, "password_file", None)
+    password_file, what = (flag, "--password-file") if flag else (None, "")
+    if not password_file and env.get("VOXSHAPE_PASSWORD_FILE"):
+        password_file, what = env["VOXSHAPE_PASSWORD_FILE"], "VOXSHAPE_PASSWORD_FILE"
+    if "password" not in settings and password_file:
+        settings["password"] = _password(Path(password_file), settings.get("user"), what)
     if settings.get("secrets") is not None:
         _fill_from_secrets(role, settings)
+    if settings.get("user") is not None and "password" not in settings and ask is not None:
+        settings["password"] = ask(f"password for {settings['user']}: ")
     return replace(config, **settings).validated()
 
 

@@ -21,6 +21,7 @@ it is back. The teacher is told when the speech service goes and comes back.
 from __future__ import annotations
 
 import argparse
+import getpass
 import json
 import os
 import queue
@@ -151,7 +152,8 @@ class Screen:
 
 
 def run(args: argparse.Namespace) -> int:
-    bus = bus_config("teacher", args)
+    # A person joining a secured session with --user alone is asked for the password.
+    bus = bus_config("teacher", args, ask=getpass.getpass if sys.stdin.isatty() else None)
     teacher = check_id(args.teacher or bus.user or default_teacher_id(), "teacher")
     robot = check_id(args.robot, "robot")
     if min(args.linger, args.status_every, args.wait_speech) < 0:
