@@ -11,10 +11,11 @@ ENV PYTHONUNBUFFERED=1 \
     XDG_DATA_HOME=/tmp/.local/share \
     MPLCONFIGDIR=/tmp/matplotlib
 
-# openssl: `voxshape certs` inside the container, when wanted. No PortAudio: no service uses
-# a microphone (`voxshape teach --mic` runs on a teacher's machine); the wheels bring the rest.
+# openssl: `voxshape certs` inside the container, when wanted; espeak-ng and sox: the
+# simulated teacher's synthesized speech (`sim-teacher --audio`). No PortAudio: no service
+# uses a microphone (`voxshape teach --mic` runs on a teacher's machine); wheels bring the rest.
 RUN apt-get update \
-    && apt-get install -y --no-install-recommends openssl \
+    && apt-get install -y --no-install-recommends openssl espeak-ng sox \
     && rm -rf /var/lib/apt/lists/* \
     && useradd --create-home --uid 1000 voxshape
 

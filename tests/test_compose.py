@@ -46,6 +46,19 @@ def test_docker_compose_accepts_the_file(profiles):
     )
 
 
+def test_the_image_installs_the_programs_the_services_call():
+    """No docker engine here to build the image: its Debian packages are checked against
+    the programs compose's commands run (espeak-ng and sox for the simulated teacher's audio,
+    openssl for certificates) and its Python extras against the engines compose selects."""
+    dockerfile = (ROOT / "Dockerfile").read_text()
+    installed = set(dockerfile.split("--no-install-recommends", 1)[1].split("\\")[0].split())
+    services = yaml.safe_load(COMPOSE.read_text())["services"]
+    assert "--audio" in services["simteacher"]["command"]  # heard by pocketsphinx
+    assert {"espeak-ng", "sox", "openssl"} <= installed
+    engine = services["speech"]["environment"]["VOXSHAPE_SPEECH_ENGINE"]
+    assert "pocketsphinx" in engine and "pip install ." in dockerfile  # a base dependency
+
+
 def test_every_container_is_hardened():
     services = yaml.safe_load(COMPOSE.read_text())["services"]
     for name, body in services.items():
