@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -338,8 +339,10 @@ def run(args: argparse.Namespace) -> int:
         session.say(line)
     minutes = (time.monotonic() - t0) / 60
     if code == 0 and not progress.convergence.converged:
+        goals = sum(e.outcome == "goal" for e in progress.episodes)
         session.say(
-            f"gave up: not converged within {args.max_episodes} episodes (--max-episodes; "
+            f"gave up: not converged within {args.max_episodes} episodes, {goals} of which "
+            f"reached the goal; converged means {progress.convergence.rule()} (--max-episodes; "
             "learning is random, another --seed or more episodes may do)"
         )
         code = 1
@@ -400,6 +403,16 @@ def train(
     raise KeyboardInterrupt
 
 
+def voxshape_command() -> str:
+    """How to run this installation's voxshape from here: `voxshape` when that is what the
+    shell finds (an activated .venv), else its path (`make demo` runs .venv/bin/voxshape)."""
+    mine = Path(sys.executable).with_name("voxshape")
+    found = shutil.which("voxshape")
+    if found and Path(found).resolve() == mine.resolve():
+        return "voxshape"
+    return os.path.relpath(mine) if mine.is_relative_to(Path.cwd()) else str(mine)
+
+
 def outputs(session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch) -> int:
     """Writes the report and the episode table; says where everything is."""
     run_dir = Path("runs") / session_id
@@ -419,5 +432,5 @@ def outputs(session: launcher.LocalSession, session_id: str, progress: Convergen
     session.say(f"written under {run_dir}/:")
     for path in [recording, table, *written]:
         session.say(f"  {path}{'' if path.exists() else '  (missing!)'}")
-    session.say(f"look at it: voxshape view {run_dir}   (or open {written[-1]})")
+    session.say(f"look at it: {voxshape_command()} view {run_dir}   (or open {written[-1]})")
     return 0 if recording.exists() else 1
