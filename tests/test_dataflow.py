@@ -168,7 +168,6 @@ def declared(stderr: str) -> dict[str, set[str]]:
 WITH_OTHER_OPTIONS = {
     ("simteacher", "publishes"): {"teacher/audio"},  # --audio: speech, not text for the mock
     ("teacher", "publishes"): {"teacher/audio"},  # --wav or --mic
-    ("speech", "subscribes"): {"teacher/audio"},  # a real engine, not the mock
 }
 
 

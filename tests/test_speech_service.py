@@ -133,6 +133,28 @@ def test_the_mock_engine_hears_said_text_over_the_bus(
     assert "mock.correct=2" in err and "mock.out_of_vocabulary=1" in err
 
 
+@pytest.mark.parametrize(
+    ("engine", "sent", "told"),
+    [("pocketsphinx", "said", "hears audio, not text"), ("mock", "audio", "reads text, not audio")],
+)
+def test_input_the_engine_cannot_hear_is_told_to_its_sender_at_once(
+    spawn, router, session_id, tmp_path, engine, sent, told
+):
+    speech = start_speech(spawn, router, session_id, tmp_path, "--engine", engine)
+    if sent == "said":  # typed, through the speech service, as sim-teacher's text is sent
+        args, stdin = ("--through-speech", "--wait-speech", "10"), "good\ngood\n"
+    else:
+        args, stdin = ("--wav", str(FIXTURES / "en-voc-good-en-us.wav"), "--wait-speech", "10"), ""
+    started = time.monotonic()
+    lines = teach(router, session_id, tmp_path, "--teacher", "ana", *args, stdin=stdin)
+    notices = [line for line in lines if "not heard" in json.dumps(line)]
+    assert len(notices) == 1 and told in json.dumps(notices[0]), lines  # once, not per word
+    assert time.monotonic() - started < 30
+    err = stop(speech)
+    assert f"input this engine cannot hear teacher=ana sent={sent}" in err
+    assert f"unheard.{sent}=" in err
+
+
 def test_garbage_audio_is_rejected_and_counted_and_the_service_goes_on(
     spawn, router, session_id, client_config, tmp_path
 ):

@@ -2,9 +2,11 @@
 
 Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk, whisper)
          voxshape/<session>/teacher/*/said       text said (mock)
+         (an engine's other input is taken only to tell its senders, once, it is not heard)
 Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
                                                    (kept: an arbiter that missed it recovers it)
-         voxshape/<session>/teacher/<t>/notice     speech heard but rejected ("not recognized")
+         voxshape/<session>/teacher/<t>/notice     speech heard but rejected ("not recognized"),
+                                                   or input this engine cannot hear
 """
 
 from __future__ import annotations
@@ -39,7 +41,7 @@ from services.speech.engines import ENGINES, EngineError, Recognizer, open_recog
 from services.speech.mock import MockRecognizer, MockSettings
 from services.speech.pocketsphinx_engine import PocketsphinxSettings
 from services.speech.streams import AudioStreams, StreamLimits
-from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized
+from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized, Unheard
 
 TICK_S = 0.02  # idle streams and due mock results are looked at this often
 # A (re)starting speech service asks the teachers' kept audio and said text for this much:
@@ -169,6 +171,10 @@ def run(args: argparse.Namespace) -> int:
                 "audio", teacher_key(node.session_id, "*", "audio"), recover=SPEECH_RECOVERY_S
             )
             node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
+        # The input this engine cannot hear, taken only to tell its senders so.
+        unheard_kind = "audio" if engine is not None else "said"
+        unheard = Unheard(args.engine, node.counters)
+        node.input(unheard_kind, teacher_key(node.session_id, "*", unheard_kind))
         outputs: dict[tuple[str, str], Output] = {}
 
         def publish(results: list[Recognized]) -> None:
@@ -192,12 +198,21 @@ def run(args: argparse.Namespace) -> int:
         for event in node.events(tick=TICK_S):
             now = time.time()
             match event:
-                case Input(message=AudioChunk() as chunk, key=key):
-                    assert isinstance(core, AudioTranscriber)  # the only one that subscribes
+                case Input(message=AudioChunk() as chunk, key=key) if unheard_kind != "audio":
+                    assert isinstance(core, AudioTranscriber)
                     publish(core.on_audio(parse_key(key).owner, chunk, now))
-                case Input(message=Said() as said, key=key):
+                case Input(message=Said() as said, key=key) if unheard_kind != "said":
                     assert isinstance(core, MockTranscriber)
                     publish(core.on_said(parse_key(key).owner, said, now))
+                case Input(message=AudioChunk() | Said() as sent, key=key):
+                    teacher = parse_key(key).owner
+                    notices = unheard.on_input(teacher, sent.robot, unheard_kind)
+                    if notices:  # once per teacher
+                        node.log.warning(
+                            "input this engine cannot hear",
+                            extra=fields(teacher=teacher, sent=unheard_kind, engine=args.engine),
+                        )
+                    publish(notices)
                 case Tick():
                     publish(core.on_tick(now))
         publish(core.close(time.time()))

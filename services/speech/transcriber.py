@@ -93,6 +93,44 @@ class AudioTranscriber:
         )
 
 
+class Unheard:
+    """Input the running engine cannot hear: said text reaching an audio engine, or audio
+    reaching the mock engine. Each teacher is told once, with what to do; all is counted."""
+
+    def __init__(self, engine: str, counters: Counter[str] | None = None) -> None:
+        self.engine = engine
+        self.counters: Counter[str] = counters if counters is not None else Counter()
+        self.told: set[str] = set()
+
+    def on_input(self, teacher: str, robot: str, kind: str) -> list[TeacherNotice]:
+        """`kind` is "said" or "audio"; a notice the first time `teacher` sends it."""
+        self.counters[f"unheard.{kind}"] += 1
+        if teacher in self.told:
+            return []
+        self.told.add(teacher)
+        if kind == "said":
+            what = (
+                f"this session's speech service runs {self.engine}, which hears audio, not "
+                "text: speak (voxshape teach --mic or --wav, the page's push-to-talk), type "
+                "without --through-speech, or run the speech service with --engine mock"
+            )
+        else:
+            what = (
+                "this session's speech service runs the mock engine, which reads text, not "
+                "audio: type your words, or run the speech service with --engine pocketsphinx"
+            )
+        return [
+            TeacherNotice(
+                teacher=teacher,
+                robot=robot,
+                utterance=new_message_id(),
+                kind="not_recognized",
+                meaning=None,
+                text=f"not heard: {what}",
+            )
+        ]
+
+
 class MockTranscriber:
     def __init__(self, mock: MockRecognizer, counters: Counter[str] | None = None) -> None:
         self.mock = mock
