@@ -25,8 +25,6 @@ class LearnerConfig:
     tilings: int = 8  # offset grids over (x, y, heading)
     tile_width: float = 1.0  # metres of a tile's side
     heading_tiles: int = 8  # headings per turn in a tiling
-    place_tiles: bool = False
-    trace_places: bool = False
     key_tilings: int = 32  # the key's weight in a tiled state, as this many tilings of it
     # Pearson prototypes (after Millan et al. 2002): a reading whose best correlation with
     # the prototypes is below the threshold is a new prototype.
@@ -43,7 +41,9 @@ class LearnerConfig:
     # (metres): Pearson's correlation ignores scale. None: off.
     near_range: float | None = 0.6
     near_sectors: int = 3
-    init_from_neighbour: bool = True  # a new prototype's state starts with its nearest's Q
+    # A new state starts with its nearest state's Q (a Pearson prototype's), a new tile with
+    # the value its state has from its other features.
+    init_from_neighbour: bool = True
     # Readings with nothing nearer than this (metres) share one "clear" prototype. None: off.
     clear_range: float | None = 1.0
 
@@ -87,7 +87,6 @@ class LearnerConfig:
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
     feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
-    advice: Literal["sum", "regression"] = "sum"
     bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
     # With "keys": fields of the key the advice generalizes over, one coarse tiling per
     # field ignoring it; the policy's H(s) is the mean of the state's own and its tiles'.
@@ -97,10 +96,6 @@ class LearnerConfig:
     # towards each word's reward at this rate (0: off); every update's reward
     # gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum).
     potential_rate: float = 0.25
-    # "levels": Phi of the judged steps moves towards the word's reward; "differences": a
-    # word says how Phi changed over the potential_span steps it judged.
-    potential: Literal["levels", "differences"] = "levels"
-    potential_span: int = 10
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
@@ -108,7 +103,9 @@ class LearnerConfig:
     converge_slack: float = 2.5  # ... and within this many times the map's shortest time
 
     # -- initial traces ---------------------------------------------------------------------
-    replay_every: int = 10  # replay the teacher's traces again every this many episodes (0: once)
+    # Replay the teacher's traces again every this many episodes; 0: once, before learning
+    # (replayed again, their advice adds up where the key aliases places: decisions.md).
+    replay_every: int = 0
 
     def __post_init__(self) -> None:
         if self.representation not in ("tiles", "keys", "pearson"):

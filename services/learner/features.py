@@ -6,14 +6,13 @@ update moves it as a table's entry would move, and every state sharing a feature
 A `State` names three sets of features, one for each: `q` (Q and its traces), `advice`
 (H) and `place` (Phi). Each `representation` fills them its own way:
 
-- "tiles", the default: tile coding of the pose the observation carries, `tilings` offset
-  grids of `tile_width` metres by `heading_tiles` headings (Sutton's asymmetric offsets),
-  plus today's key (near bits, goal bearing, distance and sector) as one more feature; Q, H
-  and Phi share them, so what a teacher says at one place speaks for nearby places and
-  headings and not for far ones;
-- "keys": one feature per key (near bits and goal bins, states.py), with the advice tiles
-  (coarser keys, `advice_generalization`) as further features of H alone, and Phi over the
-  key's goal distance and sector;
+- "keys", the default: one feature per key (near bits and goal bins, states.py), with the
+  advice tiles (coarser keys, `advice_generalization`) as further features of H alone, and
+  Phi over the key's goal distance and sector;
+- "tiles": tile coding of the pose the observation carries, `tilings` offset grids of
+  `tile_width` metres by `heading_tiles` headings (Sutton's asymmetric offsets), plus the
+  key as `key_tilings` more features; Q, H and Phi share them, so what a teacher says at one
+  place speaks for nearby places and headings more than for far ones (which share the key);
 - "pearson": the paper's states, "keys" with Pearson prototypes of the sensor readings.
 
 Features are numbered as they are first seen (arrays grow); `coordinates` lists what each
@@ -46,7 +45,6 @@ class State:
     advice: np.ndarray
     place: np.ndarray
     view: int
-    route: np.ndarray | None = None  # EXPERIMENT: H's features for commands
 
 
 class Numbering:
@@ -91,7 +89,8 @@ class Representation(Protocol):
 
 
 class Tiles:
-    """Tile coding of the pose (x, y, heading) plus the key of states.py as one feature."""
+    """Tile coding of the pose (x, y, heading) plus the key of states.py, `key_tilings`
+    times over (its weight); the key decides how long a policy action is held."""
 
     def __init__(self, config: LearnerConfig) -> None:
         self.config = config
@@ -151,16 +150,7 @@ class Keys:
 
     def encode(self, p: PosePercept) -> tuple[State, int | None]:
         s, parent = self.space.classify(p)
-        state = self._state(s)
-        c = self.config
-        if c.place_tiles or c.trace_places:  # EXPERIMENT
-            heading = (p.theta % math.tau) / math.tau * c.heading_tiles
-            w = c.tile_width
-            tiles = pose_tiles(p.x / w, p.y / w, heading, c.tilings, c.heading_tiles)
-            place = self.places(tiles) if c.place_tiles else state.place
-            route = self.advice([("pose", *t) for t in tiles]) if c.trace_places else state.route
-            state = State(state.q, state.advice, place, state.view, route)
-        return state, parent
+        return self._state(s), parent
 
     def _state(self, s: int) -> State:
         key = self.space.key_of[s]

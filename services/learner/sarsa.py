@@ -177,11 +177,7 @@ class Learner:
             )
         )
         if self.config.shaping == "action_bias":
-            target = bonus - self.advice(s) if self.config.advice == "regression" else bonus
-            if s.route is not None:
-                _add_rows(self.H, [s.route], (self.config.alpha * target * a.weights)[None, :])
-                return r
-            self._advise([s], (self.config.alpha * target * a.weights)[None, :])
+            self._advise([s], (self.config.alpha * bonus * a.weights)[None, :])
             return r
         return r + bonus
 
@@ -221,9 +217,7 @@ class Learner:
             visits.append(visit)
             traces.append(trace)
             trace *= c.gamma * c.lam
-        if c.potential_rate and c.potential == "differences":
-            self._judge_difference(index, step, weight, f)
-        elif c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
+        if c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
             for visit, trace in zip(visits, traces, strict=True):
                 place = visit.state.place
                 self.Phi[place] += c.potential_rate * weight * trace * (f - self.phi(visit.state))
@@ -232,30 +226,12 @@ class Learner:
             [v.weights for v in visits]
         )
         states = [v.state for v in visits]
-        if c.shaping == "action_bias" and c.advice == "regression":  # H(s_j) towards f
-            errors = np.array([f - self.advice(s) for s in states])
-            self._advise(states, changes / f * errors if f else changes)
-        elif c.shaping == "action_bias":
+        if c.shaping == "action_bias":
             self._advise(states, changes)
         else:  # in order, as one update after another
             _add_rows(self.Q, [s.q for s in states], changes)
         self.counters["feedback_credited"] += 1
         return True
-
-    def _judge_difference(self, index: int, step: int, weight: float, f: float) -> None:
-        """A word judges the last potential_span steps: Phi rose by f from where the robot
-        was then to where it is at `step`; both ends move towards that difference."""
-        c, end = self.config, self.recent[index]
-        start = end
-        for j in range(index - 1, -1, -1):
-            if self.recent[j].episode != end.episode:
-                break
-            start = self.recent[j]
-            if start.first <= step - c.potential_span:
-                break
-        change = c.potential_rate * weight * (f - self.phi(end.state) + self.phi(start.state)) / 2
-        self.Phi[end.state.place] += change
-        self.Phi[start.state.place] -= change
 
     def take(self, feedback: CreditedFeedback) -> list[int]:
         """The arbiter's credited feedback: a command, or a reward credited to its steps;
@@ -281,10 +257,7 @@ class Learner:
 
     def advice(self, s: State) -> np.ndarray:
         """H(s, .) as the policy weighs it: the mean of the rows of its advice features."""
-        h = self.H[s.advice].sum(axis=0) / len(s.advice)
-        if s.route is not None:
-            h = h + self.H[s.route].sum(axis=0) / len(s.route)
-        return h
+        return self.H[s.advice].sum(axis=0) / len(s.advice)
 
     def phi(self, s: State) -> float:
         """Phi(s), the potential the teacher's words imply (0 when potential_rate is 0)."""
