@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -405,3 +406,15 @@ def test_several_robots_start_apart_and_clear_of_each_other():
             assert math.dist((p.x, p.y), (q.x, q.y)) > MODEL.length
     first = sim.step({name: (0.0, 0.0) for name in sim.robots})
     assert all(not r.collided for r in first.values())
+
+
+def test_the_map_format_the_docs_show_loads_with_every_key(tmp_path):
+    """docs/simulator.md#your-own-map is the format's one description: its example loads."""
+    doc = (Path(__file__).parents[1] / "docs" / "simulator.md").read_text()
+    example = doc.split("## Your own map", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    path = tmp_path / "mine.toml"
+    path.write_text(example)
+    m = load_map(str(path))
+    assert m.name == "Task 1: open room" and m.timeout == 60.0
+    for key in ("walls", "wall_thickness", "[[boxes]]", "[[cylinders]]", "jitter", "angle"):
+        assert key in example

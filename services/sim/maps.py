@@ -1,30 +1,6 @@
 """Task maps: a small TOML format, its validating loader, and the map's free-space grid.
 
-A map file (see `services/sim/maps/*.toml`):
-
-    name = "Task 1: open room"
-    size = [6.0, 6.0]            # width, height in metres; origin at the bottom-left corner;
-                                 # the border is walled automatically
-    timeout = 60.0               # seconds of simulated time per episode
-    wall_thickness = 0.1         # of the border and of `walls` (default 0.1)
-    walls = [[3.0, 0.0, 3.0, 2.5]]   # extra wall segments [x1, y1, x2, y2]
-
-    [[boxes]]                    # obstacles, as many as needed
-    center = [2.0, 3.0]
-    size = [0.6, 0.4]            # width (along x before rotation), depth
-    angle = 30.0                 # degrees, counter-clockwise (default 0)
-
-    [[cylinders]]
-    center = [4.0, 1.5]
-    radius = 0.3
-
-    [start]
-    pose = [1.0, 1.0, 45.0]      # x, y in metres, heading in degrees (0 = +x, 90 = +y)
-    jitter = [0.2, 0.2, 15.0]    # optional: uniform +- noise on x, y, heading at each reset
-
-    [goal]
-    center = [5.0, 5.0]
-    radius = 0.5                 # the episode ends when the robot's centre is inside
+A map file's format is in docs/simulator.md#your-own-map (examples: `services/sim/maps/`).
 
 The loader checks every key and value, that the start (with its jitter) leaves the robot
 clear of walls and obstacles, and that the goal can be reached by a robot of the given size.
