@@ -43,7 +43,6 @@ COVERED: dict[str, tuple[str, ...]] = {
         DEMO,
         "tests.test_simteacher_service::test_its_synthesized_audio_is_recognized_by_pocketsphinx",
     ),
-    "voxshape demo --speech mock --rtf 20": (DEMO,),
     "voxshape up": (
         "tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",
         "tests.test_first_hour::test_the_first_hour_of_a_new_user",
