@@ -149,6 +149,52 @@ def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
     assert took - python_start < 2.0, (took, python_start)
 
 
+@pytest.mark.timeout(300)
+def test_a_remote_teacher_joins_a_secured_session_as_the_readme_says(tmp_path, session_id):
+    """The README's remote-teacher line, as written but for the router's address: a session
+    secured with `voxshape certs` and a TLS listener (docs/deployment.md), the teacher given
+    the CA and asked for her password, and her typed "good" understood."""
+    secrets = tmp_path / "secrets"
+    subprocess.run([VOXSHAPE, "certs", str(secrets)], check=True, capture_output=True)
+    shutil.copy(secrets / "ca.pem", tmp_path / "ca.pem")  # what the admin hands out
+    (password,) = [
+        line.split(":", 1)[1] for line in (secrets / "credentials").read_text().splitlines()
+        if line.startswith("ana:")
+    ]  # fmt: skip
+    tcp, tls = free_loopback_port(), free_loopback_port()
+    env = session_env(session_id, tcp)
+    up_env = {
+        **env,
+        "VOXSHAPE_SECRETS": str(secrets),
+        "VOXSHAPE_ROUTER_LISTEN": f"tcp/127.0.0.1:{tcp},tls/127.0.0.1:{tls}",
+    }
+    teacher_env = {k: v for k, v in env.items() if k != "VOXSHAPE_CONNECT"}  # another machine
+    written = "voxshape teach --connect tls/lab.example:7448 --tls-root-ca ca.pem --user ana"
+    written += " --teacher ana"
+    assert written in " ".join(README.split())
+    _, *args = written.replace("lab.example:7448", f"localhost:{tls}").split()
+    up = pexpect.spawn(
+        VOXSHAPE, ["up"], cwd=str(tmp_path), env=up_env, encoding="utf-8", timeout=120
+    )
+    try:
+        up.expect(r"ready in [\d.]+ s")
+        teach = pexpect.spawn(
+            VOXSHAPE, args, cwd=str(tmp_path), env=teacher_env, encoding="utf-8", timeout=60
+        )
+        teach.expect("password for ana: ")
+        teach.sendline(password)
+        teach.expect("say> ")
+        teach.sendline("good")
+        teach.expect(re.escape("understood 'good'"))
+        teach.sendeof()
+        teach.expect(pexpect.EOF)
+        teach.close()
+        assert teach.exitstatus == 0
+    finally:
+        stopped = stop(up)
+    assert up.exitstatus == 0, stopped[-3000:]
+
+
 def _seconds_to_start(env: dict[str, str]) -> float:
     """How long the client takes to start and parse its arguments on this machine now."""
     started = time.monotonic()
