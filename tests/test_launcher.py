@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from protocol import LearningSummary, robot_key
+from protocol import CreditedFeedback, LearningSummary, robot_key
 from services.cli import parser
 from services.launcher import LocalSession, prepare_run, session_variables
 from services.runtime import Input, Node, bus_config
@@ -391,3 +391,34 @@ def test_restart_policies_come_from_compose(tmp_path):
     bad = compose_with(tmp_path, '\n  odd:\n    command: ["true"]\n    restart: sometimes\n')
     with pytest.raises(TopologyError, match="`restart` must be one of no, always"):
         load_topology(bad, local_variables({}))
+
+
+@pytest.mark.timeout(240)
+def test_up_with_the_simulated_teacher_profile_teaches_through_pocketsphinx(
+    spawn, session_id, tmp_path
+):
+    """compose's simteacher profile speaks audio to compose's pocketsphinx: its words are
+    understood and reach the learner as credited feedback."""
+    up, port = start_up(spawn, session_id, tmp_path, "--profile", "simteacher", "--rtf", "2")
+    read_until(up, r"ready in")
+    config = replace(
+        bus_config("test", env={}),
+        session=session_id,
+        node="watcher",
+        mode="client",
+        connect=(f"tcp/127.0.0.1:{port}",),
+        connect_timeout=10.0,
+    )
+    with Node("test", config) as node:
+        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        deadline, credited = time.monotonic() + 150, []
+        while not credited:
+            assert time.monotonic() < deadline, "no word of the simulated teacher reached r1"
+            event = node.poll(0.5)
+            if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
+                credited.append(event.message)
+    assert credited[0].teachers == ("simteacher",)
+    up.send_signal(signal.SIGINT)
+    rest, _ = up.communicate(timeout=60)
+    assert up.returncode == 0, rest
+    assert "heard teacher=simteacher" in rest  # by pocketsphinx, from its audio
