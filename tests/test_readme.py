@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 import warnings
+from pathlib import Path
 
 import gymnasium as gym
 import pytest
@@ -114,20 +115,30 @@ COVERED: dict[str, tuple[str, ...]] = {
 }
 
 
-def fences() -> list[tuple[str, str]]:
-    """The README's fenced blocks: (language, body)."""
-    return FENCE.findall(README.read_text())
+def fences(page: Path = README) -> list[tuple[str, str]]:
+    """A page's fenced blocks: (language, body)."""
+    return FENCE.findall(page.read_text())
 
 
-def readme_commands() -> list[str]:
+def readme_commands(page: Path = README) -> list[str]:
     """Commands of the `sh` blocks (comments dropped) and inline ones, whitespace collapsed."""
     found = []
-    for language, body in fences():
+    for language, body in fences(page):
         if language == "sh":
             found += [line.split("#", 1)[0].strip() for line in body.splitlines()]
-    prose = FENCE.sub("", README.read_text())
+    prose = FENCE.sub("", page.read_text())
     found += [" ".join(span.split()) for span in INLINE.findall(prose)]
     return list(dict.fromkeys(c for c in found if COMMAND.match(c)))
+
+
+def docs_commands() -> list[tuple[str, str]]:
+    """(page, command) of every `voxshape` command of docs/*.md, as readme_commands reads."""
+    return [
+        (page.name, command)
+        for page in sorted((ROOT / "docs").glob("*.md"))
+        for command in readme_commands(page)
+        if command.startswith("voxshape ")
+    ]
 
 
 def run(argv: list[str], cwd, timeout: float = 60, **env: str) -> subprocess.CompletedProcess:
@@ -179,6 +190,32 @@ def test_every_voxshape_command_parses(command):
         parser().parse_args(shlex.split(command)[1:])
     except SystemExit as e:
         pytest.fail(f"{command!r} does not parse (exit {e.code})")
+
+
+# A command's shape rather than a command: `--seeds N`, `paper|sweep`, `[--json]`, `...`.
+PLACEHOLDER = re.compile(r"^([A-Z][A-Z_]*(=[A-Z_]+)?|.*\|.*|[<\[].*|.*\.\.\..*)$")
+
+
+def is_shape(command: str) -> bool:
+    return any(PLACEHOLDER.match(a) for a in shlex.split(command)[1:])
+
+
+@pytest.mark.parametrize(
+    ("page", "command"), [(p, c) for p, c in docs_commands() if not is_shape(c)]
+)
+def test_every_voxshape_command_of_the_docs_parses(page, command, tmp_path, monkeypatch):
+    """docs/ promise as much as the README: each command's flags are the parser's (run
+    from the root, with the user's own map the pages name, my-map.toml)."""
+    from services.cli import parser
+
+    argv = shlex.split(command)[1:]
+    shutil.copy(ROOT / "services" / "sim" / "maps" / "task1.toml", tmp_path / "my-map.toml")
+    (tmp_path / "docs").symlink_to(ROOT / "docs")  # the maps the pages name, from the root
+    monkeypatch.chdir(tmp_path)
+    try:
+        parser().parse_args(argv)
+    except SystemExit as e:
+        pytest.fail(f"{page}: {command!r} does not parse (exit {e.code})")
 
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="no make")

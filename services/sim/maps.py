@@ -210,7 +210,7 @@ def load_map(name_or_path: str | Path) -> Map:
     if not path.is_file():
         raise MapError(
             f"unknown map {str(name_or_path)!r}: give a task number ({', '.join(TASKS)}) "
-            "or the path of a map file (format: services/sim/maps.py)"
+            "or the path of a map file (format: docs/simulator.md#your-own-map)"
         )
     return _parsed(path.resolve(), path.stat().st_mtime_ns, str(path))
 
