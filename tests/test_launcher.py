@@ -15,7 +15,7 @@ import pytest
 from protocol import CreditedFeedback, LearningSummary, robot_key
 from services.cli import parser
 from services.launcher import LocalSession, prepare_run, session_variables
-from services.runtime import Input, Node, bus_config
+from services.runtime import BusConfig, Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
 
@@ -312,9 +312,9 @@ def test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes(
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [session_id, kept.name]
 
 
-def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str, int]:
-    """States each robot's learner has, from its learning summaries once it has some."""
-    config = replace(
+def watcher(session_id: str, port: int) -> BusConfig:
+    """A client of the session `voxshape up` runs on `port`."""
+    return replace(
         bus_config("test", env={}),
         session=session_id,
         node="watcher",
@@ -322,8 +322,12 @@ def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str
         connect=(f"tcp/127.0.0.1:{port}",),
         connect_timeout=10.0,
     )
+
+
+def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str, int]:
+    """States each robot's learner has, from its learning summaries once it has some."""
     states: dict[str, int] = {}
-    with Node("test", config) as node:
+    with Node("test", watcher(session_id, port)) as node:
         for robot in robots:
             node.input("learning", robot_key(session_id, robot, "learning"))
         deadline = time.monotonic() + 60
@@ -401,15 +405,7 @@ def test_up_with_the_simulated_teacher_profile_teaches_through_pocketsphinx(
     understood and reach the learner as credited feedback."""
     up, port = start_up(spawn, session_id, tmp_path, "--profile", "simteacher", "--rtf", "2")
     read_until(up, r"ready in")
-    config = replace(
-        bus_config("test", env={}),
-        session=session_id,
-        node="watcher",
-        mode="client",
-        connect=(f"tcp/127.0.0.1:{port}",),
-        connect_timeout=10.0,
-    )
-    with Node("test", config) as node:
+    with Node("test", watcher(session_id, port)) as node:
         node.input("feedback", robot_key(session_id, "r1", "feedback"))
         deadline, credited = time.monotonic() + 150, []
         while not credited:
