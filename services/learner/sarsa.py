@@ -143,9 +143,10 @@ class Learner:
         self.held += 1
 
     def _holds(self, s_next: State, ended: bool, forced: Decision | None) -> bool:
-        """Action holding: the policy's action goes on while the state stays the same, and
-        for its first min_hold steps, at most max_hold steps; a teacher's action, a forced
-        one, a pending command or the episode's end make a decision at once."""
+        """Action holding: the policy's action goes on while what the robot sees (the state's
+        key) stays the same, and for its first min_hold steps, at most max_hold steps; a
+        teacher's action, a forced one, a pending command or the episode's end make a
+        decision at once."""
         c = self.config
         return (
             (s_next.view == self.s.view or self.held < c.min_hold)
