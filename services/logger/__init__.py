@@ -5,9 +5,3 @@ robot stands), recording.py (messages -> rerun), replay.py (`voxshape replay`, a
 renderer), node.py (`voxshape logger`), view.py (`voxshape view`), report.py (`voxshape report`),
 run.py (the run directory and session.json).
 """
-
-import os
-
-# The live recording has no footer on purpose (replay.py says why): rerun's warning about it,
-# with raw terminal colours in every run's log, is silenced before rerun starts its logger.
-os.environ.setdefault("RUST_LOG", "warn,re_log_encoding::rrd::file_sink=error")
