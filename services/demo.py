@@ -373,14 +373,15 @@ def train(
         if isinstance(event, Input) and isinstance(event.message, LearningSummary):
             if stall.on_step(event.message.step, now) and warned:
                 session.say(f"{progress.robot} goes on (step {event.message.step})")
-            if not stall.stalled(now):
-                warned, cpu_then = False, session.cpu_seconds()
+                warned = False
         elif isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
             progress.on_episode(event.message, now)
         elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
             progress.on_teaching(event.message)
         elif isinstance(event, Tick):
             session.check_children()  # restarts a dead service, or raises ServiceDied
+            if not stall.stalled(now):
+                cpu_then = session.cpu_seconds()  # a stall's CPU figures count from here
         for line in progress.due_lines(now):
             session.say(line)
         if progress.done:

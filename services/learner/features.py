@@ -136,6 +136,7 @@ class Keys:
         self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
         self.advice = Numbering()  # ("state", s) and (tiling, the key without a field)
         self.places = Numbering()  # (distance bin, goal sector)
+        self.states: list[State] = []  # each state's features, made when it is born
 
     def __len__(self) -> int:
         return len(self.space)
@@ -150,7 +151,9 @@ class Keys:
 
     def encode(self, p: PosePercept) -> tuple[State, int | None]:
         s, parent = self.space.classify(p)
-        return self._state(s), parent
+        if s == len(self.states):
+            self.states.append(self._state(s))
+        return self.states[s], parent
 
     def _state(self, s: int) -> State:
         key = self.space.key_of[s]
@@ -174,6 +177,7 @@ class Keys:
         self.space.restore(saved["prototypes"], saved["keys"])
         self.advice.restore(saved["advice"])
         self.places.restore(saved["places"])
+        self.states = [self._state(s) for s in range(len(self.space))]
 
 
 def representation(config: LearnerConfig) -> Representation:
