@@ -463,8 +463,22 @@ def test_the_step_timeline_is_bounded_and_starts_over_on_a_restart():
         timeline.add(k, shown(k), 0, True)
     assert len(timeline) == 5 and timeline.latest_step == 49
     assert timeline.spread(shown(10), shown(11)) is None  # forgotten: too late
-    assert not timeline.add(0, shown(60), 0, True)  # a restarted simulator
+    assert timeline.add(0, shown(60), 0, True) == "restart"  # a restarted simulator
     assert len(timeline) == 1 and timeline.latest_step == 0
+
+
+def test_recovered_steps_behind_live_ones_go_in_their_place():
+    """A restarted arbiter may hear a robot's live steps before its recovered older ones."""
+    timeline = StepTimeline(history_seconds=30.0)
+    for k in (20, 21):  # live
+        assert timeline.add(k, shown(k), 0, True) == "next"
+    for k in range(10, 20):  # recovered, late
+        assert timeline.add(k, shown(k), 0, True) == "late"
+    assert timeline.add(15, shown(15), 0, True) == "late"  # a copy
+    assert len(timeline) == 12 and timeline.latest_step == 21
+    assert timeline.spread(shown(12), shown(13)).credits == ((12, 1.0),)
+    assert timeline.add(5, shown(30), 0, True) == "restart"  # older number, later time
+    assert len(timeline) == 1
 
 
 def test_a_just_started_arbiter_holds_words_for_a_robot_until_it_is_seen():
@@ -518,6 +532,7 @@ def test_a_restarted_arbiter_drops_long_recovered_words_before_its_rate_limit():
     out = []
     for i, said in enumerate(old + new):
         out += a.on_utterance(said, shown(1000) + 0.1 + 0.001 * i)
+    out += a.on_tick(shown(1000) + 3.0)  # held until the recovered steps are in
     taken = {s for fb in feedback(out) for s in fb.sources}
     assert taken == {u.id for u in new}
     assert a.counters["rejected.stale"] == len(old) and a.counters["rejected.rate_limited"] == 0

@@ -125,7 +125,7 @@ class Arbiter:
         self._robots: dict[str, _Robot] = {}
         self._teachers: dict[str, _Teacher] = {}
         self._started_at = float("inf") if started_at is None else started_at
-        self._held: list[tuple[Utterance, _Teacher, float]] = []  # for robots not seen yet
+        self._held: list[tuple[Utterance, _Teacher, float]] = []  # recovered while starting
 
     # -- inputs ---------------------------------------------------------------------------
     def on_observation(self, obs: Observation, received_at: float) -> list[Message]:
@@ -139,13 +139,17 @@ class Arbiter:
             robot = self._robots[obs.robot] = _Robot(
                 StepTimeline(self.config.history_seconds, self.config.max_history_steps)
             )
-        if not robot.timeline.add(
+        added = robot.timeline.add(
             obs.step, obs.wall_time, obs.episode, obs.outcome == "running", obs.sim_time
-        ):
+        )
+        if added == "restart":
             self.counters["timeline_restarted"] += 1
             robot.events.clear()
             robot.clock.reset()
         robot.clock.observe(received_at, obs.wall_time)
+        if added == "late":  # recovered behind live steps, or a copy: its step timed, no more
+            self.counters["late_steps"] += 1
+            return []
         robot.last_seen = received_at
         if robot.events.observe(obs) is not None:
             self.counters["salient_events"] += 1
@@ -177,21 +181,20 @@ class Arbiter:
         self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(robot_id)
         said_before_start = self.clocks.to_arbiter(teacher_id, utterance.onset) < self._started_at
-        if (
-            robot is None
-            and said_before_start
-            and received_at - self._started_at < STARTING_S
-            and len(self._held) < MAX_HELD
-        ):
-            # recovered by an arbiter just (re)started: the robot's recovered observations
-            # may come after it
-            self._held.append((utterance, teacher, received_at))
-            return []
         said_at = self.clocks.to_arbiter(teacher_id, utterance.end)
         if said_before_start and said_at < received_at - RATE_LOOKBACK_S:
             # recovered from long before this arbiter started (speech keeps 256 a teacher):
             # answered by the one before, its steps forgotten; no token of the rate taken
             self.counters["rejected.stale"] += 1
+            return []
+        if (
+            said_before_start
+            and received_at - self._started_at < STARTING_S
+            and len(self._held) < MAX_HELD
+        ):
+            # recovered by an arbiter just (re)started: the robot's recovered observations
+            # may come after it, and after its live ones
+            self._held.append((utterance, teacher, received_at))
             return []
         if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
             robot = None  # its simulator went quiet: nothing to credit

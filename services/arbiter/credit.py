@@ -20,10 +20,11 @@ constant clock error are all absorbed in it.
 from __future__ import annotations
 
 import statistics
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from collections import Counter, OrderedDict, deque
 from collections.abc import Hashable
 from dataclasses import dataclass
+from typing import Literal
 
 from protocol import Observation
 from services.arbiter.config import DelayLearning, DelayWindow
@@ -44,6 +45,9 @@ class Spread:
     def centre(self) -> float:
         """The weighted mean step."""
         return sum(step * weight for step, weight in self.credits)
+
+
+Added = Literal["next", "late", "restart"]  # what a step added to a timeline was
 
 
 class StepTimeline:
@@ -71,9 +75,12 @@ class StepTimeline:
         episode: int,
         running: bool,
         sim_time: float | None = None,
-    ) -> bool:
-        """Appends a step; False if it does not follow the latest (a restarted simulator, or a
-        clock set back): the history is then started over from it."""
+    ) -> Added:
+        """Appends a step ("next"), or starts the history over from it if it contradicts it (a
+        restarted simulator, or a clock set back: "restart"). A step older in both number and
+        time (recovered after a restart, behind live ones) goes in its place ("late")."""
+        if self and step <= self._steps[-1] and wall_time <= self._times[-1]:
+            return self._insert(step, wall_time, episode, running)
         in_order = not self or (step > self._steps[-1] and wall_time >= self._times[-1])
         if not in_order:
             self.clear()
@@ -88,7 +95,29 @@ class StepTimeline:
         self._episodes.append(episode)
         self._running.append(running)
         self._forget_old(wall_time)
-        return in_order
+        return "next" if in_order else "restart"
+
+    def _insert(self, step: int, wall_time: float, episode: int, running: bool) -> Added:
+        """A late step between the remembered ones (or a copy of one), unless its time is out
+        of order with its neighbours' (another run of the simulator)."""
+        n, head = len(self._steps), self._head
+        i = bisect_left(self._steps, step, head, n)
+        if i < n and self._steps[i] == step:
+            return "late"  # a copy
+        after_previous = i == head or self._times[i - 1] <= wall_time
+        if not (after_previous and wall_time <= self._times[i]):
+            self.clear()
+            self.add(step, wall_time, episode, running)
+            return "restart"
+        if wall_time < self._times[-1] - self.history_seconds:
+            return "late"  # older than what is remembered
+        for column, value in zip(
+            (self._steps, self._times, self._episodes, self._running),
+            (step, wall_time, episode, running),
+            strict=True,
+        ):
+            column.insert(i, value)
+        return "late"
 
     def clear(self) -> None:
         for column in (self._steps, self._times, self._episodes, self._running):

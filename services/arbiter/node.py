@@ -51,6 +51,9 @@ FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate lim
 # A (re)joining arbiter asks for this much of the teachers' and speech's kept utterances:
 # as much as it remembers of the robots' steps (ArbiterConfig.history_seconds).
 UTTERANCE_RECOVERY_S = 30.0
+# ...and asks again this long after joining, in case zenoh's own query came back empty: the
+# copies are told apart, and the words recovered are held until then (STARTING_S, 3 s).
+REFETCH_AFTER_S = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -193,7 +196,12 @@ def run(args: argparse.Namespace) -> int:
                 reward_bound=config.reward_bound,
             ),
         )
+        refetch_at = time.monotonic() + REFETCH_AFTER_S
         for event in node.events(tick=TICK):
+            if refetch_at and time.monotonic() >= refetch_at:
+                node.fetch_history("obs")
+                node.fetch_history("utterance")
+                refetch_at = 0.0
             try:
                 for message in _handle(arbiter, event):
                     publish.put(message)

@@ -48,6 +48,7 @@ from services.runtime.config import BusConfig, tcp_address
 from services.runtime.logs import fields, worth_logging
 
 HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
+HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
 
 
 class BusError(RuntimeError):
@@ -195,6 +196,7 @@ class Node:
         self._queue: queue.Queue = queue.Queue()
         self._stopping = threading.Event()
         self._declared: list = []
+        self._recovering: dict[str, tuple[str, Callable[[zenoh.Sample], None], float]] = {}
         # The keys it publishes and subscribes to, checked against protocol/dataflow.py.
         self.declared: dict[str, set[str]] = {"publishes": set(), "subscribes": set()}
         self.zenoh = open_session(config)
@@ -289,6 +291,25 @@ class Node:
             subscriber_detection=True,
         )
         self._declared.extend([subscriber, subscriber.sample_miss_listener(on_miss)])
+        self._recovering[name] = (key, on_sample, recover)
+
+    def fetch_history(self, name: str) -> None:
+        """Asks the kept outputs again for the last `recover` seconds of a recovering input:
+        zenoh's own query on joining can come back empty (about 1 in 20 when it meets the
+        router dropping a killed peer). What comes are copies, behind live messages."""
+        key, on_sample, seconds = self._recovering[name]
+        self.counters[f"refetched.{name}"] += 1
+
+        def on_reply(reply: zenoh.Reply) -> None:
+            if reply.ok is not None and zenoh.KeyExpr(key).intersects(reply.ok.key_expr):
+                on_sample(reply.ok)
+
+        self.zenoh.get(
+            f"{key}/{HISTORY_SUFFIX}?_time=[now(-{seconds:g}s)..]",
+            on_reply,
+            consolidation=zenoh.ConsolidationMode.NONE,
+            accept_replies=zenoh.ReplyKeyExpr.ANY,
+        )
 
     def watch_presence(self, role: str = "*", node: str = "*") -> None:
         """Presence events for nodes of the session, including those already present."""

@@ -8,6 +8,7 @@ Outputs: voxshape/<session>/robot/<robot>/obs      one per control step (10 Hz o
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 
@@ -26,9 +27,12 @@ from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
 
 LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
-# Observations kept per robot for an arbiter that restarts (a minute of paced steps at 1x):
-# from them it rebuilds the step clock that utterances said meanwhile are credited on.
+# Observations kept per robot for an arbiter that restarts, in wall seconds of paced steps
+# (a count in lockstep): from them it rebuilds the step clock that words said meanwhile are
+# credited on, so they must outlast the arbiter's utterance recovery (30 s) at any --rtf.
+OBS_KEPT_S = 60.0
 OBS_KEPT = 600
+MAX_OBS_KEPT = 12_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -91,13 +95,14 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_config("sim", args)
     sim = Simulation(m, robots, config, args.seed)
     period = config.control_period / args.rtf if args.clock == "paced" else LOCKSTEP_POLL_S
+    kept = min(MAX_OBS_KEPT, math.ceil(OBS_KEPT_S / period)) if args.clock == "paced" else OBS_KEPT
     try:
         with Node("sim", bus) as node:
             stepper = Stepper(sim, args.clock, timeout, node.counters)
             for r in robots:
                 node.input("action", robot_key(node.session_id, r, "action"))
             obs = {
-                r: node.output("obs", robot_key(node.session_id, r, "obs"), keep=OBS_KEPT)
+                r: node.output("obs", robot_key(node.session_id, r, "obs"), keep=kept)
                 for r in robots
             }
             episode = {
