@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from services.deploy.access import load_access
+from services.deploy.certs import make_all
 from services.runtime import BusConfig, Input, Node, Presence, bus_config
 from services.runtime import free_loopback_port as free_port
 from services.runtime.config import wait_for_loopback_port as wait_for_port
@@ -110,3 +112,31 @@ def quiet(node: Node, seconds: float) -> list:
         if isinstance(event, Input):
             got.append(event.message)
     return got
+
+
+SECURED_ACCESS = """
+[users]
+logger = { role = "admin" }
+arbiter = { role = "arbiter" }
+web = { role = "observer" }
+ana = { role = "teacher" }
+ben = { role = "teacher" }
+"""
+
+
+@pytest.fixture
+def secured(tmp_path, spawn) -> tuple[str, Path]:
+    """A router with passwords and access control; its endpoint and the secrets folder."""
+    access = tmp_path / "access.toml"
+    access.write_text(SECURED_ACCESS)
+    make_all(tmp_path, load_access(access))
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    spawn(
+        [
+            *(VOXSHAPE, "router", "--session", "secured", "--node", "router"),
+            *("--secrets", str(tmp_path), "--access", str(access), "--listen", endpoint),
+        ]
+    )
+    wait_for_port(port)
+    return endpoint, tmp_path

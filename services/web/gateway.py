@@ -10,6 +10,7 @@ the learning curve and one notice line per utterance, the very line `voxshape te
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import tomllib
@@ -45,6 +46,8 @@ MAX_MESSAGES_PER_S = 50  # frames of one socket, text and binary together
 AUDIO_HEADER = struct.Struct("<d")  # capture time of the first sample, browser ms
 CURVE_KEPT = 1000  # ended episodes the welcome replays to a page that joins late
 ONSET_TRUST_S = 10.0  # a browser time converted further than this from now is not believed
+TRUSTED_RTT_MS = 1000.0  # a reported clock offset may sit this far below the one-way bound
+AUDIO_BURST_S = 3.0  # audio seconds a teacher may send ahead of real time
 LASER_FOV = math.pi  # the simulated robot's laser spans this, centred ahead (services/sim)
 
 
@@ -317,6 +320,10 @@ class Clock:
             offset, rtt = _number(data, "offset_ms"), _number(data, "rtt_ms")
             if not 0 <= rtt <= 60_000:
                 raise BrowserError(f"clock: rtt_ms {rtt:g} is not within 0-60000")
+            # t1 - t0 = offset + the way here, which is within [0, rtt]: a reported offset
+            # outside what the gateway's own bound allows is moved to its edge
+            lowest = self.one_way - min(rtt, TRUSTED_RTT_MS)
+            offset = min(self.one_way, max(lowest, offset))
             if self.reported is None or rtt <= self.reported[1]:
                 self.reported = (offset, rtt)
         return {
@@ -338,9 +345,26 @@ class Clock:
 
 def _number(data: dict[str, Any], name: str) -> float:
     value = data.get(name)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise BrowserError(f"{data.get('type')}: {name} must be a finite number")
-    return float(value)
+    try:
+        number = float(value) if isinstance(value, int | float) else math.nan
+    except OverflowError:  # an integer of hundreds of digits
+        number = math.nan
+    if isinstance(value, bool) or not math.isfinite(number):
+        raise BrowserError(f"{data.get('type')!s:.20}: {name} must be a finite number")
+    return number
+
+
+def parse_frame(text: str) -> dict[str, Any]:
+    """A browser's JSON frame, at most MAX_TEXT_BYTES; BrowserError if it is not usable."""
+    if len(text) > MAX_TEXT_BYTES or len(text.encode()) > MAX_TEXT_BYTES:
+        raise BrowserError(f"a text message is over {MAX_TEXT_BYTES} bytes")
+    try:
+        data = json.loads(text)
+    except (ValueError, RecursionError):
+        raise BrowserError("not JSON (or nested too deep)") from None
+    if not isinstance(data, dict):
+        raise BrowserError('a message is a JSON object with a "type"')
+    return data
 
 
 @dataclass
@@ -354,20 +378,22 @@ class Talk:
 
 
 class RateLimit:
-    """At most `per_s` frames a second (a bucket of `per_s`, refilled continuously)."""
+    """At most `per_s` a second, `burst` at once (a bucket refilled continuously): frames of
+    a socket, or seconds of a teacher's audio."""
 
-    def __init__(self, per_s: float = MAX_MESSAGES_PER_S) -> None:
+    def __init__(self, per_s: float = MAX_MESSAGES_PER_S, burst: float | None = None) -> None:
         self.per_s = per_s
-        self.tokens = per_s
+        self.burst = per_s if burst is None else burst
+        self.tokens = self.burst
         self.at = -math.inf
         self.dropped = 0
         self._told_at = -math.inf
 
-    def allow(self, now: float) -> bool:
-        self.tokens = min(self.per_s, self.tokens + (now - self.at) * self.per_s)
+    def allow(self, now: float, cost: float = 1.0) -> bool:
+        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.per_s)
         self.at = now
-        if self.tokens >= 1.0:
-            self.tokens -= 1.0
+        if self.tokens >= cost:
+            self.tokens -= cost
             return True
         self.dropped += 1
         return False
@@ -398,11 +424,14 @@ class Teaching:
         robots: Robots,
         board: Board,
         language: str = "en",
+        audio_budget: RateLimit | None = None,
     ) -> None:
         self.teacher = teacher
         self.robots = robots
         self.board = board
         self.language = language
+        # seconds of audio: about real time, shared by the teacher's pages
+        self.audio_budget = audio_budget or RateLimit(1.0, AUDIO_BURST_S)
         self.robot: str | None = None  # watched: the first seen unless the page says
         self.clock = Clock()
         self.talk: Talk | None = None
@@ -476,6 +505,11 @@ class Teaching:
             raise BrowserError("audio: the capture time is not a finite number")
         pcm = frame[AUDIO_HEADER.size :]
         seconds = len(pcm) / 2 / SAMPLE_RATE
+        if not self.audio_budget.allow(now_s, seconds):
+            raise BrowserError(
+                f"audio: faster than real time (at most {AUDIO_BURST_S:g} s ahead): "
+                "this frame was dropped"
+            )
         if self.clock.offset_ms is None:  # no clock yet: the frame was captured just now
             at = now_s - seconds
         else:
@@ -539,32 +573,3 @@ def _checked(message: Message) -> Any:
     except ProtocolError as e:
         raise BrowserError(f"{e.field}: {e.problem}") from None
     return message
-
-
-# -- who may open the socket ---------------------------------------------------------------
-
-LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1", "[::1]")
-
-
-def _hostname(netloc: str) -> str:
-    """`host` of `host:port` (IPv6 in brackets kept whole)."""
-    if netloc.startswith("["):
-        return netloc[: netloc.find("]") + 1]
-    return netloc.rsplit(":", 1)[0] if netloc.count(":") == 1 else netloc
-
-
-def origin_allowed(origin: str | None, host: str | None, scheme: str) -> bool:
-    """Whether a WebSocket's Origin is the page's own: same scheme, host and port as the
-    request's Host. A page of another site (its Origin) cannot drive a teacher here."""
-    if not origin or not host:
-        return False
-    expected = f"{scheme}://{host}".lower()
-    return origin.lower().rstrip("/") == expected
-
-
-def host_allowed(host: str | None, address: str) -> bool:
-    """Served on loopback only, the Host must name loopback: a page of another site whose
-    name was made to resolve to 127.0.0.1 (DNS rebinding) is refused."""
-    if address not in ("127.0.0.1", "::1", "localhost"):
-        return True
-    return bool(host) and _hostname(host.lower()) in LOOPBACK_NAMES

@@ -20,8 +20,11 @@ import argparse
 import asyncio
 import json
 import logging
+import math
 import os
+import resource
 import signal
+import socket
 import ssl
 import threading
 import time
@@ -49,6 +52,7 @@ from protocol import (
     teacher_key,
 )
 from protocol.vocabulary import LANGUAGES
+from services.deploy.access import AccessError, find_access_file, load_access
 from services.runtime import (
     BusConfig,
     BusError,
@@ -64,7 +68,15 @@ from services.runtime.clock import ClockSync
 from services.sim.maps import load_map
 from services.teacher.board import Board
 from services.web import page_url
+from services.web.admission import (
+    Admission,
+    AdmissionError,
+    LoginThrottle,
+    Origins,
+    public_origin,
+)
 from services.web.gateway import (
+    AUDIO_BURST_S,
     MAX_BINARY_BYTES,
     MAX_TEXT_BYTES,
     BrowserError,
@@ -73,9 +85,8 @@ from services.web.gateway import (
     SessionView,
     Teaching,
     feedback_json,
-    host_allowed,
     map_json,
-    origin_allowed,
+    parse_frame,
     parse_login,
     vocabulary_json,
 )
@@ -83,7 +94,10 @@ from services.web.gateway import (
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 8080
 DEFAULT_MAX_CLIENTS = 20
-LOGIN_WAIT_S = 10.0  # a socket that has not logged in by then is closed
+LOGIN_WAIT_S = 5.0  # a socket that has not logged in by then is closed
+HTTP_IDLE_S = 10.0  # a connection without a whole request for this long is closed
+FD_RESERVE = 256  # file descriptors kept for the bus, the teachers' nodes and files
+REFUSED = "login refused: wrong user name or password, or not a teacher of this session"
 QUEUE_LIMIT = 1000  # messages waiting for one browser (observations aside): beyond, too slow
 TICK_S = 0.05  # observations' slots and the "no answer" lines are checked this often
 ANSWER_WITHIN_S = 1.0  # as `voxshape teach`
@@ -124,6 +138,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=int(env("VOXSHAPE_WEB_MAX_CLIENTS") or DEFAULT_MAX_CLIENTS),
         help=f"browsers at once (VOXSHAPE_WEB_MAX_CLIENTS; default {DEFAULT_MAX_CLIENTS})",
+    )
+    parser.add_argument(
+        "--public-origin",
+        default=env("VOXSHAPE_WEB_ORIGIN") or None,
+        help="the address teachers open, e.g. https://lab.example:8443 (VOXSHAPE_WEB_ORIGIN): "
+        "its host is let in besides loopback names, IP addresses and this machine's names",
+    )
+    parser.add_argument(
+        "--access",
+        type=Path,
+        default=env("VOXSHAPE_ACCESS") or None,
+        help="access file whose teachers may log in on a secured session (VOXSHAPE_ACCESS; "
+        "default deploy/access.toml)",
     )
     parser.add_argument(
         "--task",
@@ -172,9 +199,111 @@ def run(args: argparse.Namespace) -> int:
     )
     if not (args.static / "index.html").is_file():
         raise ConfigError(f"no page to serve: {args.static}/index.html is missing")
-    gateway = Gateway(bus, view, args.static, args.address, tls, args.max_clients)
+    try:
+        origins = Origins(
+            public_origin(args.public_origin) if args.public_origin else None,
+            frozenset(n.lower() for n in (socket.gethostname(), socket.getfqdn()) if n),
+        )
+        teachers = _teachers(args.access) if view.secured else None
+    except (AdmissionError, AccessError) as e:
+        raise ConfigError(str(e)) from None
+    gateway = Gateway(bus, view, args.static, args.address, tls, args.max_clients, origins)
+    gateway.teachers = teachers
     asyncio.run(gateway.serve(args.port))
     return 0
+
+
+def _teachers(path: Path | None) -> frozenset[str]:
+    """The users of the teacher role: the only ones a browser may log in as."""
+    users = load_access(path or find_access_file())
+    return frozenset(name for name, user in users.items() if user.role == "teacher")
+
+
+def _connection_budget() -> int:
+    """Connections served at once: what the file-descriptor limit leaves (its soft limit is
+    raised to the hard one first), less FD_RESERVE."""
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if hard == resource.RLIM_INFINITY or soft < hard:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (hard, hard))
+            soft = hard
+        except (ValueError, OSError):
+            pass
+    return max(16, min(soft, 65_536) - FD_RESERVE)
+
+
+class _Connection(asyncio.Protocol):
+    """aiohttp's handler of one connection, unless the budget is spent: then it is closed at
+    once (one log line a minute) rather than let accept() fail for want of descriptors."""
+
+    def __init__(self, site: _Site) -> None:
+        self.site = site
+        self.inner: asyncio.Protocol | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        site = self.site
+        if site.open >= site.budget:
+            site.refused += 1
+            now = time.monotonic()
+            if now - site.told_at >= 60.0:
+                site.told_at = now
+                site.log.warning(
+                    "refused connections: the budget is spent",
+                    extra=fields(budget=site.budget, refused=site.refused),
+                )
+            transport.abort()
+            return
+        site.open += 1
+        self.inner = site.runner.server()
+        self.inner.connection_made(transport)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.inner is not None:
+            self.site.open -= 1
+            self.inner.connection_lost(exc)
+
+    def data_received(self, data: bytes) -> None:
+        if self.inner is not None:
+            self.inner.data_received(data)
+
+    def eof_received(self) -> bool | None:
+        return self.inner.eof_received() if self.inner is not None else None
+
+    def pause_writing(self) -> None:
+        if self.inner is not None:
+            self.inner.pause_writing()
+
+    def resume_writing(self) -> None:
+        if self.inner is not None:
+            self.inner.resume_writing()
+
+
+class _Site(web.TCPSite):
+    """aiohttp's TCP site, each connection through `_Connection`'s budget."""
+
+    def __init__(
+        self,
+        runner: web.AppRunner,
+        host: str,
+        port: int,
+        tls: ssl.SSLContext | None,
+        budget: int,
+    ) -> None:
+        super().__init__(runner, host, port, ssl_context=tls)
+        self.runner, self.budget, self.open, self.refused = runner, budget, 0, 0
+        self.told_at = -math.inf
+        self.log = logging.getLogger("voxshape.web")
+
+    async def start(self) -> None:
+        await web.BaseSite.start(self)
+        self._server = await asyncio.get_running_loop().create_server(
+            lambda: _Connection(self),
+            self._host,
+            self._port,
+            ssl=self._ssl_context,
+            backlog=self._backlog,
+            reuse_address=self._reuse_address,
+        )
 
 
 class _Pump:
@@ -206,8 +335,9 @@ class _Pump:
 class Browser:
     """One socket: its queue to the browser, and once logged in its teacher node."""
 
-    def __init__(self, ws: web.WebSocketResponse, gateway: Gateway) -> None:
-        self.ws, self.gateway = ws, gateway
+    def __init__(self, ws: web.WebSocketResponse, gateway: Gateway, peer: str) -> None:
+        self.ws, self.gateway, self.peer = ws, gateway, peer
+        self.user: str | None = None  # once it has a teacher's place
         self.queue: deque[str] = deque()
         self.obs: dict[str, str] = {}  # each robot's latest observation waiting
         self.wake = asyncio.Event()
@@ -275,12 +405,17 @@ class Gateway:
         address: str,
         tls: ssl.SSLContext | None,
         max_clients: int,
+        origins: Origins | None = None,
     ) -> None:
         self.bus, self.view, self.static = bus, view, static
         self.address, self.tls, self.max_clients = address, tls, max_clients
+        self.origins = origins or Origins()
+        self.admission = Admission(max_clients=max_clients)
+        self.throttle = LoginThrottle()
+        self.teachers: frozenset[str] | None = None  # who may log in (None: anyone, open)
+        self.audio: dict[str, RateLimit] = {}  # each teacher's audio seconds, all its pages
         self.robots = Robots()
         self.browsers: set[Browser] = set()
-        self.sockets = 0
         self.node: Node | None = None
         self.logins = 0
         self.loop: asyncio.AbstractEventLoop | None = None
@@ -294,6 +429,7 @@ class Gateway:
         app.router.add_get("/", self._index)
         app.router.add_get("/ws", self._socket)
         app.router.add_static("/", self.static, follow_symlinks=False)
+        app.on_response_prepare.append(self._headers)
         return app
 
     async def start(self) -> None:
@@ -318,9 +454,9 @@ class Gateway:
     async def serve(self, port: int) -> None:
         """Serves until SIGINT or SIGTERM: the page first (a taken port fails at once), then
         the bus."""
-        runner = web.AppRunner(self.app(), access_log=None)
+        runner = web.AppRunner(self.app(), access_log=None, keepalive_timeout=HTTP_IDLE_S)
         await runner.setup()
-        site = web.TCPSite(runner, self.address, port, ssl_context=self.tls)
+        site = _Site(runner, self.address, port, self.tls, _connection_budget())
         try:
             await site.start()
         except OSError as e:
@@ -338,6 +474,12 @@ class Gateway:
                 "serving the page",
                 extra=fields(url=page_url(self.address, port, self.tls is not None)),
             )
+            if self.view.secured and self.tls is None and self.address not in LOOPBACK:
+                self.log.warning(
+                    "passwords cross this network in clear: serve HTTPS (--https-cert and "
+                    "--https-key) or put an HTTPS proxy in front (docs/web.md)",
+                    extra=fields(address=self.address),
+                )
             await stopping.wait()
         finally:
             await self.stop()
@@ -345,8 +487,10 @@ class Gateway:
 
     @web.middleware
     async def _guard(self, request: web.Request, handler: Callable) -> web.StreamResponse:
-        if not host_allowed(request.host, self.address):
-            raise web.HTTPForbidden(text="this page is served to this host only")
+        if not self.origins.host_allowed(request.host):
+            raise web.HTTPForbidden(
+                text="this page is not served under that name (--public-origin names it)"
+            )
         response = await handler(request)
         # The page loads only its own files and talks only to its own socket.
         response.headers.setdefault(
@@ -358,6 +502,12 @@ class Gateway:
         response.headers.setdefault("Referrer-Policy", "no-referrer")
         response.headers.setdefault("Cache-Control", "no-cache")
         return response
+
+    async def _headers(self, request: web.Request, response: web.StreamResponse) -> None:
+        """On every response, errors included: no version in Server; HTTPS only, once seen."""
+        response.headers["Server"] = "voxshape"
+        if self.tls is not None:
+            response.headers["Strict-Transport-Security"] = "max-age=31536000"
 
     async def _index(self, request: web.Request) -> web.StreamResponse:
         return web.FileResponse(self.static / "index.html")
@@ -403,27 +553,32 @@ class Gateway:
     # -- one browser --------------------------------------------------------------------
     async def _socket(self, request: web.Request) -> web.StreamResponse:
         scheme = "https" if self.tls is not None else "http"
-        if not origin_allowed(request.headers.get("Origin"), request.host, scheme):
+        peer = request.remote or "-"
+        if not self.origins.origin_allowed(request.headers.get("Origin"), request.host, scheme):
             self.log.warning(
                 "refused a socket from another origin",
-                extra=fields(origin=request.headers.get("Origin", "-"), host=request.host),
+                extra=fields(
+                    origin=request.headers.get("Origin", "-"), host=request.host, peer=peer
+                ),
             )
             raise web.HTTPForbidden(text="this socket is for the page's own origin")
-        if self.sockets >= self.max_clients:
-            raise web.HTTPServiceUnavailable(
-                text=f"{self.max_clients} pages are open already (--max-clients)"
-            )
+        refusal = self.admission.open(peer)
+        if refusal is not None:
+            raise web.HTTPServiceUnavailable(text=refusal)
         ws = web.WebSocketResponse(max_msg_size=HARD_FRAME_LIMIT, heartbeat=30.0)
-        await ws.prepare(request)
-        self.sockets += 1
-        browser = Browser(ws, self)
+        browser = Browser(ws, self, peer)
+        try:
+            await ws.prepare(request)
+        except (ConnectionError, RuntimeError):
+            self.admission.close(peer, None)
+            raise
         writer = asyncio.create_task(browser.write())
         try:
             if await self._login(browser):
                 self.browsers.add(browser)
                 await self._converse(browser)
         finally:
-            self.sockets -= 1
+            self.admission.close(peer, browser.user)
             self.browsers.discard(browser)
             await self._leave(browser)
             writer.cancel()
@@ -433,7 +588,7 @@ class Gateway:
 
     async def _login(self, browser: Browser) -> bool:
         """The first message: log in, open this teacher's node, welcome. False: refused."""
-        ws = browser.ws
+        ws, peer = browser.ws, browser.peer
         try:
             msg = await asyncio.wait_for(ws.receive(), LOGIN_WAIT_S)
         except TimeoutError:
@@ -442,30 +597,52 @@ class Gateway:
         if msg.type != WSMsgType.TEXT:
             return False if msg.type in _CLOSING else await self._refuse(browser, "log in first")
         try:
-            login = parse_login(_json(msg.data), self.view.secured)
+            login = parse_login(parse_frame(msg.data), self.view.secured)
         except BrowserError as e:
             return await self._refuse(browser, str(e))
+        keys = (f"address:{peer}", f"user:{login.user}") if self.view.secured else ()
+        if (wait := self.throttle.wait(keys, time.monotonic())) > 0:
+            self.log.warning(
+                "a login came too soon after failed ones",
+                extra=fields(user=login.user, peer=peer, wait_s=round(wait, 1)),
+            )
+            return await self._refuse(browser, f"{REFUSED} (wait a few seconds)")
+        if self.teachers is not None and login.teacher not in self.teachers:
+            return await self._login_failed(browser, login.teacher, keys, "not a teacher")
+        refusal = self.admission.login(peer, login.teacher)
+        if refusal is not None:
+            return await self._refuse(browser, refusal)
+        browser.user = login.teacher
         self.logins += 1
         node_id = f"web-{login.teacher}"[:56] + f"-{self.logins}"
         config = replace(self.bus, node=node_id, user=login.user, password=login.password)
         try:
             await asyncio.to_thread(self._teacher_node, browser, login.teacher, config)
         except (BusError, ConfigError) as e:
-            self.log.warning(
-                "a browser's login was refused",
-                extra=fields(teacher=login.teacher, user=login.user or "-"),
-            )
-            return await self._refuse(browser, str(e))
+            return await self._login_failed(browser, login.teacher, keys, str(e))
+        self.throttle.succeeded(keys[:1])
         board = Board(
             answer_within_s=ANSWER_WITHIN_S,
             no_answer_hint=f"no arbiter in session {self.view.session!r} heard it",
         )
-        browser.teaching = Teaching(login.teacher, self.robots, board, self.view.language)
+        budget = self.audio.setdefault(login.teacher, RateLimit(1.0, AUDIO_BURST_S))
+        browser.teaching = Teaching(login.teacher, self.robots, board, self.view.language, budget)
         browser.send(self.robots.welcome(self.view, login.teacher))
         self.log.info(
-            "a browser logged in", extra=fields(teacher=login.teacher, node=browser.node.id)
+            "a browser logged in",
+            extra=fields(teacher=login.teacher, node=browser.node.id, peer=peer),
         )
         return True
+
+    async def _login_failed(
+        self, browser: Browser, user: str, keys: tuple[str, ...], why: str
+    ) -> bool:
+        """The same refusal for every failure (the log says which); counted for the throttle."""
+        self.throttle.failed(keys, time.monotonic())
+        self.log.warning(
+            "a browser's login was refused", extra=fields(user=user, peer=browser.peer, why=why)
+        )
+        return await self._refuse(browser, REFUSED)
 
     def _teacher_node(self, browser: Browser, teacher: str, config: BusConfig) -> None:
         """In a thread (the login can take a second): this browser's own teacher node."""
@@ -517,9 +694,7 @@ class Gateway:
                 continue
             try:
                 if msg.type == WSMsgType.TEXT:
-                    if len(msg.data.encode()) > MAX_TEXT_BYTES:
-                        raise BrowserError(f"a text message is over {MAX_TEXT_BYTES} bytes")
-                    outcome = teaching.text(_json(msg.data), time.time(), now)
+                    outcome = teaching.text(parse_frame(msg.data), time.time(), now)
                 else:
                     if len(msg.data) > MAX_BINARY_BYTES:
                         raise BrowserError(f"an audio frame is over {MAX_BINARY_BYTES} bytes")
@@ -553,17 +728,8 @@ class Gateway:
         return False
 
 
+LOOPBACK = ("127.0.0.1", "::1", "localhost")
 _CLOSING = (WSMsgType.CLOSE, WSMsgType.CLOSING, WSMsgType.CLOSED, WSMsgType.ERROR)
-
-
-def _json(text: str) -> dict[str, Any]:
-    try:
-        data = json.loads(text)
-    except ValueError:
-        raise BrowserError("not JSON") from None
-    if not isinstance(data, dict):
-        raise BrowserError('a message is a JSON object with a "type"')
-    return data
 
 
 def _error(text: str) -> dict[str, Any]:
