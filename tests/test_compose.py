@@ -9,13 +9,14 @@ import os
 import shutil
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
 import yaml
 
 from services.deploy.access import find_access_file, load_access
-from services.deploy.certs import make_all
+from services.deploy.certs import make_all, make_certificate
 from services.topology import load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port
 from tests.test_launcher import read_until
@@ -99,6 +100,52 @@ def secrets(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("secrets")
     make_all(folder, load_access(find_access_file(ROOT)))
     return folder
+
+
+def test_each_service_mounts_only_its_own_secrets(secrets, spawn, session_id, tmp_path):
+    """No service but the router holds another user's password, none the CA's key; and each
+    service's own folder is enough to join (the router, the simulator, a status check)."""
+    services = yaml.safe_load(COMPOSE.read_text())["services"]
+    users = set(load_access(find_access_file(ROOT)))
+    for name, body in services.items():
+        mounts = [v.rsplit(":", 2)[0] for v in body.get("volumes", []) if ":/secrets:" in v]
+        if name == "viewer":
+            assert mounts == [], name
+            continue
+        (mount,) = mounts
+        folder = Path(mount.replace("${VOXSHAPE_SECRETS:-./deploy/secrets}", str(secrets)))
+        assert folder.is_dir() and folder.parent.parent == secrets, mount
+        assert not list(folder.glob("*ca.key")), name
+        holders = {line.split(":", 1)[0] for line in (folder / "credentials").read_text().split()}
+        assert holders == (users if name == "router" else {name}), name
+    web = secrets / "per-user" / "web"
+    assert {p.name for p in web.iterdir()} == {
+        *("ca.pem", "credentials", "web.pem", "web.key", "page.pem", "page.key"),
+    }
+    # The CA signs for the session's names only: a certificate for another site fails.
+    ca = (secrets / "ca.pem", secrets / "ca.key")
+    other, _ = make_certificate(tmp_path, "other", ca, server_names=["bank.example"])
+    verify = ["openssl", "verify", "-CAfile", str(ca[0])]
+    assert subprocess.run([*verify, str(other)], capture_output=True, timeout=30).returncode
+    assert not subprocess.run([*verify, str(secrets / "page.pem")], timeout=30).returncode
+    port = free_port()
+    kit = secrets / "per-user"
+    bus = ["--session", session_id, "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
+    router = ["--node", "router", "--secrets", str(kit / "router")]
+    spawn([VOXSHAPE, "router", "--session", session_id, *router, "--listen", bus[-1]])
+    spawn([VOXSHAPE, "sim", *bus, "--node", "sim", "--secrets", str(kit / "sim")])
+    launcher = ["--secrets", str(kit / "launcher"), "--user", "launcher"]
+    for _ in range(30):  # the simulator joins within a few seconds
+        status = subprocess.run(
+            [VOXSHAPE, "status", *bus, *launcher, "--require", "sim", "--connect-timeout", "30"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        if status.returncode != 1:
+            break
+        time.sleep(1.0)
+    assert status.returncode == 0, status.stdout + status.stderr
 
 
 def test_every_service_joins_a_secured_router_and_announces_itself(

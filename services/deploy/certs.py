@@ -10,11 +10,19 @@ Writes into DIR (kept when present, so a second run only adds what is missing):
   `router` (its compose service name) and every --host;
 - `<user>.pem`, `<user>.key`: a client certificate per user of the access file (common name =
   user), for mutual TLS;
+- `page.pem`, `page.key`: the web page's HTTPS certificate (the same names and `web`);
 - `credentials`: `user:password` lines, a random password per user. The router reads it; a
-  service given VOXSHAPE_SECRETS=DIR reads its own line. Give a remote teacher only its line.
+  service given VOXSHAPE_SECRETS=DIR reads its own line;
+- `per-user/<user>/`: what that user needs and nothing else, for VOXSHAPE_SECRETS: its line of
+  credentials, its certificate and key, ca.pem (and the web's page.pem/.key). The router's
+  (`per-user/router/`) has every line: it checks them. Compose mounts each service's own; give
+  a remote teacher its folder. No folder holds ca.key.
 
+The CA may sign certificates for the session's names only (X.509 name constraints: localhost,
+127.0.0.1, router, web and every --host), so a browser that trusts it trusts nothing else.
 Keys and credentials are readable by their owner only. A real deployment should use its own
-CA; these are for development and tests.
+CA, and the page a certificate of the lab's (docs/web.md#https); these are for development and
+tests.
 """
 
 from __future__ import annotations
@@ -33,6 +41,9 @@ from services.runtime import ConfigError
 
 DAYS = 825  # the longest validity clients commonly accept for a server certificate
 ROUTER_NAMES = ("localhost", "127.0.0.1", "router")
+PAGE_NAMES = ("localhost", "127.0.0.1", "web")
+PER_USER = "per-user"
+CA_NAMES = "ca.names"  # the names the CA may sign for, one a line
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -70,16 +81,39 @@ def _new_key(path: Path) -> None:
     path.chmod(0o600)
 
 
-def make_ca(folder: Path) -> tuple[Path, Path]:
-    cert, key = folder / "ca.pem", folder / "ca.key"
-    if not cert.is_file():
-        _new_key(key)
-        _openssl(
-            "req", "-x509", "-new", "-key", str(key), "-sha256", "-days", str(DAYS),
-            "-subj", "/CN=voxshape development CA", "-out", str(cert),
-            "-addext", "basicConstraints=critical,CA:TRUE",
-            "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-        )  # fmt: skip
+def _subtree(name: str) -> str:
+    try:
+        address = ipaddress.ip_address(name)
+    except ValueError:
+        return f"permitted;DNS:{name}"
+    mask = ipaddress.ip_network(f"{address}/{address.max_prefixlen}").netmask
+    return f"permitted;IP:{address}/{mask}"
+
+
+def make_ca(folder: Path, names: Iterable[str]) -> tuple[Path, Path]:
+    """The CA, constrained to sign for `names` only; ConfigError if it exists already and was
+    made for fewer (a new --host needs a new folder: the CA cannot grow)."""
+    cert, key, listed = folder / "ca.pem", folder / "ca.key", folder / CA_NAMES
+    names = list(dict.fromkeys(names))
+    if cert.is_file():
+        if listed.is_file():
+            missing = set(names) - set(listed.read_text().split())
+            if missing:
+                raise ConfigError(
+                    f"{folder}'s CA may sign for {', '.join(listed.read_text().split())} only, "
+                    f"not {', '.join(sorted(missing))}: make the secrets again in a new folder "
+                    "with every --host"
+                )
+        return cert, key
+    _new_key(key)
+    _openssl(
+        "req", "-x509", "-new", "-key", str(key), "-sha256", "-days", str(DAYS),
+        "-subj", "/CN=voxshape development CA", "-out", str(cert),
+        "-addext", "basicConstraints=critical,CA:TRUE,pathlen:0",
+        "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+        "-addext", "nameConstraints=critical," + ",".join(map(_subtree, names)),
+    )  # fmt: skip
+    listed.write_text("\n".join(names) + "\n")
     return cert, key
 
 
@@ -144,14 +178,36 @@ def make_all(folder: Path, users: Iterable[str], hosts: Iterable[str] = ()) -> d
     if not ignore.exists():
         ignore.write_text("# secrets: never commit them\n*\n")
     before = {p.name for p in folder.iterdir()}
-    ca = make_ca(folder)
+    hosts = list(hosts)
+    ca = make_ca(folder, (*ROUTER_NAMES, *PAGE_NAMES, *hosts))
     make_certificate(folder, "router", ca, server_names=(*ROUTER_NAMES, *hosts))
+    make_certificate(folder, "page", ca, server_names=(*PAGE_NAMES, *hosts))
     users = list(dict.fromkeys(users))
     for user in users:
         make_certificate(folder, user, ca)
     added = add_credentials(folder / "credentials", users)
+    make_per_user(folder, users)
     made = sorted({p.name for p in folder.iterdir()} - before - {".gitignore"})
     return {"files": made, "passwords": added}
+
+
+def make_per_user(folder: Path, users: Iterable[str]) -> None:
+    """`folder`/per-user/<name>/: one user's secrets only (the router's: every password)."""
+    lines = (folder / "credentials").read_text().splitlines()
+    own = {line.split(":", 1)[0]: line for line in lines if ":" in line}
+    kits = {user: ([f"{user}.pem", f"{user}.key"], own[user] + "\n") for user in users}
+    kits["router"] = (["router.pem", "router.key"], "\n".join(lines) + "\n")
+    if "web" in kits:
+        kits["web"][0].extend(["page.pem", "page.key"])
+    for name, (files, credentials) in kits.items():
+        kit = folder / PER_USER / name
+        kit.mkdir(parents=True, exist_ok=True)
+        kit.chmod(0o700)
+        for file in ("ca.pem", *files):
+            shutil.copyfile(folder / file, kit / file)
+            (kit / file).chmod(0o644 if file.endswith(".pem") else 0o600)
+        (kit / "credentials").write_text(credentials)
+        (kit / "credentials").chmod(0o600)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -165,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"new passwords for: {', '.join(made['passwords'])} (in {args.folder}/credentials)")
     print(
         f"secure a session with VOXSHAPE_SECRETS={args.folder} (docker compose mounts "
-        "deploy/secrets by default); keep ca.key and credentials private"
+        f"each service's {PER_USER}/<service> of deploy/secrets by default); give a remote "
+        f"teacher its {args.folder}/{PER_USER}/<user>; keep ca.key and credentials private"
     )
     return 0
