@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
+from services.experiment.dictation import dictate
 from services.learner.config import LearnerConfig
 from services.learner.features import representation
-from services.sim.maps import load_map
-from services.simteacher.dictation import dictate
+from services.world.maps import load_map
 
 TRACES, SEED = 3, 10_000  # as the experiments dictate them (inprocess.initial_traces)
 

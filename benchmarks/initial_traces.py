@@ -1,4 +1,4 @@
-"""What initial traces change: the simulated teacher (services/simteacher/) dictates a few
+"""What initial traces change: the simulated teacher (services/teacher/simulated/) dictates a few
 episodes along the map's shortest path (commands only, as a person would), then SARSA(lambda)
 trains with those traces replayed (before learning and every `replay_every` episodes) and
 without them.
@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import argparse
 
+from services.experiment.dictation import dictate
+from services.experiment.train import train
 from services.learner.config import LearnerConfig
-from services.learner.train import train
-from services.sim.maps import load_map
-from services.simteacher.dictation import dictate
+from services.world.maps import load_map
 
 
 def main() -> None:

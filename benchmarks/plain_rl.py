@@ -16,8 +16,8 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 
+from services.experiment.train import train
 from services.learner.config import add_settings_argument, with_settings
-from services.learner.train import train
 
 
 def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:

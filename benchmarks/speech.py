@@ -37,9 +37,10 @@ sys.path.insert(0, str(ROOT))
 
 from protocol import load_vocabulary  # noqa: E402
 from services.speech import bench  # noqa: E402
-from services.speech.engines import EngineError, open_recognizer  # noqa: E402
+from services.speech.engines import open_recognizer  # noqa: E402
 from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
 from services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
+from services.speech.recognizer import EngineError  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "speech"
 ENGINES = [

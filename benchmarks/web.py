@@ -35,9 +35,9 @@ sys.path.insert(0, str(ROOT))
 
 from protocol import Observation, Utterance, robot_key, teacher_key  # noqa: E402
 from services.runtime import Input, Node, bus_config, free_loopback_port  # noqa: E402
+from services.runtime.audio import read_wav  # noqa: E402
 from services.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
 from services.runtime.processes import end_process  # noqa: E402
-from services.speech.audio import read_wav  # noqa: E402
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
 CHROMIUM = "/usr/bin/chromium"

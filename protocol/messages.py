@@ -46,6 +46,7 @@ ActionId = Annotated[int, Range(0, len(ACTION_NAMES) - 1)]
 
 SAMPLE_RATE = 16_000
 MAX_CHUNK_BYTES = 2 * SAMPLE_RATE  # one second of 16-bit mono audio
+MIN_CONFIDENCE = 0.5  # the arbiter's default: an utterance heard with less is not taken
 
 
 def new_message_id() -> str:

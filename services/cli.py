@@ -15,8 +15,8 @@ from protocol import ProtocolError, VocabularyError
 from services.learner.config import SettingsError
 from services.logger.run import RunError
 from services.runtime import BusError, ConfigError, configure_logging
-from services.sim.maps import MapError
 from services.topology import TopologyError
+from services.world.maps import MapError
 
 Runner = Callable[[argparse.Namespace], int]
 Adder = Callable[[argparse.ArgumentParser], None]
@@ -58,7 +58,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "train": (
         "train plain SARSA(lambda) in one process and report convergence",
-        "services.learner.commands",
+        "services.experiment.train",
         "add_arguments",
         "run",
     ),
@@ -70,9 +70,9 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "bench": (
         "measure and print performance figures",
-        "services.sim.commands",
-        "add_bench_arguments",
-        "bench_command",
+        "services.bench",
+        "add_arguments",
+        "run",
     ),
     "status": (
         "list the nodes present in a session",
@@ -118,7 +118,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "report": (
         "pictures and a summary of a recorded session",
-        "services.logger.report",
+        "services.report",
         "add_arguments",
         "run",
     ),
@@ -136,7 +136,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "web": (
         "serve the teachers' web page: watch a robot, speak or type to it in a browser",
-        "services.web.node",
+        "services.teacher.web.node",
         "add_arguments",
         "run",
     ),
@@ -148,7 +148,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "sim-teacher": (
         "run the simulated teacher: watches a robot, speaks through the speech service",
-        "services.simteacher.node",
+        "services.teacher.simulated.node",
         "add_arguments",
         "run",
     ),

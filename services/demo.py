@@ -6,7 +6,7 @@ pocketsphinx when espeak-ng and sox are installed, else text through the mock sp
 It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
 converges (services/learner/convergence.py, judged by that map's shortest time), showing each
 episode, then stops the session and writes the logger's recording, the report's pictures
-(services/logger/report.py) and a table of the episodes under runs/<session>/: demo.md counts
+(services/report.py) and a table of the episodes under runs/<session>/: demo.md counts
 episodes and interventions from the event log as the report's summary.md does.
 
 `voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
@@ -32,9 +32,9 @@ from pathlib import Path
 from protocol import EpisodeEvent, LearningSummary, TeachingStats, robot_key
 from services import launcher
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, EpisodeResult
-from services.learner.train import convergence_on
-from services.logger.report import (
+from services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from services.logger.run import RunDir, RunError
+from services.report import (
     INTERVENTIONS_ARE,
     STEP_SECONDS,
     EpisodeCounts,
@@ -42,11 +42,10 @@ from services.logger.report import (
     load_run,
     write_report,
 )
-from services.logger.run import RunDir, RunError
 from services.runtime import BusError, Input, Tick
-from services.sim.maps import Map, load_map
-from services.simteacher.teacher import PERSON, PROFILES, TIRELESS
+from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS
 from services.topology import ServiceSpec
+from services.world.maps import Map, load_map
 
 ROBOT, TEACHER = "r1", "simteacher"
 TASK = "1"  # the default task
@@ -249,7 +248,7 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
         "VOXSHAPE_CLOCK": "paced",
         "VOXSHAPE_SPEECH_ENGINE": "pocketsphinx" if mode == "audio" else "mock",
         # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
-        # reacts after as many steps as at real time, services/simteacher), whatever --rtf.
+        # reacts after as many steps as at real time, services/teacher/simulated), whatever --rtf.
         "VOXSHAPE_ROBOT_TIME": TEACHER,
         "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
     }

@@ -38,9 +38,9 @@ from services.runtime import (
     free_loopback_port,
 )
 from services.runtime.config import tcp_address
-from services.sim.maps import load_map
+from services.teacher.web import page_url
 from services.topology import ServiceSpec, find_compose_file, load_topology, local_variables
-from services.web import page_url
+from services.world.maps import load_map
 
 STOP_GRACE_S = 10.0
 INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it

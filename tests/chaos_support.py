@@ -504,8 +504,8 @@ def verify(
     """What held, from the run's files, the probe and the counters."""
     from services.logger.decoding import Known, decode_record
     from services.logger.eventlog import read_events
-    from services.logger.report import load_run
     from services.logger.run import RunDir
+    from services.report import load_run
 
     problems: list[str] = []
     run = RunDir(session.run_dir)

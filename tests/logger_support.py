@@ -24,7 +24,7 @@ from protocol import (
     teacher_key,
 )
 from services.logger.eventlog import EventLogWriter, EventRecord
-from services.sim.maps import load_map
+from services.world.maps import load_map
 
 TIMELINES = ("step", "episode", "sim_time", "wall_time")
 # A map that is not task 1: its shortest time is 19 s where task 1's is 10.3 s.

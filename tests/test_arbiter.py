@@ -21,7 +21,7 @@ from services.arbiter.config import (
     parse_window,
 )
 from services.arbiter.credit import ReactionDelay, StepTimeline
-from services.arbiter.hygiene import RecentIds, TokenBucket
+from services.arbiter.hygiene import RecentIds
 from services.arbiter.scripted import (
     ScriptedTeacher,
     observation,
@@ -30,6 +30,7 @@ from services.arbiter.scripted import (
     utterance,
 )
 from services.runtime.clock import estimate_from
+from services.runtime.limits import TokenBucket
 
 T0 = 1_700_000_000.0  # wall time of step 0
 PERIOD = 0.1
@@ -438,6 +439,11 @@ def test_recent_ids_forget_the_oldest_and_buckets_refill():
     bucket = TokenBucket(rate=2.0, burst=2.0, now=0.0)
     assert [bucket.take(0.0) for _ in range(3)] == [True, True, False]
     assert bucket.take(0.5) and not bucket.take(0.5)
+    assert not bucket.take(0.2) and bucket.take(1.0)  # a clock set back refills nothing
+    frames = TokenBucket(rate=50.0, burst=50.0)  # full at the start: the web's frame limit
+    assert 50 <= sum(frames.take(100.0 + i * 0.001) for i in range(200)) <= 61  # 0.2 s
+    audio = TokenBucket(rate=1.0, burst=3.0)  # seconds of audio
+    assert audio.take(0.0, 2.5) and not audio.take(0.0, 1.0) and audio.take(0.5, 1.0)
 
 
 # -- settings ---------------------------------------------------------------------------------

@@ -13,9 +13,9 @@ import pytest
 
 from protocol import EpisodeEvent, TeachingStats
 from services.demo import FINAL_WAIT_S, ConvergenceWatch, StallWatch, demo_table, task_title
-from services.logger.report import RobotSummary, count_episodes
+from services.report import RobotSummary, count_episodes
 from services.runtime import free_loopback_port
-from services.sim.maps import load_map
+from services.world.maps import load_map
 from tests.conftest import VOXSHAPE
 from tests.logger_support import LONG_ROOM
 

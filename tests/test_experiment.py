@@ -19,9 +19,9 @@ from services.experiment.paper import (
     summarize,
 )
 from services.learner.config import SettingsError, replaced
-from services.sim.maps import TASKS
 from services.sim.task import Simulation
-from services.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
+from services.teacher.simulated.teacher import PERSON, TIRELESS, TeacherProfile
+from services.world.maps import TASKS
 
 
 def test_mean_and_95_percent_interval():

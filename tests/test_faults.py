@@ -512,7 +512,8 @@ def test_a_flooding_teacher_is_rate_limited_and_another_is_unaffected(
         node.watch_presence()
         wait_present(node, {"sim", "arbiter"})
         node.input("obs", robot_key(session_id, "r1", "obs"))
-        collect(node, 1, Observation)  # the arbiter knows the robot too
+        collect(node, 1, Observation)
+        time.sleep(1.0)  # the arbiter has a second of the robot's steps: none is too late
         for teacher in ("ana", "flood"):
             node.input("notice", teacher_key(session_id, teacher, "notice"))
         ana = node.output("utterance", teacher_key(session_id, "ana", "utterance"))

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from protocol import ACTION_NAMES, Credit, CreditedFeedback, ProtocolError
+from services.experiment.train import train
 from services.learner import checkpoint
 from services.learner import node as learner_node
 from services.learner.actions import ActionSet
@@ -20,7 +21,6 @@ from services.learner.features import pose_tiles
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
-from services.learner.train import train
 from services.runtime import ConfigError
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
@@ -606,9 +606,8 @@ def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
 
 
 def test_three_equally_slow_goal_episodes_are_not_convergence_on_a_map():
-    from services.learner.convergence import Convergence, EpisodeResult
-    from services.learner.train import convergence_on
-    from services.sim.maps import load_map
+    from services.learner.convergence import Convergence, EpisodeResult, convergence_on
+    from services.world.maps import load_map
 
     config = LearnerConfig(converge_episodes=3, converge_slack=2.5)
     slow = [EpisodeResult("goal", 2400, 240.0)] * 3

@@ -209,7 +209,7 @@ def test_every_voxshape_command_of_the_docs_parses(page, command, tmp_path, monk
     from services.cli import parser
 
     argv = shlex.split(command)[1:]
-    shutil.copy(ROOT / "services" / "sim" / "maps" / "task1.toml", tmp_path / "my-map.toml")
+    shutil.copy(ROOT / "services" / "world" / "maps" / "task1.toml", tmp_path / "my-map.toml")
     (tmp_path / "docs").symlink_to(ROOT / "docs")  # the maps the pages name, from the root
     monkeypatch.chdir(tmp_path)
     try:
@@ -268,7 +268,7 @@ def test_train_as_written(tmp_path):
 
 
 def test_map_as_written(tmp_path):
-    shutil.copy(ROOT / "services" / "sim" / "maps" / "task3.toml", tmp_path / "my-map.toml")
+    shutil.copy(ROOT / "services" / "world" / "maps" / "task3.toml", tmp_path / "my-map.toml")
     result = run(as_written("voxshape map my-map.toml --png map.png"), tmp_path)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "map.png").read_bytes()[:4] == b"\x89PNG"

@@ -9,7 +9,8 @@ import pytest
 
 from protocol import EpisodeEvent, TeachingStats
 from services.logger.eventlog import read_events
-from services.logger.report import (
+from services.logger.run import RunDir, RunError, describe_session, write_session_info
+from services.report import (
     RobotSummary,
     count_episodes,
     load_run,
@@ -18,8 +19,7 @@ from services.logger.report import (
     summarize,
     write_report,
 )
-from services.logger.run import RunDir, RunError, describe_session, write_session_info
-from services.sim.maps import load_map
+from services.world.maps import load_map
 from tests.logger_support import LONG_ROOM, scripted_session, write_script
 
 

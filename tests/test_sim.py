@@ -14,11 +14,11 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from services.sim.gym_env import NavigationEnv
-from services.sim.maps import TASKS, MapError, Pose, load_map
-from services.sim.robot import RobotModel
 from services.sim.sensors import Sensors
 from services.sim.task import Rewards, SimConfig, Simulation
 from services.sim.world import RECOIL, SENSOR_HEIGHT, World
+from services.world.maps import TASKS, MapError, Pose, load_map
+from services.world.robot import RobotModel
 
 MODEL = RobotModel()
 

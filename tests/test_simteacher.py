@@ -8,9 +8,8 @@ from dataclasses import replace
 import pytest
 
 from protocol.vocabulary import load_vocabulary
-from services.sim.maps import load_map
-from services.simteacher.dictation import dictate
-from services.simteacher.teacher import (
+from services.experiment.dictation import dictate
+from services.teacher.simulated.teacher import (
     PERSON,
     PROFILES,
     TIRELESS,
@@ -21,6 +20,7 @@ from services.simteacher.teacher import (
     SimulatedTeacher,
     TeacherProfile,
 )
+from services.world.maps import load_map
 
 VOCABULARY = load_vocabulary()
 QUIET = replace(TIRELESS, jitter=0.0)  # judges every look, never errs, a steady 0.5 s delay
@@ -241,7 +241,7 @@ def test_dictated_traces_follow_the_shortest_path_to_the_goal(task):
 def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
     from services.cli import parser
     from services.runtime import ConfigError
-    from services.simteacher.node import profile_from
+    from services.teacher.simulated.node import profile_from
 
     person = profile_from(parser().parse_args(["sim-teacher"]))
     assert person == replace(PERSON, confusion=person.confusion)

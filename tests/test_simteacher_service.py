@@ -13,10 +13,10 @@ import pytest
 from protocol import Observation, TeacherNotice, load_vocabulary, robot_key, teacher_key
 from services.arbiter.scripted import observation
 from services.runtime import Input, Node, Presence
-from services.sim.maps import load_map
-from services.simteacher.display import DisplayClock, DisplayTeacher
-from services.simteacher.teacher import TIRELESS, SimulatedTeacher
-from services.speech.synthesis import synthesize
+from services.teacher.simulated.display import DisplayClock, DisplayTeacher
+from services.teacher.simulated.synthesis import synthesize
+from services.teacher.simulated.teacher import TIRELESS, SimulatedTeacher
+from services.world.maps import load_map
 from tests.conftest import VOXSHAPE, bus_args
 
 TASK = load_map("1")

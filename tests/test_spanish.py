@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from protocol import load_vocabulary
-from services.speech.audio import read_wav
+from services.runtime.audio import read_wav
 from services.speech.pocketsphinx_engine import PocketsphinxRecognizer
 from services.speech.spanish import phones, pronunciations, spoken_forms
 

@@ -15,10 +15,10 @@ import pytest
 
 from protocol import AudioChunk, Said, load_vocabulary
 from protocol.messages import SAMPLE_RATE
+from services.runtime.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
 from services.speech import bench
-from services.speech.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
-from services.speech.engines import EngineError, Recognition
 from services.speech.mock import MockRecognizer, MockSettings
+from services.speech.recognizer import EngineError, Recognition
 from services.speech.segmenter import Segmenter, SegmenterConfig
 from services.speech.streams import AudioStreams, StreamLimits
 from services.speech.transcriber import MockTranscriber

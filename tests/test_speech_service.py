@@ -17,7 +17,7 @@ import pytest
 from protocol import AudioChunk, Utterance, teacher_key, to_wire
 from protocol.messages import SAMPLE_RATE
 from services.runtime import Node
-from services.speech.audio import read_wav
+from services.runtime.audio import read_wav
 from services.speech.bench import load_clips
 from tests.conftest import VOXSHAPE, bus_args, collect, quiet
 from tests.test_speech import FIXTURES

@@ -16,9 +16,9 @@ from protocol import TeacherNotice, Utterance, load_vocabulary, teacher_key
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import parse_vocabulary
 from services.runtime import Node
+from services.runtime.audio import read_wav
 from services.speech import bench
-from services.speech.audio import read_wav
-from services.speech.engines import EngineError
+from services.speech.recognizer import EngineError
 from services.speech.streams import AudioStreams
 from services.speech.transcriber import AudioTranscriber
 from services.teacher.sources import wav_stream

@@ -19,8 +19,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from services.runtime import Node, bus_config
-from services.web.gateway import AUDIO_HEADER
-from services.web.node import REFUSED
+from services.teacher.web.gateway import AUDIO_HEADER
+from services.teacher.web.node import REFUSED
 from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present
 from tests.test_web import Robot, open_page, until
 

@@ -27,7 +27,7 @@ import pytest
 
 from protocol import CreditedFeedback, TeachingStats, robot_key
 from services.runtime import Input, Node, bus_config
-from services.speech.audio import read_wav
+from services.runtime.audio import read_wav
 from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port, wait_present
 
 CHROMIUM = Path("/usr/bin/chromium")

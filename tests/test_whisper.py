@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 
 from services.speech import bench
-from services.speech.engines import EngineError, open_recognizer
+from services.speech.engines import open_recognizer
+from services.speech.recognizer import EngineError
 from services.speech.whisper_engine import WhisperRecognizer, model_folder, phrase_of
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
@@ -85,7 +86,7 @@ def refused(*args, **kwargs):
 socket.socket.connect = socket.socket.connect_ex = refused
 socket.create_connection = refused
 from protocol import load_vocabulary
-from services.speech.audio import read_wav
+from services.runtime.audio import read_wav
 from services.speech.whisper_engine import WhisperRecognizer
 recognizer = WhisperRecognizer(load_vocabulary(), "en")
 print(recognizer.recognize(read_wav({str(FIXTURES / HEARD[0])!r})).text)

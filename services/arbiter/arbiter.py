@@ -42,9 +42,10 @@ from protocol.messages import NoticeKind
 from services.arbiter.clocks import SimulatorClock, TeacherClocks, answer
 from services.arbiter.config import ArbiterConfig, DelayWindow
 from services.arbiter.credit import MAX_CREDITS, ReactionDelay, SalientEvents, StepTimeline
-from services.arbiter.hygiene import RateLimits, RecentIds, Throttle
+from services.arbiter.hygiene import RateLimits, RecentIds
 from services.arbiter.meaning import NotUnderstood, examples_of, interpret
 from services.arbiter.merge import Agreement, Judgement, Merged, Merger
+from services.runtime.limits import Throttle
 
 FUTURE_TOLERANCE = 0.25  # s: an onset later than its arrival by more is a clock error
 EPISODES_KEPT = 16  # per robot, awaiting their final statistics

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from typing import Literal, TypeVar
 
 from protocol import ProtocolError, check_id
+from protocol.messages import MIN_CONFIDENCE
 from services.runtime import ConfigError
 
 T = TypeVar("T")
@@ -63,12 +64,12 @@ class DelayLearning:
 
 @dataclass(frozen=True)
 class ArbiterConfig:
-    min_confidence: float = 0.5  # utterances below are ignored; the teacher is asked to repeat
+    min_confidence: float = MIN_CONFIDENCE  # below: ignored, the teacher asked to repeat
     delay: DelayWindow = field(default_factory=DelayWindow)
     teacher_delay: dict[str, DelayWindow] = field(default_factory=dict)
     # Teachers whose delays and rate are in robot seconds, not their own: a simulated teacher
     # watching a simulator that runs faster than real time reacts after as many steps, and
-    # says as much per robot second, as at real time (services/simteacher). People react in
+    # says as much per robot second, as at real time (services/teacher/simulated). People react in
     # their own seconds whatever the robot's pace.
     robot_time: frozenset[str] = frozenset()
     learning: DelayLearning = field(default_factory=DelayLearning)

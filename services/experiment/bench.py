@@ -24,7 +24,7 @@ from services.experiment.inprocess import SETTINGS, RunSpec, run
 from services.experiment.paper import TASKS, run_all
 from services.learner.sarsa import Learner
 from services.sim.task import Simulation
-from services.simteacher.teacher import SimulatedTeacher
+from services.teacher.simulated.teacher import SimulatedTeacher
 
 CORES = {  # the methods the run calls of each core (none calls another's)
     "simulator": ((Simulation, "step"), (Simulation, "reset")),

@@ -27,8 +27,8 @@ from services.learner.config import (
     replaced,
     with_settings,
 )
-from services.sim.maps import MapError, load_map
-from services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
+from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
+from services.world.maps import MapError, load_map
 
 
 def _names(text: str, allowed: tuple[str, ...], what: str) -> list[str]:
@@ -118,7 +118,7 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="a field of the simulated teacher's TeacherProfile "
-        "(services/simteacher/teacher.py) changed from --teacher-profile, e.g. rate=2; its "
+        "(services/teacher/simulated/teacher.py) changed from --teacher-profile, e.g. rate=2; its "
         "noise is the setting's",
     )
 

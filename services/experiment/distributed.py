@@ -29,13 +29,12 @@ from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
 from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.experiment.paper import mean_ci
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, EpisodeResult
-from services.learner.train import convergence_on
+from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
 from services.runtime.processes import end_process
-from services.sim.maps import load_map
 from services.sim.task import SimConfig
-from services.simteacher.teacher import Confusion
+from services.teacher.simulated.teacher import Confusion
+from services.world.maps import load_map
 
 VOXSHAPE = [sys.executable, "-m", "services"]
 STOP_WAIT_S = 10.0

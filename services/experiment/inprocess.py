@@ -25,16 +25,15 @@ from protocol import CreditedFeedback, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
+from services.experiment.dictation import dictate
 from services.learner.config import replaced, with_settings
-from services.learner.convergence import EpisodeResult
+from services.learner.convergence import EpisodeResult, convergence_on
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
-from services.learner.train import convergence_on
-from services.sim.maps import Map, load_map
 from services.sim.stepper import observation
 from services.sim.task import Reading, SimConfig, Simulation
-from services.simteacher.dictation import dictate
-from services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+from services.teacher.simulated.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+from services.world.maps import Map, load_map
 
 START = 1_700_000_000.0  # the session clock at the first step (seconds)
 PAUSE = 3.0  # seconds between episodes (the robot is put back at the start)

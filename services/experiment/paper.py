@@ -41,7 +41,7 @@ from services.experiment.cluster import failure, on_ray
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence
-from services.simteacher.teacher import PROFILES
+from services.teacher.simulated.teacher import PROFILES
 
 TASKS = ("1", "2", "3", "4")
 LABELS = {"rl": "RL", "rl+f": "RL + F", "rl+t+f": "RL + T + F", "rl+t+f-perfect": "RL + T + F (PF)"}

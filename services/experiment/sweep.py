@@ -29,7 +29,7 @@ from services.experiment.paper import (
     start_log,
     task_means,
 )
-from services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
+from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 FEEDBACK, TRACES = "rl+f", "rl+t+f"
 

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass, field
 
 from services.learner.config import LearnerConfig
+from services.world.maps import Map
 
 
 @dataclass(frozen=True)
@@ -83,3 +84,8 @@ class Convergence:
     @property
     def interventions(self) -> int:
         return sum(e.interventions for e in self._until())
+
+
+def convergence_on(m: Map, config: LearnerConfig) -> Convergence:
+    """The convergence rule for a map: its shortest time bounds the converged episodes."""
+    return Convergence(config, m.shortest_time(config.top_speed))

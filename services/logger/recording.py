@@ -53,8 +53,8 @@ from protocol import (
 from services.logger.decoding import Decoded, Known, PresenceChange, Rejected, Unknown
 from services.logger.tally import RobotTally, SessionTally
 from services.runtime import worth_logging
-from services.sim.maps import Box, Cylinder, Map
-from services.sim.robot import RobotModel
+from services.world.maps import Box, Cylinder, Map
+from services.world.robot import RobotModel
 
 log = logging.getLogger("voxshape.logger")
 

@@ -38,7 +38,7 @@ from services.logger.run import (
     write_json_atomically,
 )
 from services.runtime import ConfigError, fields
-from services.sim.maps import Map
+from services.world.maps import Map
 
 if TYPE_CHECKING:  # rerun takes half a second to import: only commands that draw load it
     import rerun as rr

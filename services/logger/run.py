@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from services.runtime import ConfigError
-from services.sim.maps import Map, MapError, load_map, parse_map
+from services.world.maps import Map, MapError, load_map, parse_map
 
 RUNS = Path("runs")
 SESSION_FILE = "session.json"

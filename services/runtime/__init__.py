@@ -1,4 +1,5 @@
-"""The small runtime every service stands on: bus configuration, the Node event loop, logs.
+"""The small runtime every service stands on: bus configuration, the Node event loop, logs,
+rate limits and the bus's audio format (16 kHz mono PCM).
 
 No service logic lives here.
 """

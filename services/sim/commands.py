@@ -1,29 +1,16 @@
-"""`voxshape map` (a picture of a task) and `voxshape bench` (the simulator's figures here;
-`bench arbiter` and `bench experiment` in their own modules)."""
+"""`voxshape map`: a picture of a task."""
 
 from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
-import statistics
-import subprocess
-import sys
-import time
-import uuid
-from dataclasses import replace
 from pathlib import Path
 
-from protocol import Action, Observation, robot_key
-from services.arbiter import bench as arbiter_bench
-from services.experiment import bench as experiment_bench
-from services.runtime import Input, Node, bus_config, free_loopback_port
-from services.sim.maps import Pose, load_map
 from services.sim.render import render_map
-from services.sim.robot import RobotModel
 from services.sim.sensors import Sensors
-from services.sim.task import SimConfig, Simulation
+from services.world.maps import Pose, load_map
+from services.world.robot import RobotModel
 
 
 def add_map_arguments(parser: argparse.ArgumentParser) -> None:
@@ -47,137 +34,4 @@ def map_command(args: argparse.Namespace) -> int:
         scan = laser[0]
     render_map(m, trajectory=trajectory, pose=pose, scan=scan, path=args.png)
     print(f"wrote {args.png}")
-    return 0
-
-
-def add_bench_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("what", choices=["sim", "arbiter", "experiment"], help="what to measure")
-    parser.add_argument("--task", default="1")
-    parser.add_argument("--steps", type=int, default=3000, help="steps measured per figure")
-    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
-    arbiter_bench.add_arguments(parser)
-    experiment_bench.add_arguments(parser)
-
-
-def policy(obs_laser: tuple[float, ...] | list[float]) -> tuple[float, float]:
-    """A trivial reactive policy: go ahead, turn left when something is close in front."""
-    front = min(obs_laser[60:120])
-    return (0.5, 0.0) if front > 0.8 else (0.1, 1.2)
-
-
-def in_process(task: str, steps: int) -> float:
-    sim = Simulation(load_map(task), seed=0)
-    reading = sim.reset("r1")
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        reading = sim.step({"r1": policy(reading.laser)})["r1"]
-        if reading.outcome != "running":
-            reading = sim.reset("r1")
-    elapsed = time.perf_counter() - t0
-    sim.close()
-    return steps / elapsed
-
-
-def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float]:
-    """Steps per second of a `voxshape sim --clock lockstep` process answered by this one,
-    both peers of a router process, as in a local session; and the median seconds from an
-    action sent to the next observation received."""
-    session = f"bench{uuid.uuid4().hex[:8]}"
-    router = f"tcp/127.0.0.1:{free_loopback_port()}"
-    voxshape = str(Path(sys.executable).parent / "voxshape")
-    common = ["--session", session, "--connect", router]
-    children = [
-        subprocess.Popen(
-            [voxshape, "router", "--session", session, "--listen", router],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-    ]
-    try:
-        config = replace(bus_config("bench"), session=session, connect=(router,))
-        with Node("bench", config, quiet=True) as node:
-            node.input("obs", robot_key(session, "r1", "obs"))
-            act = node.output("action", robot_key(session, "r1", "action"))
-            children.append(
-                subprocess.Popen(
-                    [
-                        voxshape,
-                        "sim",
-                        *common,
-                        "--task",
-                        task,
-                        "--clock",
-                        "lockstep",
-                        "--max-steps",
-                        str(warmup + steps),
-                        "--action-timeout",
-                        "5",
-                        "--seed",
-                        "0",
-                    ],
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.DEVNULL,
-                )
-            )
-            answered, t0, sent_at = 0, 0.0, None
-            step_times: list[float] = []  # action sent -> next observation received
-            deadline = time.monotonic() + 120
-            while answered < warmup + steps and time.monotonic() < deadline:
-                event = node.poll(1.0)
-                if not isinstance(event, Input) or not isinstance(event.message, Observation):
-                    continue
-                obs = event.message
-                if sent_at is not None and answered > warmup:
-                    step_times.append(time.perf_counter() - sent_at)
-                sent_at = None
-                if obs.outcome != "running":
-                    continue
-                v, omega = policy(obs.laser)
-                act.put(
-                    Action(
-                        robot="r1",
-                        episode=obs.episode,
-                        step=obs.step,
-                        discrete=None,
-                        v=v,
-                        omega=omega,
-                        chooser="policy",
-                    )
-                )
-                sent_at = time.perf_counter()
-                answered += 1
-                if answered == warmup:
-                    t0 = time.perf_counter()
-            if answered < warmup + steps:
-                raise RuntimeError(f"the simulator answered only {answered} steps in 120 s")
-            return steps / (time.perf_counter() - t0), statistics.median(step_times)
-    finally:
-        for child in reversed(children):
-            child.terminate()
-            child.wait(10)
-
-
-def bench_command(args: argparse.Namespace) -> int:
-    if args.what == "arbiter":
-        return arbiter_bench.bench_command(args)
-    if args.what == "experiment":
-        return experiment_bench.bench_command(args)
-    local = in_process(args.task, args.steps)
-    bus, round_trip = bus_lockstep(args.task, args.steps)
-    result = {
-        "task": args.task,
-        "steps": args.steps,
-        "in_process_steps_per_s": round(local, 1),
-        "realtime_factor": round(local * SimConfig().control_period, 1),
-        "bus_lockstep_steps_per_s": round(bus, 1),
-        "bus_over_in_process": round(bus / local, 3),
-        "in_process_step_ms": round(1000 / local, 3),
-        "bus_action_to_next_obs_ms_p50": round(1000 * round_trip, 3),
-        "topology": "sim and policy processes, peers of a router process, loopback",
-    }
-    if args.json:
-        print(json.dumps(result))
-    else:
-        for key, value in result.items():
-            print(f"{key:<26} {value}")
     return 0

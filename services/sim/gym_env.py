@@ -24,8 +24,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from services.sim.maps import load_map
 from services.sim.task import Reading, SimConfig, Simulation
+from services.world.maps import load_map
 
 
 class NavigationEnv(gym.Env):

@@ -22,9 +22,9 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.sim.maps import TASKS, load_map
 from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
+from services.world.maps import TASKS, load_map
 
 LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
 # Observations kept per robot for an arbiter that restarts, in wall seconds of paced steps

@@ -14,9 +14,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.patches import Circle, FancyArrow, Polygon
 
-from services.sim.maps import Map, Pose
-from services.sim.robot import RobotModel
 from services.sim.world import shape_outline
+from services.world.maps import Map, Pose
+from services.world.robot import RobotModel
 
 
 def render_map(

@@ -18,8 +18,8 @@ import math
 
 import numpy as np
 
-from services.sim.maps import Map, Pose
-from services.sim.robot import RobotModel
+from services.world.maps import Map, Pose
+from services.world.robot import RobotModel
 
 
 def _footprint_segments(corners: np.ndarray) -> np.ndarray:

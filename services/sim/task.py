@@ -13,10 +13,10 @@ from typing import Literal
 
 import numpy as np
 
-from services.sim.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
-from services.sim.robot import RobotModel
 from services.sim.sensors import Sensors
 from services.sim.world import World
+from services.world.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
+from services.world.robot import CONTROL_PERIOD_S, RobotModel
 
 Outcome = Literal["running", "goal", "collision", "timeout"]
 
@@ -34,7 +34,7 @@ class Rewards:
 
 @dataclass(frozen=True)
 class SimConfig:
-    control_period: float = 0.1  # simulated seconds per control step (10 Hz)
+    control_period: float = CONTROL_PERIOD_S  # simulated seconds per control step
     substeps: int = 4  # collision checks per control step
     # "continue" (as on the paper's robot): a bump costs the penalty and the robot stays put.
     # "end" also ends the episode; with -1 per step, crashing early then beats a long search

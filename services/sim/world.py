@@ -23,8 +23,8 @@ import sys
 
 import numpy as np
 
-from services.sim.maps import Box, Map, Pose
-from services.sim.robot import RobotModel
+from services.world.maps import Box, Map, Pose
+from services.world.robot import RobotModel
 
 # `import pybullet` prints "pybullet build time: ..." from C (measured here: on stderr);
 # keep it out of every service's log.

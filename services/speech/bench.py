@@ -24,12 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.messages import SAMPLE_RATE
+from protocol.messages import MIN_CONFIDENCE, SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
-from services.arbiter.config import ArbiterConfig
-from services.speech.audio import chunks, read_wav
-from services.speech.engines import Recognizer, written_phrases
+from services.runtime.audio import chunks, read_wav
 from services.speech.mock import MockRecognizer
+from services.speech.recognizer import Recognizer, written_phrases
 from services.speech.segmenter import Segmenter, SegmenterConfig
 
 QUIET_S = 0.5  # quiet around each clean clip
@@ -37,7 +36,6 @@ QUIET_NOISE = 8.0  # std dev of that quiet (int16 units, about -72 dBFS)
 SPLITS = ("tune", "held-out")
 OUTSIDE = {"oov": "unrelated", "near": "near"}  # outside words by clip kind
 OTHER_LANGUAGE = "other language"
-MIN_CONFIDENCE = ArbiterConfig().min_confidence  # the arbiter's gate
 CONFIDENCE_BANDS = (0.0, 0.25, 0.5, 0.75, 0.9)  # lower bounds, for the calibration table
 
 

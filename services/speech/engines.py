@@ -1,50 +1,15 @@
-"""The recognizer interface shared by the engines, and how `voxshape speech` picks one.
-
-A recognizer turns the audio of one endpointed utterance (int16 samples at 16 kHz, with a
-little quiet around the speech) into one vocabulary phrase with a confidence, or None when it
-heard nothing it knows (rejection). Every engine is restricted to the vocabulary: its text is
-always a phrase of `protocol/vocabulary.toml`, as written there.
-"""
+"""How `voxshape speech` picks an engine (the interface: services/speech/recognizer.py)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING
 
-import numpy as np
-
-from protocol.vocabulary import Vocabulary, normalize
+from protocol.vocabulary import Vocabulary
+from services.speech.recognizer import ENGINES, EngineError, Recognizer
 
 if TYPE_CHECKING:
     from services.speech.pocketsphinx_engine import PocketsphinxSettings
-
-ENGINES = ("pocketsphinx", "vosk", "whisper", "mock")
-
-
-class EngineError(RuntimeError):
-    """The engine cannot run as configured; the message says what is missing and the fix."""
-
-
-@dataclass(frozen=True)
-class Recognition:
-    text: str  # a vocabulary phrase, as written in the vocabulary
-    confidence: float  # 0..1
-    alternatives: tuple[tuple[str, float], ...] = ()  # other phrases and their confidence
-
-
-class Recognizer(Protocol):
-    engine: str
-    language: str
-
-    def recognize(self, samples: np.ndarray) -> Recognition | None:
-        """The phrase heard in one utterance, or None (nothing of the vocabulary)."""
-        ...
-
-
-def written_phrases(vocabulary: Vocabulary, language: str) -> dict[str, str]:
-    """Normalized phrase -> the phrase as written, for one language."""
-    return {normalize(p): p for p in vocabulary.phrases(language)}
 
 
 def open_recognizer(

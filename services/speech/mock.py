@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 from protocol.vocabulary import Vocabulary, normalize
-from services.speech.engines import written_phrases
+from services.speech.recognizer import written_phrases
 
 ErrorKind = Literal["misheard", "dropped", "inserted"]
 ERROR_KINDS: tuple[ErrorKind, ...] = ("misheard", "dropped", "inserted")

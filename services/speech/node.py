@@ -37,9 +37,10 @@ from services.runtime import (
     fields,
     worth_logging,
 )
-from services.speech.engines import ENGINES, EngineError, Recognizer, open_recognizer
+from services.speech.engines import open_recognizer
 from services.speech.mock import MockRecognizer, MockSettings
 from services.speech.pocketsphinx_engine import PocketsphinxSettings
+from services.speech.recognizer import ENGINES, EngineError, Recognizer
 from services.speech.streams import AudioStreams, StreamLimits
 from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized, Unheard
 

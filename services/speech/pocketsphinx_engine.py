@@ -34,7 +34,7 @@ import numpy as np
 
 from protocol.vocabulary import Vocabulary, normalize
 from services.speech import spanish
-from services.speech.engines import EngineError, Recognition, written_phrases
+from services.speech.recognizer import EngineError, Recognition, written_phrases
 
 MODEL_HINT = (
     "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from protocol.messages import SAMPLE_RATE
-from services.speech.audio import FRAME_SAMPLES, level_dbfs
+from services.runtime.audio import FRAME_SAMPLES, level_dbfs
 
 
 @dataclass(frozen=True)

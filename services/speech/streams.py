@@ -22,7 +22,7 @@ import numpy as np
 
 from protocol import AudioChunk
 from protocol.messages import SAMPLE_RATE
-from services.speech.audio import AudioError, pcm_to_samples
+from services.runtime.audio import AudioError, pcm_to_samples
 from services.speech.segmenter import Segment, Segmenter, SegmenterConfig
 
 Report = Callable[[str, str], None]  # (problem kind, detail) -> None

@@ -18,8 +18,8 @@ from dataclasses import replace
 
 from protocol import Alternative, AudioChunk, Said, TeacherNotice, Utterance
 from protocol.messages import new_message_id
-from services.speech.engines import Recognizer
 from services.speech.mock import MockRecognizer
+from services.speech.recognizer import Recognizer
 from services.speech.streams import AudioStreams, Report, SpeechSegment
 
 Recognized = Utterance | TeacherNotice

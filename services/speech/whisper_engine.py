@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from protocol.vocabulary import Vocabulary, normalize
-from services.speech.engines import EngineError, Recognition, written_phrases
+from services.speech.recognizer import EngineError, Recognition, written_phrases
 
 INSTALL_HINT = "pip install -e '.[whisper]'"
 MODEL_FILES = ("model.bin", "config.json", "tokenizer.json")

@@ -41,14 +41,12 @@ from protocol import (
     EpisodeEvent,
     Message,
     Observation,
-    Said,
     TeacherNotice,
     Utterance,
     Vocabulary,
     check_id,
     load_vocabulary,
     robot_key,
-    teacher_key,
 )
 from protocol.messages import SAMPLE_RATE
 from services.runtime import (
@@ -60,9 +58,9 @@ from services.runtime import (
     add_bus_arguments,
     bus_config,
 )
-from services.runtime.clock import ClockSync
-from services.speech.audio import AudioError, samples_to_pcm
+from services.runtime.audio import AudioError, samples_to_pcm
 from services.teacher.board import Board, Shown, SpeechWatch
+from services.teacher.session import join_as_teacher
 from services.teacher.sources import (
     Scheduled,
     TeachError,
@@ -77,11 +75,7 @@ from services.teacher.sources import (
 )
 
 TICK_S = 0.02
-# Kept for a speech service or arbiter that missed them (restarted, or the router was): as
-# much as SPEECH_RECOVERY_S (services/speech/node.py) asks for, 50 ms a chunk.
-AUDIO_KEPT = 800
 ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
-UTTERANCES_KEPT = 256  # typed utterances kept for an arbiter that missed them
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -195,23 +189,23 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError(str(e)) from None
         node = stack.enter_context(Node("teacher", bus, quiet=True))
         session = node.session_id
-        node.input("utterance", teacher_key(session, teacher, "utterance"))
-        node.input("notice", teacher_key(session, teacher, "notice"))
-        stack.enter_context(
-            ClockSync(
-                node,
-                teacher,
-                synced=lambda e: screen.note(
-                    "clock",
-                    f"clock: the arbiter's is {e.offset:+.3f} s from this one "
-                    f"(+-{e.rtt / 2 * 1000:.1f} ms)",
-                    offset=e.offset,
-                    rtt=e.rtt,
-                ),
-                problem=lambda text: screen.note(
-                    "warning", f"{text}; your timing is taken as is until one answers"
-                ),
-            )
+        says = ("audio",) if args.wav or args.mic else ("utterance",)
+        says += ("said",) if args.through_speech else ()
+        outputs = join_as_teacher(
+            node,
+            stack,
+            teacher,
+            says,
+            synced=lambda e: screen.note(
+                "clock",
+                f"clock: the arbiter's is {e.offset:+.3f} s from this one "
+                f"(+-{e.rtt / 2 * 1000:.1f} ms)",
+                offset=e.offset,
+                rtt=e.rtt,
+            ),
+            problem=lambda text: screen.note(
+                "warning", f"{text}; your timing is taken as is until one answers"
+            ),
         )
         for topic in ("obs", "episode", "feedback"):
             node.input(topic, robot_key(session, robot, topic))
@@ -223,19 +217,6 @@ def run(args: argparse.Namespace) -> int:
             else "typed"
         )
         node.watch_presence(role="speech")
-        outputs: dict[type, Output] = {}
-        if args.wav or args.mic:
-            outputs[AudioChunk] = node.output(
-                "audio", teacher_key(session, teacher, "audio"), keep=AUDIO_KEPT
-            )
-        else:
-            outputs[Utterance] = node.output(
-                "utterance", teacher_key(session, teacher, "utterance"), keep=UTTERANCES_KEPT
-            )
-        if args.through_speech:
-            outputs[Said] = node.output(
-                "said", teacher_key(session, teacher, "said"), keep=UTTERANCES_KEPT
-            )
         if args.wav or args.mic or args.through_speech:
             _wait_for_speech(node, speech, board, screen, args.wait_speech)
         if args.wav:

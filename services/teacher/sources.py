@@ -20,7 +20,7 @@ import numpy as np
 
 from protocol import AudioChunk, Said, Utterance, Vocabulary
 from protocol.messages import SAMPLE_RATE, Message
-from services.speech.audio import chunks, read_wav, samples_to_pcm
+from services.runtime.audio import chunks, read_wav, samples_to_pcm
 
 CHUNK_S = 0.05
 GAP_BETWEEN_FILES_S = 0.5  # teacher-clock pause between two streamed files

@@ -1,6 +1,6 @@
 """`voxshape web`: the teachers' web page, an aiohttp server bridged to the bus.
 
-    GET /        the page (services/web/static/index.html) and its files
+    GET /        the page (services/teacher/web/static/index.html) and its files
     GET /ws      the WebSocket of docs/web.md: login, then JSON and audio frames
 
 Inputs (its own node, role "web"): voxshape/<session>/robot/*/obs, episode, feedback,
@@ -39,7 +39,6 @@ from typing import Any
 from aiohttp import WSMsgType, web
 
 from protocol import (
-    AudioChunk,
     CreditedFeedback,
     EpisodeEvent,
     Message,
@@ -49,7 +48,6 @@ from protocol import (
     Utterance,
     load_vocabulary,
     robot_key,
-    teacher_key,
 )
 from protocol.vocabulary import LANGUAGES
 from services.deploy.access import AccessError, find_access_file, load_access
@@ -64,23 +62,23 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.runtime.clock import ClockSync
-from services.sim.maps import load_map
+from services.runtime.limits import Throttle, TokenBucket
 from services.teacher.board import Board
-from services.web import page_url
-from services.web.admission import (
+from services.teacher.session import join_as_teacher
+from services.teacher.web import page_url
+from services.teacher.web.admission import (
     Admission,
     AdmissionError,
     LoginThrottle,
     Origins,
     public_origin,
 )
-from services.web.gateway import (
+from services.teacher.web.gateway import (
     AUDIO_BURST_S,
     MAX_BINARY_BYTES,
+    MAX_MESSAGES_PER_S,
     MAX_TEXT_BYTES,
     BrowserError,
-    RateLimit,
     Robots,
     SessionView,
     Teaching,
@@ -90,6 +88,7 @@ from services.web.gateway import (
     parse_login,
     vocabulary_json,
 )
+from services.world.maps import load_map
 
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 8080
@@ -101,7 +100,6 @@ REFUSED = "login refused: wrong user name or password, or not a teacher of this 
 QUEUE_LIMIT = 1000  # messages waiting for one browser (observations aside): beyond, too slow
 TICK_S = 0.05  # observations' slots and the "no answer" lines are checked this often
 ANSWER_WITHIN_S = 1.0  # as `voxshape teach`
-UTTERANCES_KEPT = 256  # typed words kept for an arbiter that missed them (as `voxshape teach`)
 HARD_FRAME_LIMIT = 4 * MAX_BINARY_BYTES  # aiohttp closes the socket above this (1009)
 
 
@@ -413,7 +411,7 @@ class Gateway:
         self.admission = Admission(max_clients=max_clients)
         self.throttle = LoginThrottle()
         self.teachers: frozenset[str] | None = None  # who may log in (None: anyone, open)
-        self.audio: dict[str, RateLimit] = {}  # each teacher's audio seconds, all its pages
+        self.audio: dict[str, TokenBucket] = {}  # each teacher's audio seconds, all its pages
         self.robots = Robots()
         self.browsers: set[Browser] = set()
         self.node: Node | None = None
@@ -625,7 +623,7 @@ class Gateway:
             answer_within_s=ANSWER_WITHIN_S,
             no_answer_hint=f"no arbiter in session {self.view.session!r} heard it",
         )
-        budget = self.audio.setdefault(login.teacher, RateLimit(1.0, AUDIO_BURST_S))
+        budget = self.audio.setdefault(login.teacher, TokenBucket(1.0, AUDIO_BURST_S))
         browser.teaching = Teaching(login.teacher, self.robots, board, self.view.language, budget)
         browser.send(self.robots.welcome(self.view, login.teacher))
         self.log.info(
@@ -645,27 +643,20 @@ class Gateway:
         return await self._refuse(browser, REFUSED)
 
     def _teacher_node(self, browser: Browser, teacher: str, config: BusConfig) -> None:
-        """In a thread (the login can take a second): this browser's own teacher node."""
+        """In a thread (the login can take a second): this browser's own teacher node. Its
+        audio is not kept: a browser's chunks are a second long, 800 of them too many."""
         node = Node("teacher", config)
         browser.node = node
-        session = node.session_id
-        node.input("utterance", teacher_key(session, teacher, "utterance"))
-        node.input("notice", teacher_key(session, teacher, "notice"))
-        browser.outputs = {
-            Utterance: node.output(
-                "utterance", teacher_key(session, teacher, "utterance"), keep=UTTERANCES_KEPT
-            ),
-            AudioChunk: node.output("audio", teacher_key(session, teacher, "audio")),
-        }
-        assert self.loop is not None
-        browser.stack.enter_context(
-            ClockSync(
-                node,
-                teacher,
-                synced=lambda e: None,
-                problem=lambda text: node.log.info(f"clock exchange: {text}"),
-            )
+        browser.outputs = join_as_teacher(
+            node,
+            browser.stack,
+            teacher,
+            ("utterance", "audio"),
+            synced=lambda e: None,
+            problem=lambda text: node.log.info(f"clock exchange: {text}"),
+            kept={"audio": 0},
         )
+        assert self.loop is not None
         pump = _Pump(node, self.loop, lambda event: self._on_teacher(browser, event))
         browser.stack.callback(pump.stop)
 
@@ -683,14 +674,15 @@ class Gateway:
         """Every frame after the login, within the limits; an error for each refused."""
         teaching = browser.teaching
         assert teaching is not None and self.loop is not None
-        limit = RateLimit()
+        limit, told = TokenBucket(MAX_MESSAGES_PER_S, MAX_MESSAGES_PER_S), Throttle(1.0)
         async for msg in browser.ws:
             now = time.monotonic()
             if msg.type not in (WSMsgType.TEXT, WSMsgType.BINARY):
                 continue
-            if not limit.allow(now):
-                if limit.tell(now):
-                    browser.send(_error(f"too many messages: at most {limit.per_s:g} a second"))
+            if not limit.take(now):
+                if told.due(("too many",), now):
+                    text = f"too many messages: at most {MAX_MESSAGES_PER_S} a second"
+                    browser.send(_error(text))
                 continue
             try:
                 if msg.type == WSMsgType.TEXT:

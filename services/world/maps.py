@@ -1,6 +1,6 @@
 """Task maps: a small TOML format, its validating loader, and the map's free-space grid.
 
-A map file's format is in docs/simulator.md#your-own-map (examples: `services/sim/maps/`).
+A map file's format is in docs/simulator.md#your-own-map (examples: `services/world/maps/`).
 
 The loader checks every key and value, that the start (with its jitter) leaves the robot
 clear of walls and obstacles, and that the goal can be reached by a robot of the given size.

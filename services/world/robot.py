@@ -7,6 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+CONTROL_PERIOD_S = 0.1  # seconds per control step: the robot is driven at 10 Hz
+
 
 @dataclass(frozen=True)
 class RobotModel:

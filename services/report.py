@@ -48,17 +48,16 @@ from protocol import (
     Utterance,
 )
 from services.learner.config import LearnerConfig
-from services.learner.convergence import Convergence, EpisodeResult
-from services.learner.train import convergence_on
+from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.logger.decoding import Known, PresenceChange, Rejected, Unknown, decode_record
 from services.logger.eventlog import EventLog, EventLogError, EventRecord, read_events
 from services.logger.run import RunDir, RunError, read_session_info, session_map
-from services.sim.maps import Box, Cylinder, Map
-from services.sim.task import SimConfig
+from services.world.maps import Box, Cylinder, Map
+from services.world.robot import CONTROL_PERIOD_S
 
 MAX_EPISODES_DRAWN = 6
 MOVING_AVERAGE = 10
-STEP_SECONDS = SimConfig().control_period  # robot seconds per step
+STEP_SECONDS = CONTROL_PERIOD_S  # robot seconds per step
 INTERVENTIONS_ARE = (
     "interventions are the utterances the arbiter understood about an episode, its own count "
     "(TeachingStats), as in the paper's Table 3"

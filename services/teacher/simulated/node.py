@@ -29,6 +29,7 @@ import argparse
 import os
 import random
 import time
+from contextlib import ExitStack
 from dataclasses import replace
 
 from protocol import (
@@ -39,7 +40,6 @@ from protocol import (
     check_id,
     load_vocabulary,
     robot_key,
-    teacher_key,
 )
 from services.runtime import (
     ConfigError,
@@ -49,19 +49,18 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.runtime.clock import ClockSync
-from services.sim.maps import TASKS, load_map
-from services.simteacher.display import DisplayTeacher, Spoken
-from services.simteacher.teacher import (
+from services.teacher.session import join_as_teacher
+from services.teacher.simulated.display import DisplayTeacher, Spoken
+from services.teacher.simulated.synthesis import LEAD_S, VOICE, Voice
+from services.teacher.simulated.teacher import (
     PERSON,
     PROFILES,
     Confusion,
     SimulatedTeacher,
     TeacherProfile,
 )
-from services.speech.synthesis import LEAD_S, VOICE, Voice
-from services.teacher.node import AUDIO_KEPT, UTTERANCES_KEPT
 from services.teacher.sources import wav_stream
+from services.world.maps import TASKS, load_map
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -222,15 +221,23 @@ def run(args: argparse.Namespace) -> int:
     def clock() -> float:
         return time.time() + skew
 
-    with Node("simteacher", bus_config("simteacher", args)) as node:
+    with Node("simteacher", bus_config("simteacher", args)) as node, ExitStack() as stack:
         core = SimulatedTeacher(m, load_vocabulary(), profile, seed=seed)
         teacher = DisplayTeacher(core, args.traces, args.max_rate, counters=node.counters)
-        session = node.session_id
-        node.input("obs", robot_key(session, robot, "obs"))
-        node.input("notice", teacher_key(session, teacher_id, "notice"))
+        node.input("obs", robot_key(node.session_id, robot, "obs"))
         topic = "audio" if voice else "said"
-        keep = AUDIO_KEPT if voice else UTTERANCES_KEPT  # for a restarted speech service
-        out = node.output(topic, teacher_key(session, teacher_id, topic), keep=keep)
+        (out,) = join_as_teacher(
+            node,
+            stack,
+            teacher_id,
+            (topic,),
+            synced=lambda e: node.log.info(
+                "clock synced", extra=fields(offset=f"{e.offset:+.4f}", rtt=f"{e.rtt:.4f}")
+            ),
+            problem=lambda text: node.log.warning(text, extra=fields(teacher=teacher_id)),
+            clock=clock,
+            echo=False,
+        ).values()
         node.log.info(
             "teaching",
             extra=fields(
@@ -244,25 +251,16 @@ def run(args: argparse.Namespace) -> int:
                 delay=args.delay,
             ),
         )
-        with ClockSync(
-            node,
-            teacher_id,
-            synced=lambda e: node.log.info(
-                "clock synced", extra=fields(offset=f"{e.offset:+.4f}", rtt=f"{e.rtt:.4f}")
-            ),
-            problem=lambda text: node.log.warning(text, extra=fields(teacher=teacher_id)),
-            clock=clock,
-        ):
-            for event in node.events(tick=1.0):
-                match event:
-                    case Input(message=Observation() as obs):
-                        for spoken in teacher.on_observation(obs, clock()):
-                            for said in (
-                                audio_messages(spoken, teacher_id, robot, voice)
-                                if voice
-                                else said_messages(spoken, teacher_id, robot)
-                            ):
-                                out.put(said)
-                    case Input(message=TeacherNotice() as notice):
-                        node.counters[f"notice.{notice.kind}"] += 1
+        for event in node.events(tick=1.0):
+            match event:
+                case Input(message=Observation() as obs):
+                    for spoken in teacher.on_observation(obs, clock()):
+                        for said in (
+                            audio_messages(spoken, teacher_id, robot, voice)
+                            if voice
+                            else said_messages(spoken, teacher_id, robot)
+                        ):
+                            out.put(said)
+                case Input(message=TeacherNotice() as notice):
+                    node.counters[f"notice.{notice.kind}"] += 1
     return 0

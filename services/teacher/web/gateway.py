@@ -35,9 +35,10 @@ from protocol import (
 )
 from protocol.messages import MAX_CHUNK_BYTES, SAMPLE_RATE
 from protocol.vocabulary import LANGUAGES
-from services.sim.maps import Box, Map
+from services.runtime.limits import TokenBucket
 from services.teacher.board import Board, Shown
 from services.teacher.sources import new_stream_id, typed
+from services.world.maps import Box, Map
 
 OBS_HZ = 10.0  # observations forwarded per robot and second, at most
 MAX_TEXT_BYTES = 4 * 1024  # a JSON frame from a browser
@@ -377,35 +378,6 @@ class Talk:
     end: float | None = None  # gateway seconds at the end of the audio so far
 
 
-class RateLimit:
-    """At most `per_s` a second, `burst` at once (a bucket refilled continuously): frames of
-    a socket, or seconds of a teacher's audio."""
-
-    def __init__(self, per_s: float = MAX_MESSAGES_PER_S, burst: float | None = None) -> None:
-        self.per_s = per_s
-        self.burst = per_s if burst is None else burst
-        self.tokens = self.burst
-        self.at = -math.inf
-        self.dropped = 0
-        self._told_at = -math.inf
-
-    def allow(self, now: float, cost: float = 1.0) -> bool:
-        self.tokens = min(self.burst, self.tokens + (now - self.at) * self.per_s)
-        self.at = now
-        if self.tokens >= cost:
-            self.tokens -= cost
-            return True
-        self.dropped += 1
-        return False
-
-    def tell(self, now: float) -> bool:
-        """Whether to tell the browser of dropped frames now (at most once a second)."""
-        if now - self._told_at >= 1.0:
-            self._told_at = now
-            return True
-        return False
-
-
 @dataclass
 class Outcome:
     """What a browser's frame gives: messages for the bus, JSON for the browser."""
@@ -424,14 +396,14 @@ class Teaching:
         robots: Robots,
         board: Board,
         language: str = "en",
-        audio_budget: RateLimit | None = None,
+        audio_budget: TokenBucket | None = None,
     ) -> None:
         self.teacher = teacher
         self.robots = robots
         self.board = board
         self.language = language
         # seconds of audio: about real time, shared by the teacher's pages
-        self.audio_budget = audio_budget or RateLimit(1.0, AUDIO_BURST_S)
+        self.audio_budget = audio_budget or TokenBucket(1.0, AUDIO_BURST_S)
         self.robot: str | None = None  # watched: the first seen unless the page says
         self.clock = Clock()
         self.talk: Talk | None = None
@@ -505,7 +477,7 @@ class Teaching:
             raise BrowserError("audio: the capture time is not a finite number")
         pcm = frame[AUDIO_HEADER.size :]
         seconds = len(pcm) / 2 / SAMPLE_RATE
-        if not self.audio_budget.allow(now_s, seconds):
+        if not self.audio_budget.take(now_s, seconds):
             raise BrowserError(
                 f"audio: faster than real time (at most {AUDIO_BURST_S:g} s ahead): "
                 "this frame was dropped"

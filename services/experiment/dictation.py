@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
-from services.sim.maps import Map
 from services.sim.task import SimConfig, Simulation
-from services.simteacher.teacher import path_command
+from services.teacher.simulated.teacher import path_command
+from services.world.maps import Map
 
 
 def dictate(

@@ -39,8 +39,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.vocabulary import Vocabulary
-from services.sim.maps import PASSAGE_RADIUS, Map
 from services.speech.mock import MockRecognizer, MockSettings
+from services.world.maps import PASSAGE_RADIUS, Map
 
 # Metres kept between the robot's centre and the walls when dictating a path: the widest
 # berth through which the goal can be reached from the pose (task 4's door is narrower than

@@ -12,9 +12,9 @@ from collections import Counter, deque
 from dataclasses import dataclass
 
 from protocol import Observation
-from services.arbiter.hygiene import TokenBucket
-from services.sim.task import SimConfig
-from services.simteacher.teacher import Look, SimulatedTeacher, path_command
+from services.runtime.limits import TokenBucket
+from services.teacher.simulated.teacher import Look, SimulatedTeacher, path_command
+from services.world.robot import CONTROL_PERIOD_S
 
 COMMAND_EVERY_S = 0.5  # robot seconds between dictated commands (a command steers 5 steps)
 DISPLAY_MEMORY = 4096  # steps whose display time is remembered
@@ -59,7 +59,7 @@ class DisplayTeacher:
         teacher: SimulatedTeacher,
         traces: int = 0,
         max_rate: float = 3.0,
-        control_period: float = SimConfig.control_period,
+        control_period: float = CONTROL_PERIOD_S,
         counters: Counter[str] | None = None,
     ) -> None:
         self.teacher = teacher
