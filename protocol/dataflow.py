@@ -8,6 +8,10 @@ its presence as its node role, so an access role may announce as each of its nod
 Nodes check what they declare against their row (`check`), `voxshape status` uses the table
 to name inputs nobody publishes, and `voxshape dataflow --markdown` prints the table
 docs/architecture.md shows.
+
+What must survive a restart is said on its flow: a publisher keeps its last `kept` messages
+of a key, and a subscriber that (re)joins asks for what was published in the last
+`recover_s` seconds (and for what it missed meanwhile). Nodes take both from here.
 """
 
 from __future__ import annotations
@@ -30,14 +34,22 @@ class DataflowError(ValueError):
 
 @dataclass(frozen=True)
 class Flow:
-    """A topic of robots or teachers: its own ("own") or any of the session's ("*")."""
+    """A topic of robots or teachers: its own ("own") or any of the session's ("*"); kept by
+    its publisher (messages), recovered by its subscriber (seconds)."""
 
     scope: FlowScope
     owner: Owner
     topic: str
+    kept: int = 0
+    recover_s: float = 0.0
 
     def __str__(self) -> str:
         return f"{self.scope}/{'<own>' if self.owner == 'own' else ANY}/{self.topic}"
+
+    def described(self, quote: str = "") -> str:
+        extra = f" (keeps {self.kept})" if self.kept else ""
+        extra += f" (recovers {self.recover_s:g} s)" if self.recover_s else ""
+        return f"{quote}{self}{quote}{extra}"
 
 
 @dataclass(frozen=True)
@@ -56,38 +68,74 @@ def _flows(scope: FlowScope, owner: Owner, *topics: str) -> tuple[Flow, ...]:
     return tuple(Flow(scope, owner, topic) for topic in topics)
 
 
+# What survives a restart (the constants the nodes take from here):
+OBS_KEPT = 600  # a minute of steps at 10 Hz (the simulator keeps a minute at any --rtf)
+FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
+UTTERANCES_KEPT = 256  # per teacher: as many as speech and the arbiter recover in 30 s
+AUDIO_KEPT = 800  # per teacher: 40 s of 50 ms chunks
+RECOVER_S = 30.0  # what the arbiter and speech ask for on joining
+FEEDBACK_RECOVER_S = 60.0  # what a learner asks for; older is about steps out of its window
+
+
+def _kept(scope: FlowScope, owner: Owner, topic: str, kept: int) -> Flow:
+    return Flow(scope, owner, topic, kept=kept)
+
+
+def _recovered(scope: FlowScope, owner: Owner, topic: str, seconds: float) -> Flow:
+    return Flow(scope, owner, topic, recover_s=seconds)
+
+
 DATAFLOW: dict[str, NodeRole] = {
     "sim": NodeRole(
         "simulator",
         "steps its robots: observations and episode events out, actions in",
-        publishes=_flows("robot", "own", "obs", "episode"),
+        publishes=(_kept("robot", "own", "obs", OBS_KEPT), *_flows("robot", "own", "episode")),
         subscribes=_flows("robot", "own", "action"),
     ),
     "learner": NodeRole(
         "learner",
         "learns from its robot's observations and credited feedback; decides its actions",
         publishes=_flows("robot", "own", "action", "learning"),
-        subscribes=_flows("robot", "own", "obs", "feedback"),
+        subscribes=(
+            *_flows("robot", "own", "obs"),
+            _recovered("robot", "own", "feedback", FEEDBACK_RECOVER_S),
+        ),
     ),
     "arbiter": NodeRole(
         "arbiter",
         "turns every teacher's utterances into credited feedback on the robots' step clocks",
         publishes=(
-            *_flows("robot", ANY, "feedback", "teaching"),
+            _kept("robot", ANY, "feedback", FEEDBACK_KEPT),
+            *_flows("robot", ANY, "teaching"),
             *_flows("teacher", ANY, "notice", "clock-reply"),
         ),
-        subscribes=(*_flows("robot", ANY, "obs"), *_flows("teacher", ANY, "utterance", "clock")),
+        subscribes=(
+            _recovered("robot", ANY, "obs", RECOVER_S),
+            _recovered("teacher", ANY, "utterance", RECOVER_S),
+            *_flows("teacher", ANY, "clock"),
+        ),
     ),
     "speech": NodeRole(
         "speech",
         "recognizes every teacher's audio (or a mock's said text) as utterances",
-        publishes=_flows("teacher", ANY, "utterance", "notice"),
-        subscribes=_flows("teacher", ANY, "audio", "said"),
+        publishes=(
+            _kept("teacher", ANY, "utterance", UTTERANCES_KEPT),
+            *_flows("teacher", ANY, "notice"),
+        ),
+        subscribes=(
+            _recovered("teacher", ANY, "audio", RECOVER_S),
+            _recovered("teacher", ANY, "said", RECOVER_S),
+        ),
     ),
     "teacher": NodeRole(
         "teacher",
         "a person's client (voxshape teach): speaks or types as itself, watches a robot",
-        publishes=_flows("teacher", "own", "audio", "utterance", "said", "clock"),
+        publishes=(
+            _kept("teacher", "own", "audio", AUDIO_KEPT),
+            _kept("teacher", "own", "utterance", UTTERANCES_KEPT),
+            _kept("teacher", "own", "said", UTTERANCES_KEPT),
+            *_flows("teacher", "own", "clock"),
+        ),
         subscribes=(
             *_flows("teacher", "own", "utterance", "notice", "clock-reply"),
             *_flows("robot", ANY, "obs", "episode", "feedback"),
@@ -96,7 +144,11 @@ DATAFLOW: dict[str, NodeRole] = {
     "simteacher": NodeRole(
         "teacher",
         "the simulated teacher: watches a robot and speaks as itself",
-        publishes=_flows("teacher", "own", "audio", "said", "clock"),
+        publishes=(
+            _kept("teacher", "own", "audio", AUDIO_KEPT),
+            _kept("teacher", "own", "said", UTTERANCES_KEPT),
+            *_flows("teacher", "own", "clock"),
+        ),
         subscribes=(
             *_flows("teacher", "own", "notice", "clock-reply"),
             *_flows("robot", ANY, "obs"),
@@ -135,6 +187,15 @@ def _covers(flow: Flow, key: str) -> bool:
     return flow.owner == ANY or "*" not in key.split("/")[3]
 
 
+def flow_of(role: str, direction: Direction, key: str) -> Flow | None:
+    """The flow of `role`'s row that covers `key` (None: a role outside the table, or with
+    everything, or a key its row does not list)."""
+    row = DATAFLOW.get(role)
+    if row is None or row.everything:
+        return None
+    return next((flow for flow in row.flows(direction) if _covers(flow, key)), None)
+
+
 def check(role: str, direction: Direction, key: str) -> None:
     """Raises DataflowError if a node of `role` may not publish (subscribe to) `key`; roles
     outside the table (tests) and those with everything are not checked."""
@@ -163,7 +224,7 @@ def publishers_of(scope: str, topic: str) -> list[str]:
 def _cells(row: NodeRole, quote: str = "") -> list[str]:
     if row.everything:
         return ["everything in the session"] * 2
-    return [", ".join(f"{quote}{f}{quote}" for f in row.flows(d)) or "nothing" for d in DIRECTIONS]
+    return [", ".join(f.described(quote) for f in row.flows(d)) or "nothing" for d in DIRECTIONS]
 
 
 def markdown() -> str:

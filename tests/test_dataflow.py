@@ -13,7 +13,7 @@ import time
 import pytest
 
 from protocol import CreditedFeedback, TeacherNotice, TeachingStats, robot_key, teacher_key
-from protocol.dataflow import ANY, DATAFLOW, DataflowError, check, markdown, publishers_of
+from protocol.dataflow import ANY, DATAFLOW, DataflowError, check, flow_of, markdown, publishers_of
 from protocol.keys import SCOPES
 from services.cli import main
 from services.deploy.access import ROLES, User, access_control
@@ -234,3 +234,19 @@ def test_the_real_services_declare_exactly_their_rows(
             want = {f"{f.scope}/{f.topic}" for f in rows}
             want -= WITH_OTHER_OPTIONS.get((role, direction), set())
             assert got[direction] == want, (role, direction)
+
+
+def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config, session_id):
+    obs, said = robot_key(session_id, "r1", "obs"), teacher_key(session_id, "ana", "said")
+    assert flow_of("sim", "publishes", obs).kept == 600
+    assert flow_of("arbiter", "subscribes", obs).recover_s == 30.0
+    assert flow_of("learner", "subscribes", obs).recover_s == 0.0  # live steps only
+    assert flow_of("speech", "subscribes", said).recover_s == 30.0
+    assert flow_of("a-tool", "subscribes", obs) is None
+    with Node("arbiter", client_config("arbiter-test")) as node:
+        node.input("obs", robot_key(session_id, "*", "obs"))
+        node.input("clock", teacher_key(session_id, "*", "clock"))
+        assert set(node._recovering) == {"obs"}  # a recovering input, as its flow says
+        feedback = node.output("feedback", robot_key(session_id, "r1", "feedback"))
+        notice = node.output("notice", teacher_key(session_id, "ana", "notice"))
+        assert feedback.kept and not notice.kept

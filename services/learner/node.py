@@ -39,9 +39,6 @@ from services.runtime import (
 )
 from services.runtime.logs import worth_logging
 
-# Seconds of the arbiter's kept feedback a (re)starting learner asks for: older feedback is
-# about steps long out of its window, and what it took before is skipped by id.
-FEEDBACK_RECOVERY_S = 60.0
 MAX_PENDING = 100_000  # messages looked through for feedback when stopping
 ROBOT_FIELD = "{robot}"  # in --checkpoint: the robot's id
 
@@ -194,9 +191,7 @@ def drive(
         node.log.info("learnt from initial traces", extra=fields(robot=robot, steps=replayed))
     online = OnlineLearner(learner, bookmark, initial, node.counters)
     node.input("obs", robot_key(node.session_id, robot, "obs"))
-    node.input(
-        "feedback", robot_key(node.session_id, robot, "feedback"), recover=FEEDBACK_RECOVERY_S
-    )
+    node.input("feedback", robot_key(node.session_id, robot, "feedback"))
     act = node.output("action", robot_key(node.session_id, robot, "action"))
     summary = node.output(
         "learning", robot_key(node.session_id, robot, "learning"), must_arrive=False

@@ -10,10 +10,10 @@
 
 Inputs are decoded strictly with the type their key carries; a malformed message is counted
 and logged, never delivered and never fatal. What must survive a restart of its subscriber or
-of the router goes out on a kept output (`output(..., keep=N)`: zenoh's advanced publisher,
-which keeps its last N messages) and comes in on a recovering input (`input(..., recover=S)`:
-an advanced subscriber that fetches what it missed, and on joining the last S seconds); the
-messages' ids tell a copy from a new one. The node holds a liveliness token at
+of the router goes out on a kept output (zenoh's advanced publisher, which keeps its last N
+messages) and comes in on a recovering input (an advanced subscriber that fetches what it
+missed, and on joining the last S seconds), as the role's flows in protocol/dataflow.py say;
+the messages' ids tell a copy from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
 SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
 """
@@ -43,7 +43,7 @@ from zenoh.ext import (
 )
 
 from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
-from protocol.dataflow import Direction, check
+from protocol.dataflow import Direction, check, flow_of
 from services.runtime.config import BusConfig, tcp_address
 from services.runtime.logs import fields, worth_logging
 
@@ -222,15 +222,21 @@ class Node:
         check(self.role, direction, key)
         self.declared[direction].add(key)
 
-    def output(self, name: str, key: str, *, must_arrive: bool = True, keep: int = 0) -> Output:
+    def output(
+        self, name: str, key: str, *, must_arrive: bool = True, keep: int | None = None
+    ) -> Output:
         """A publisher. `must_arrive` (default) blocks instead of dropping under congestion.
         `keep` > 0 keeps the last `keep` messages for recovering inputs that missed them (a
-        subscriber restarted, the router restarted).
+        subscriber restarted, the router restarted); None: as this role's flow in
+        protocol/dataflow.py says.
 
         Express: each message leaves at once rather than waiting to be batched. Every
         voxshape message is small and latency-bound; `voxshape bench sim` measured no
         difference in lockstep speed either way (the round trip is Python-bound)."""
         self.declare("publishes", key)
+        if keep is None:
+            flow = flow_of(self.role, "publishes", key)
+            keep = flow.kept if flow is not None else 0
         congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
         if keep > 0:
             publisher = declare_advanced_publisher(
@@ -251,14 +257,18 @@ class Node:
         self._declared.append(publisher)
         return Output(self, name, key, publisher, kept=keep > 0)
 
-    def input(self, name: str, key: str, *, recover: float = 0.0) -> None:
+    def input(self, name: str, key: str, *, recover: float | None = None) -> None:
         """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...).
 
         `recover` > 0: what kept outputs published while this input could not hear them is
         fetched from them (their sequence numbers show the gaps), and on joining, what they
         published in the last `recover` seconds; messages that were lost for good anyway are
-        counted as `missed.<input>`. Copies can arrive: tell them apart by message id."""
+        counted as `missed.<input>`. Copies can arrive: tell them apart by message id. None:
+        as this role's flow in protocol/dataflow.py says."""
         self.declare("subscribes", key)
+        if recover is None:
+            flow = flow_of(self.role, "subscribes", key)
+            recover = flow.recover_s if flow is not None else 0.0
 
         def on_sample(sample: zenoh.Sample) -> None:
             key_text = str(sample.key_expr)

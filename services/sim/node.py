@@ -31,7 +31,6 @@ LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
 # (a count in lockstep): from them it rebuilds the step clock that words said meanwhile are
 # credited on, so they must outlast the arbiter's utterance recovery (30 s) at any --rtf.
 OBS_KEPT_S = 60.0
-OBS_KEPT = 600
 MAX_OBS_KEPT = 12_000
 
 
@@ -95,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_config("sim", args)
     sim = Simulation(m, robots, config, args.seed)
     period = config.control_period / args.rtf if args.clock == "paced" else LOCKSTEP_POLL_S
-    kept = min(MAX_OBS_KEPT, math.ceil(OBS_KEPT_S / period)) if args.clock == "paced" else OBS_KEPT
+    kept = min(MAX_OBS_KEPT, math.ceil(OBS_KEPT_S / period)) if args.clock == "paced" else None
     try:
         with Node("sim", bus) as node:
             stepper = Stepper(sim, args.clock, timeout, node.counters)

@@ -45,10 +45,6 @@ from services.speech.streams import AudioStreams, StreamLimits
 from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized, Unheard
 
 TICK_S = 0.02  # idle streams and due mock results are looked at this often
-# A (re)starting speech service asks the teachers' kept audio and said text for this much:
-# what they said while it (or the router) was down is recognized when it is back.
-SPEECH_RECOVERY_S = 30.0
-UTTERANCES_KEPT = 256  # utterances kept for an arbiter that missed them
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -160,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
         core: AudioTranscriber | MockTranscriber
         if engine is not None:
             core = MockTranscriber(engine, node.counters)
-            node.input("said", teacher_key(node.session_id, "*", "said"), recover=SPEECH_RECOVERY_S)
+            node.input("said", teacher_key(node.session_id, "*", "said"))  # recovered
             node.log.info("listening", extra=fields(engine="mock", error_rate=args.error_rate))
         else:
             assert recognizer is not None
@@ -168,14 +164,12 @@ def run(args: argparse.Namespace) -> int:
             limits = StreamLimits(args.max_streams, args.idle_timeout)
             streams = AudioStreams(limits=limits, counters=node.counters, report=report)
             core = AudioTranscriber(recognizer, streams, report)
-            node.input(
-                "audio", teacher_key(node.session_id, "*", "audio"), recover=SPEECH_RECOVERY_S
-            )
+            node.input("audio", teacher_key(node.session_id, "*", "audio"))  # recovered
             node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
         # The input this engine cannot hear, taken only to tell its senders so.
         unheard_kind = "audio" if engine is not None else "said"
         unheard = Unheard(args.engine, node.counters)
-        node.input(unheard_kind, teacher_key(node.session_id, "*", unheard_kind))
+        node.input(unheard_kind, teacher_key(node.session_id, "*", unheard_kind), recover=0.0)
         outputs: dict[tuple[str, str], Output] = {}
 
         def publish(results: list[Recognized]) -> None:
@@ -183,8 +177,7 @@ def run(args: argparse.Namespace) -> int:
                 topic = "utterance" if isinstance(r, Utterance) else "notice"
                 if (r.teacher, topic) not in outputs:
                     key = teacher_key(node.session_id, r.teacher, topic)
-                    keep = UTTERANCES_KEPT if topic == "utterance" else 0
-                    outputs[r.teacher, topic] = node.output(topic, key, keep=keep)
+                    outputs[r.teacher, topic] = node.output(topic, key)  # utterances kept
                 outputs[r.teacher, topic].put(r)
                 if isinstance(r, Utterance):
                     heard = fields(

@@ -13,9 +13,6 @@ from protocol import AudioChunk, Message, Said, Utterance, teacher_key
 from services.runtime import Node, Output
 from services.runtime.clock import ClockEstimate, ClockSync
 
-# What a teacher says, kept: as much as the speech service and the arbiter ask for on
-# rejoining (30 s; 50 ms a chunk of audio).
-KEPT = {"utterance": 256, "said": 256, "audio": 800}
 SAYS: dict[str, type[Message]] = {"utterance": Utterance, "said": Said, "audio": AudioChunk}
 
 
@@ -33,15 +30,16 @@ def join_as_teacher(
 ) -> dict[type[Message], Output]:
     """Declares a teacher's inputs (its notices; with `echo`, its utterances as the bus
     carries them) and its outputs `says` (topics: utterance, said, audio), and starts the
-    clock exchange (closed with `stack`). `kept` overrides KEPT per topic. The outputs come
-    by the type of message each carries."""
+    clock exchange (closed with `stack`). What it says is kept as its flows in
+    protocol/dataflow.py say, unless `kept` says otherwise per topic. The outputs come by the
+    type of message each carries."""
     session = node.session_id
     if echo:
         node.input("utterance", teacher_key(session, teacher, "utterance"))
     node.input("notice", teacher_key(session, teacher, "notice"))
     stack.enter_context(ClockSync(node, teacher, synced=synced, problem=problem, clock=clock))
-    keep = {**KEPT, **(kept or {})}
+    kept = kept or {}
     return {
-        SAYS[topic]: node.output(topic, teacher_key(session, teacher, topic), keep=keep[topic])
+        SAYS[topic]: node.output(topic, teacher_key(session, teacher, topic), keep=kept.get(topic))
         for topic in says
     }
