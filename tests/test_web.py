@@ -51,7 +51,7 @@ from services.teacher.web.gateway import (
     parse_login,
     vocabulary_json,
 )
-from services.teacher.web.node import REFUSED
+from services.teacher.web.server import REFUSED
 from services.world.maps import load_map
 from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
 from tests.test_launcher import read_until

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from services.runtime import Node, bus_config
 from services.teacher.web.gateway import AUDIO_HEADER
-from services.teacher.web.node import REFUSED
+from services.teacher.web.server import REFUSED
 from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present
 from tests.test_web import Robot, open_page, until
 
