@@ -195,35 +195,14 @@ class Learner:
         longer in the window."""
         c = self.config
         f = float(np.clip(f, -c.feedback_bound, c.feedback_bound))
-        index = next(
-            (
-                i
-                for i in range(len(self.recent) - 1, -1, -1)
-                if self.recent[i].first <= step <= self.recent[i].last
-            ),
-            None,
-        )
-        if index is None:
-            oldest = self.recent[0].first if self.recent else None
-            why = "too_old" if oldest is not None and step < oldest else "unknown_step"
-            self.counters[f"feedback_dropped.{why}"] += 1
+        k = self._decision_at(step)
+        if k is None:
             return False
-        credited = self.recent[index]
-        visits, traces = [], []  # the decisions back from k, and e_k of each
-        trace = 1.0  # e_k(s_j, a_j) = (gamma lambda)^(k - j) along the episode, back from k
-        for j in range(index, -1, -1):
-            visit = self.recent[j]
-            if visit.episode != credited.episode or trace < 1e-4:
-                break
-            visits.append(visit)
-            traces.append(trace)
-            trace *= c.gamma * c.lam
-        if c.potential_rate:  # Phi(s_j) towards the word's reward, by its share w e_k(s_j)
-            for visit, trace in zip(visits, traces, strict=True):
-                place = visit.state.place
-                self.Phi[place] += c.potential_rate * weight * trace * (f - self.phi(visit.state))
+        visits, e_k = self._traces_back_from(k)
+        if c.potential_rate:
+            self._toward_potential(visits, e_k, weight, f)
         scale = c.alpha * weight * f
-        changes = np.array([scale * t for t in traces])[:, None] * np.array(
+        changes = np.array([scale * t for t in e_k])[:, None] * np.array(
             [v.weights for v in visits]
         )
         states = [v.state for v in visits]
@@ -233,6 +212,40 @@ class Learner:
             _add_rows(self.Q, [s.q for s in states], changes)
         self.counters["feedback_credited"] += 1
         return True
+
+    def _toward_potential(
+        self, visits: list[Visit], e_k: list[float], weight: float, f: float
+    ) -> None:
+        """Phi(s_j) moved towards the word's reward f, by its share w e_k(s_j)."""
+        rate = self.config.potential_rate
+        for visit, trace in zip(visits, e_k, strict=True):
+            place = visit.state.place
+            self.Phi[place] += rate * weight * trace * (f - self.phi(visit.state))
+
+    def _decision_at(self, step: int) -> int | None:
+        """The index in `recent` of the decision whose action ran at observation `step`;
+        None (counted) if it is no longer remembered."""
+        for i in range(len(self.recent) - 1, -1, -1):
+            if self.recent[i].first <= step <= self.recent[i].last:
+                return i
+        oldest = self.recent[0].first if self.recent else None
+        why = "too_old" if oldest is not None and step < oldest else "unknown_step"
+        self.counters[f"feedback_dropped.{why}"] += 1
+        return None
+
+    def _traces_back_from(self, k: int) -> tuple[list[Visit], list[float]]:
+        """The decisions back from the k-th in its episode, and e_k(s_j, a_j) =
+        (gamma lambda)^(k - j) of each, until it is negligible."""
+        c, episode = self.config, self.recent[k].episode
+        visits, traces, trace = [], [], 1.0
+        for j in range(k, -1, -1):
+            visit = self.recent[j]
+            if visit.episode != episode or trace < 1e-4:
+                break
+            visits.append(visit)
+            traces.append(trace)
+            trace *= c.gamma * c.lam
+        return visits, traces
 
     def take(self, feedback: CreditedFeedback) -> list[int]:
         """The arbiter's credited feedback: a command, or a reward credited to its steps;
