@@ -47,6 +47,7 @@ from protocol.dataflow import Direction, check, flow_of
 from services.runtime.config import BusConfig, tcp_address
 from services.runtime.logs import fields, worth_logging
 
+SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM within this
 HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
 HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
 
@@ -195,6 +196,7 @@ class Node:
         # then sleeps until an action comes, and none comes (tests/test_bus.py).
         self._queue: queue.Queue = queue.Queue()
         self._stopping = threading.Event()
+        self._signalled = False  # set by SIGINT/SIGTERM: a plain flag, no lock to take
         self._declared: list = []
         self._recovering: dict[str, tuple[str, Callable[[zenoh.Sample], None], float]] = {}
         # The keys it publishes and subscribes to, checked against protocol/dataflow.py.
@@ -354,7 +356,7 @@ class Node:
         next_tick = now + tick if tick else float("inf")
         next_stats, logged = now + stats_every, Counter()
         try:
-            while not self._stopping.is_set():
+            while not (self._signalled or self._stopping.is_set()):
                 now = time.monotonic()
                 if now >= next_stats:
                     if self.counters != logged:
@@ -365,8 +367,9 @@ class Node:
                     next_tick = max(next_tick + tick, now)
                     yield Tick(time.time())
                     continue
+                wake = min(next_tick, next_stats, now + SIGNAL_CHECK_S)
                 try:
-                    item = self._queue.get(timeout=min(next_tick, next_stats) - now)
+                    item = self._queue.get(timeout=wake - now)
                 except queue.Empty:
                     continue
                 if item is _STOP:
@@ -374,6 +377,8 @@ class Node:
                 yield item
         finally:
             restore()
+            if self._signalled:
+                self._stopping.set()
 
     def poll(self, timeout: float) -> Input | Presence | None:
         """The next input or presence change within `timeout` seconds, else None (no Ticks,
@@ -397,8 +402,10 @@ class Node:
         previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
 
         def on_signal(signum: int, _frame: object) -> None:
+            # Only a flag: a handler that took the queue's lock could deadlock with the main
+            # thread holding it (in get()); events() sees the flag within SIGNAL_CHECK_S.
+            self._signalled = True
             self.log.info("stopping", extra=fields(signal=signal.Signals(signum).name))
-            self.stop()
 
         for s in previous:
             signal.signal(s, on_signal)
