@@ -26,29 +26,20 @@ import json
 import os
 import queue
 import sys
-import threading
 import time
-from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from pathlib import Path
-from typing import Protocol
-
-import numpy as np
 
 from protocol import (
-    AudioChunk,
     CreditedFeedback,
     EpisodeEvent,
-    Message,
     Observation,
     TeacherNotice,
     Utterance,
-    Vocabulary,
     check_id,
     load_vocabulary,
     robot_key,
 )
-from protocol.messages import SAMPLE_RATE
 from services.runtime import (
     ConfigError,
     Input,
@@ -58,19 +49,15 @@ from services.runtime import (
     add_bus_arguments,
     bus_config,
 )
-from services.runtime.audio import AudioError, samples_to_pcm
+from services.runtime.audio import AudioError
 from services.teacher.board import Board, Shown, SpeechWatch
+from services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
 from services.teacher.session import join_as_teacher
 from services.teacher.sources import (
-    Scheduled,
     TeachError,
     default_teacher_id,
     microphone,
-    new_stream_id,
     read_recordings,
-    typed,
-    typed_at_terminal,
-    typed_lines,
     wav_stream,
 )
 
@@ -122,14 +109,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="typing at a terminal: the arrow keys send forward, back, left, right at once",
     )
-
-
-class Sender(Protocol):
-    """Where the messages to send come from: `due()` those to send now; `done` at the end."""
-
-    done: bool
-
-    def due(self) -> list[Message]: ...
 
 
 class Screen:
@@ -221,7 +200,9 @@ def run(args: argparse.Namespace) -> int:
             _wait_for_speech(node, speech, board, screen, args.wait_speech)
         if args.wav:
             start = time.time()
-            sender: Sender = _Scheduled(wav_stream(recordings, teacher, robot, start, args.fast))
+            sender: Sender = ScheduledSender(
+                wav_stream(recordings, teacher, robot, start, args.fast)
+            )
             screen.note(
                 "streaming",
                 f"streaming {len(args.wav)} file(s) to robot {robot}",
@@ -229,14 +210,14 @@ def run(args: argparse.Namespace) -> int:
                 start_time=start,
             )
         elif args.mic:
-            sender = _Microphone(mic_chunks, teacher, robot)
+            sender = MicrophoneSender(mic_chunks, teacher, robot)
             screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
         else:
 
             def via_speech() -> bool:
                 return args.through_speech and speech.available
 
-            sender = _Typed(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
+            sender = TypedSender(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
         _loop(node, outputs, sender, speech, board, screen, args.linger)
     return 0
 
@@ -297,103 +278,3 @@ def _loop(
                 lingering_until = time.monotonic() + linger
             elif time.monotonic() >= lingering_until and not board.waiting:
                 break
-
-
-class _Scheduled:
-    """WAV chunks, each when due."""
-
-    def __init__(self, schedule: list[Scheduled]) -> None:
-        self._schedule = schedule
-        self._next = 0
-        self._t0 = time.monotonic()
-
-    @property
-    def done(self) -> bool:
-        return self._next >= len(self._schedule)
-
-    def due(self) -> list[Message]:
-        elapsed = time.monotonic() - self._t0
-        out = []
-        while not self.done and self._schedule[self._next].due_s <= elapsed:
-            out.append(self._schedule[self._next].message)
-            self._next += 1
-        return out
-
-
-class _Microphone:
-    """Chunks of the microphone as they come; never done (Ctrl-C ends it)."""
-
-    done = False
-
-    def __init__(self, captured: queue.SimpleQueue, teacher: str, robot: str) -> None:
-        self._captured = captured
-        self._teacher, self._robot = teacher, robot
-        self._stream = new_stream_id("mic")
-        self._seq = 0
-
-    def due(self) -> list[Message]:
-        out: list[Message] = []
-        while True:
-            try:
-                samples, capture_time = self._captured.get_nowait()
-            except queue.Empty:
-                return out
-            out.append(
-                AudioChunk(
-                    teacher=self._teacher,
-                    robot=self._robot,
-                    stream=self._stream,
-                    seq=self._seq,
-                    sample_rate=SAMPLE_RATE,
-                    pcm=samples_to_pcm(np.asarray(samples)),
-                    capture_time=capture_time,
-                    final=False,
-                )
-            )
-            self._seq += 1
-
-
-class _Typed:
-    """Lines typed at a prompt, or read from a script on stdin, as they come."""
-
-    def __init__(
-        self,
-        teacher: str,
-        robot: str,
-        language: str,
-        via_speech: Callable[[], bool],
-        vocabulary: Vocabulary,
-        arrows: bool = False,
-    ) -> None:
-        """`via_speech()`: whether a line goes to the speech service now (else straight out as
-        an utterance); `arrows`: at a terminal, arrow keys send commands."""
-        self._lines: queue.SimpleQueue = queue.SimpleQueue()
-        self._args = (teacher, robot, language)
-        self._via_speech = via_speech
-        self.done = False
-        if sys.stdin.isatty():
-            how = "; arrow keys steer" if arrows else ""
-            print(f"type what you say to robot {robot}, one utterance per line{how} (Ctrl-D ends)")
-            lines = typed_at_terminal(vocabulary, language, arrows)
-        else:
-            lines = typed_lines(iter(sys.stdin.readline, ""))
-        threading.Thread(target=self._read, args=(lines,), daemon=True).start()
-
-    def _read(self, lines: Iterator[str]) -> None:
-        for text in lines:
-            self._lines.put(text)
-        self._lines.put(None)
-
-    def due(self) -> list[Message]:
-        out: list[Message] = []
-        while True:
-            try:
-                text = self._lines.get_nowait()
-            except queue.Empty:
-                return out
-            if text is None:
-                self.done = True
-                return out
-            text = text[:500]
-            teacher, robot, language = self._args
-            out.append(typed(text, teacher, robot, language, time.time(), self._via_speech()))
