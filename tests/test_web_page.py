@@ -242,8 +242,11 @@ def test_the_page_draws_the_map_and_a_moving_robot(session, open_page):
     assert {e["meaning"] for e in welcome["vocabulary"]["es"]} >= {"good", "left", "stop"}
     page.wait_for_function("window.voxshape.drawn.r1 !== undefined", timeout=30_000)
     first = state(page, "s.drawn.r1")
+    # ten steps on, and moved: a robot pinned against a wall stays put for a while
     page.wait_for_function(
-        f"window.voxshape.drawn.r1.step >= {first['step'] + 10}", timeout=WAIT_MS
+        f"(d => d.step >= {first['step'] + 10} && (d.x !== {first['x']} || "
+        f"d.y !== {first['y']} || d.theta !== {first['theta']}))(window.voxshape.drawn.r1)",
+        timeout=WAIT_MS,
     )
     later = state(page, "s.drawn.r1")
     assert (later["x"], later["y"], later["theta"]) != (first["x"], first["y"], first["theta"])
