@@ -10,10 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from services.experiment.dictation import dictate
-from services.experiment.train import train
-from services.learner.config import LearnerConfig
-from services.world.maps import load_map
+from services.experiment.inprocess import RunSpec, initial_traces, run
 
 
 def main() -> None:
@@ -23,18 +20,18 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--max-episodes", type=int, default=300)
     args = parser.parse_args()
-    book = dictate(load_map(args.task), args.traces)
-    for episode in book.episodes:
-        print(f"dictated trace: {episode[-1][0].outcome} in {len(episode) - 1} steps")
     print("| traces | seed | converged | episodes | goals reached | states |")
     print("|---|---|---|---|---|---|")
-    for traces in (book, None):
+    for traces in (args.traces, 0):
         for seed in range(args.seeds):
-            r = train(args.task, seed, LearnerConfig(), args.max_episodes, traces=traces)
-            goals = sum(e.outcome == "goal" for e in r.history)
+            spec = RunSpec(args.task, "rl", seed, args.max_episodes, traces=traces)
+            if traces and (book := initial_traces(spec)):
+                shown = [f"{e[-1][0].outcome} in {len(e) - 1} steps" for e in book.episodes]
+                print(f"<!-- seed {seed}: dictated {', '.join(shown)} -->")
+            r = run(spec)
             print(
-                f"| {len(book.episodes) if traces else 0} | {seed} | {r.converged} | "
-                f"{r.episodes} | {goals} | {r.states} |",
+                f"| {traces} | {seed} | {r.converged} | {r.episodes} | "
+                f"{r.outcomes.count('goal')} | {r.states} |",
                 flush=True,
             )
 

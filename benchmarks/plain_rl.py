@@ -14,16 +14,15 @@ import json
 import os
 import statistics
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import replace
 
-from services.experiment.train import train
-from services.learner.config import add_settings_argument, with_settings
+from services.experiment.inprocess import RunSpec, run
+from services.learner.config import add_settings_argument
 
 
 def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:
     task, seed, goal, blend, max_episodes, settings = job
-    config = replace(with_settings(list(settings)), goal_features=goal, blend=blend)
-    r = train(task, seed, config, max_episodes)
+    flags = (f"goal_features={json.dumps(goal)}", f"blend={json.dumps(blend)}")
+    r = run(RunSpec(task, "rl", seed, max_episodes, learner=(*settings, *flags)))
     return {
         "task": task,
         "seed": seed,
@@ -31,7 +30,7 @@ def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:
         "blend": blend,
         "converged": r.converged,
         "episodes": r.episodes,
-        "learning_min": round(r.learning_time / 60, 1),
+        "learning_min": round(r.learning_time_s / 60, 1),
         "states": r.states,
         "settings": settings,
     }

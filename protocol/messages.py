@@ -219,7 +219,7 @@ class CreditedFeedback(Message):
 
     robot: Id
     kind: Literal["reward", "command"]
-    reward: Reward | None  # after the bound g of Algorithm 1
+    reward: Reward | None  # the teachers' merged f; the learner's g bounds it
     command: ActionName | None
     credits: Annotated[tuple[Credit, ...], Size(min=1, max=256)]
     sources: Annotated[tuple[MessageId, ...], Size(min=1, max=64)]  # utterance ids

@@ -12,9 +12,9 @@ import sys
 from collections.abc import Callable
 
 from protocol import ProtocolError, VocabularyError
-from services.learner.config import SettingsError
 from services.logger.run import RunError
 from services.runtime import BusError, ConfigError, configure_logging
+from services.runtime.settings import SettingsError
 from services.topology import TopologyError
 from services.world.maps import MapError
 

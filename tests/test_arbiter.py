@@ -118,7 +118,9 @@ def test_a_robot_time_teachers_window_is_robot_seconds_at_any_pace():
 
 def test_a_robot_time_teachers_delay_is_learnt_in_robot_seconds():
     fast = PERIOD / 20
-    config = ArbiterConfig(rate=50.0, burst=50.0, robot_time=frozenset({"ana"}))
+    config = ArbiterConfig(
+        utterances_per_s=50.0, utterances_at_once=50.0, robot_time=frozenset({"ana"})
+    )
     teacher = ScriptedTeacher("ana", delay=1.2 * fast / PERIOD)  # 1.2 robot s: 60 ms at 20x
     result = rehearse(teacher, steps=3000, period=fast, config=config)
     assert result.learned_after is not None and result.learned_after < 20
@@ -295,19 +297,18 @@ def test_a_command_is_credited_to_the_current_step():
 # -- bounds -----------------------------------------------------------------------------------
 
 
-def test_rewards_are_bounded_by_g():
+def test_rewards_are_merged_unbounded_the_learner_bounds_them_by_g():
+    """One bound of g, the learner's feedback_bound (test_learner.py): the arbiter does not
+    clip, and refuses teacher weights that could take a reward out of the message's range."""
     loud = parse_vocabulary(
         {"version": 1, "huge": {"kind": "qualifier", "reward": 500.0, "en": ["amazing"]}}
     )
-    a = Arbiter(ArbiterConfig(reward_bound=100.0, teacher_weight={"bob": 3.0}), loud)
+    a = Arbiter(ArbiterConfig(teacher_weight={"bob": 3.0}), loud)
     a.on_observation(observation("r1", 0, T0), T0)
     (fb,) = feedback(a.on_utterance(utterance("ana", "r1", "amazing", T0 + 0.5), T0 + 1))
-    assert fb.reward == 100.0
-    b = arbiter(reward_bound=100.0, teacher_weight={"bob": 3.0})
-    (weighted,) = feedback(
-        b.on_utterance(utterance("bob", "r1", "excellent", shown(90)), shown(99))
-    )
-    assert weighted.reward == 100.0 and b.counters["reward_clipped"] == 1
+    assert fb.reward == 500.0
+    with pytest.raises(ArbiterConfigError, match="within \\[0, 100\\]"):
+        ArbiterConfig(teacher_weight={"bob": 1000.0})
 
 
 # -- several teachers ---------------------------------------------------------------------------
@@ -388,7 +389,7 @@ def test_duplicates_are_dropped_and_counted():
 
 
 def test_a_flood_is_cut_counted_and_the_teacher_told_once():
-    a = arbiter(rate=4.0, burst=8.0)
+    a = arbiter(utterances_per_s=4.0, utterances_at_once=8.0)
     out = []
     for i in range(100):  # 100 in one second
         out += a.on_utterance(utterance("ana", "r1", "good", shown(90)), shown(90) + i * 0.01)
@@ -511,7 +512,9 @@ def test_words_that_arrive_at_once_but_were_said_at_a_pace_are_no_flood():
     cut off from the router), it gets what it missed in one go when it is back: 20 here, more
     than the burst of 8, said a second apart. Judged by when they were said, each is
     credited. Words that claim to be said at one moment are still a flood."""
-    a = Arbiter(ArbiterConfig(rate=4.0, burst=8.0), VOCABULARY, started_at=shown(0))
+    a = Arbiter(
+        ArbiterConfig(utterances_per_s=4.0, utterances_at_once=8.0), VOCABULARY, started_at=shown(0)
+    )
     for k in range(300):
         a.on_observation(observation("r1", k, shown(k)), shown(k))
     out = []
@@ -530,7 +533,11 @@ def test_a_restarted_arbiter_drops_long_recovered_words_before_its_rate_limit():
     """Restarted, it recovers all the speech service kept (256 words a teacher), most said
     long before: those were answered by the arbiter before it, and must not use up the rate
     that the words said during its outage need."""
-    a = Arbiter(ArbiterConfig(rate=4.0, burst=8.0), VOCABULARY, started_at=shown(1000))
+    a = Arbiter(
+        ArbiterConfig(utterances_per_s=4.0, utterances_at_once=8.0),
+        VOCABULARY,
+        started_at=shown(1000),
+    )
     for k in range(700, 1000):  # its recovered observations
         a.on_observation(observation("r1", k, shown(k)), shown(1000) + 0.0001 * k)
     old = [utterance("ana", "r1", "good", shown(k)) for k in range(0, 600, 3)]  # 40-100 s ago

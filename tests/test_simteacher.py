@@ -105,7 +105,7 @@ def test_a_person_speaks_where_the_course_changes_not_at_every_look():
 
 def test_a_persons_budget_bounds_the_words_a_minute_bumps_included():
     rate = 4.0
-    t = teacher(replace(QUIET, rate=rate, burst=2.0))
+    t = teacher(replace(QUIET, words_per_robot_minute=rate, words_at_once=2.0))
     said = 0
     for s in range(600):  # ten robot minutes of a robot bumping every second
         t.watch(look(2.0 * s, 1.0, 1.0))
@@ -118,11 +118,13 @@ def test_a_persons_budget_bounds_the_words_a_minute_bumps_included():
 
 def test_a_person_is_the_default_profile_and_the_tireless_teacher_a_named_one():
     assert TeacherProfile() == PERSON == PROFILES["person"]
-    assert (PERSON.rate, PERSON.salient) == (4.0, True)
-    assert (TIRELESS.rate, TIRELESS.salient) == (0.0, False) and PROFILES["tireless"] == TIRELESS
+    assert (PERSON.words_per_robot_minute, PERSON.salient) == (4.0, True)
+    assert (TIRELESS.words_per_robot_minute, TIRELESS.salient) == (0.0, False) and PROFILES[
+        "tireless"
+    ] == TIRELESS
     assert "at most 4 words a robot minute" in PERSON.describe()
-    with pytest.raises(ValueError, match="rate"):
-        TeacherProfile(rate=-1)
+    with pytest.raises(ValueError, match="words_per_robot_minute"):
+        TeacherProfile(words_per_robot_minute=-1)
 
 
 def test_turning_on_the_spot_gets_no_comment():
@@ -245,9 +247,16 @@ def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
 
     person = profile_from(parser().parse_args(["sim-teacher"]))
     assert person == replace(PERSON, confusion=person.confusion)
-    chatty = profile_from(parser().parse_args(["sim-teacher", "--rate", "8", "--no-salient"]))
-    assert (chatty.rate, chatty.salient, chatty.schedule) == (8.0, False, PERSON.schedule)
+    chatty = profile_from(
+        parser().parse_args(
+            ["sim-teacher", "--set", "words_per_robot_minute=8", "--set", "salient=false"]
+        )
+    )
+    assert (chatty.words_per_robot_minute, chatty.salient) == (8.0, False)
+    assert chatty.schedule == PERSON.schedule
     tireless = profile_from(parser().parse_args(["sim-teacher", "--teacher-profile", "tireless"]))
     assert tireless == replace(TIRELESS, confusion=tireless.confusion)
-    with pytest.raises(ConfigError, match="rate must be >= 0"):
-        profile_from(parser().parse_args(["sim-teacher", "--rate", "-1"]))
+    with pytest.raises(ConfigError, match="words_per_robot_minute >= 0"):
+        profile_from(parser().parse_args(["sim-teacher", "--set", "words_per_robot_minute=-1"]))
+    with pytest.raises(ConfigError, match="KEY one of"):
+        profile_from(parser().parse_args(["sim-teacher", "--set", "rate=2"]))

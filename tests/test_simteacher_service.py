@@ -47,7 +47,7 @@ def test_words_are_sent_once_said_with_onset_and_end_at_the_display_times():
     """Robot time drives the teacher; its words carry the own-clock display times of the steps
     at their onset and end, however fast the display runs."""
     core = teacher(delay=0.5, jitter=0.0)
-    bus = DisplayTeacher(core, max_rate=100.0)
+    bus = DisplayTeacher(core, max_words_per_robot_s=100.0)
     sent = []
     for k in range(40):  # 0.05 m a step towards the goal, then it stands still
         x = TASK.start.x + 0.05 * min(k, 12)
@@ -63,9 +63,9 @@ def test_words_are_sent_once_said_with_onset_and_end_at_the_display_times():
     assert bus.counters["said.judgement"] == len(sent)
 
 
-def test_it_never_says_more_than_max_rate_things_a_robot_second():
+def test_it_never_says_more_than_its_most_words_a_robot_second():
     """However fast the display runs: 20 robot seconds shown in 0.2 s of its clock."""
-    bus = DisplayTeacher(teacher(delay=0.0, jitter=0.0, interval=0.1), max_rate=2.0)
+    bus = DisplayTeacher(teacher(delay=0.0, jitter=0.0, interval=0.1), max_words_per_robot_s=2.0)
     said = 0
     for k in range(200):
         x = TASK.start.x + 0.3 * (k % 12)  # 0.3 m a step, then back: a judgement every look
@@ -79,7 +79,7 @@ def test_it_never_says_more_than_max_rate_things_a_robot_second():
 
 
 def test_it_dictates_commands_during_the_first_episodes_it_sees_start():
-    bus = DisplayTeacher(teacher(), traces=1, max_rate=100.0)
+    bus = DisplayTeacher(teacher(), traces=1, max_words_per_robot_s=100.0)
     first = [s for k in range(20) for s in bus.on_observation(obs(k, TASK.start.x), 5.0 + k)]
     assert first and {s.kind for s in first} == {"command"}
     assert len(first) == 4  # one every 0.5 robot seconds: 2 s of robot time

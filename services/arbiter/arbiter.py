@@ -120,7 +120,7 @@ class Arbiter:
         self.merger = Merger(config.merge, config.merge_window, config.merge_slack_steps)
         self.agreement = Agreement(config.merge_slack_steps)
         self._ids = RecentIds(config.remembered_ids)
-        self._rates = RateLimits(config.rate, config.burst)
+        self._rates = RateLimits(config.utterances_per_s, config.utterances_at_once)
         self._probe_rates = RateLimits(PROBE_RATE, PROBE_BURST)
         self._notices = Throttle(config.notice_every)
         self._robots: dict[str, _Robot] = {}
@@ -404,20 +404,17 @@ class Arbiter:
                 self.counters["delay_candidates"] += 1
 
     def _feedback(self, merged: Merged) -> CreditedFeedback:
-        """The bound g of Algorithm 1 applied, at most MAX_CREDITS credits."""
-        bound = self.config.reward_bound
+        """The merged reward over at most MAX_CREDITS credits (the learner's g bounds it)."""
         credits = merged.credits
         if len(credits) > MAX_CREDITS:
             credits = tuple(sorted(sorted(credits, key=lambda c: -c[1])[:MAX_CREDITS]))
         total = sum(w for _, w in credits)
-        if abs(merged.reward) > bound:
-            self.counters["reward_clipped"] += 1
         self.counters["feedback"] += 1
         return CreditedFeedback(
             id=feedback_id(merged.robot, "reward", merged.sources),
             robot=merged.robot,
             kind="reward",
-            reward=max(-bound, min(bound, merged.reward)),
+            reward=merged.reward,
             command=None,
             credits=tuple(Credit(step=s, weight=min(1.0, w / total)) for s, w in credits),
             sources=merged.sources[:64],
@@ -447,7 +444,7 @@ class Arbiter:
             return f"not understood: {detail}; say e.g. {said}"
         if reason == "rate_limited":
             return (
-                f"not used: too many words, at most {self.config.rate:g} a second; "
+                f"not used: too many words, at most {self.config.utterances_per_s:g} a second; "
                 "slow down (words beyond it are ignored, told once a second)"
             )
         if reason == "unknown_robot":

@@ -48,7 +48,16 @@ def measure_latency(utterances: int = 1000, warmup_s: float = 1.2) -> dict:
     try:
         children.append(
             subprocess.Popen(
-                [voxshape, "arbiter", *common, "--rate", "1e6", "--burst", "1e6"], **quiet
+                [
+                    voxshape,
+                    "arbiter",
+                    *common,
+                    "--set",
+                    "utterances_per_s=1e6",
+                    "--set",
+                    "utterances_at_once=1e6",
+                ],
+                **quiet,
             )
         )
         config = replace(bus_config("bench"), session=session, connect=(router,))

@@ -73,13 +73,12 @@ class ArbiterConfig:
     # their own seconds whatever the robot's pace.
     robot_time: frozenset[str] = frozenset()
     learning: DelayLearning = field(default_factory=DelayLearning)
-    reward_bound: float = 100.0  # g(r, f): |f| at most this (the learner's feedback_bound)
     merge: MergePolicy = "sum"
     merge_window: float = 1.0  # seconds, for mean and majority
     merge_slack_steps: int = 2  # judgements this close in steps are about the same steps
     teacher_weight: dict[str, float] = field(default_factory=dict)  # default 1
-    rate: float = 4.0  # utterances per second per teacher, sustained ...
-    burst: float = 8.0  # ... and at once (a person says at most 2-3 things a second)
+    utterances_per_s: float = 4.0  # per teacher, sustained ...
+    utterances_at_once: float = 8.0  # ... and at once (a person says at most 2-3 a second)
     remembered_ids: int = 4096  # message ids kept for dropping duplicates
     history_seconds: float = 30.0  # step timing kept per robot (feedback older is too late)
     max_history_steps: int = 20_000  # bound for lockstep sessions (fast steps)
@@ -97,20 +96,23 @@ class ArbiterConfig:
                 f"merge policy {self.merge!r} is not one of {', '.join(MERGE_POLICIES)}"
             )
         positive = {
-            "reward bound": self.reward_bound,
             "merge window": self.merge_window,
-            "rate": self.rate,
-            "burst": self.burst,
+            "utterances_per_s": self.utterances_per_s,
+            "utterances_at_once": self.utterances_at_once,
             "history seconds": self.history_seconds,
         }
         for name, value in positive.items():
             if not (math.isfinite(value) and value > 0):
                 raise ArbiterConfigError(f"{name} {value!r} must be a positive number")
-        if self.burst < 1:
-            raise ArbiterConfigError(f"burst {self.burst} must allow at least 1 utterance")
+        if self.utterances_at_once < 1:
+            raise ArbiterConfigError(
+                f"utterances_at_once {self.utterances_at_once} must allow at least 1 utterance"
+            )
         for teacher, weight in self.teacher_weight.items():
-            if not (math.isfinite(weight) and weight >= 0):
-                raise ArbiterConfigError(f"teacher weight {teacher}={weight} must be >= 0")
+            if not (math.isfinite(weight) and 0 <= weight <= 100):
+                raise ArbiterConfigError(
+                    f"teacher weight {teacher}={weight} must be within [0, 100]"
+                )
 
     def window_of(self, teacher: str) -> DelayWindow:
         """The configured (not learnt) delay window of a teacher."""

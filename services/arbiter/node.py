@@ -38,13 +38,14 @@ from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import (
     MERGE_POLICIES,
     ArbiterConfig,
-    DelayLearning,
+    ArbiterConfigError,
     parse_per_teacher,
     parse_teachers,
     parse_window,
 )
 from services.runtime import Input, Node, Output, Tick, add_bus_arguments, bus_config, fields
 from services.runtime.logs import worth_logging
+from services.runtime.settings import SettingsError, add_settings_argument, replaced
 
 TICK = 0.1  # seconds: merge windows and statistics are checked this often
 # A (re)joining arbiter recovers the robots' steps and the utterances of the last 30 s (as
@@ -91,56 +92,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "VOXSHAPE_ROBOT_TIME; people react in their own seconds)",
     )
     parser.add_argument(
-        "--no-delay-learning",
-        action="store_true",
-        help="keep the configured windows instead of learning each teacher's delay",
-    )
-    parser.add_argument(
         "--merge",
         choices=MERGE_POLICIES,
         default=env("VOXSHAPE_MERGE", defaults.merge),
-        help="several teachers: sum (at once), mean or majority within --merge-window "
+        help="several teachers: sum (at once), mean or majority within merge_window "
         "(VOXSHAPE_MERGE)",
     )
-    parser.add_argument("--merge-window", type=float, default=defaults.merge_window)
     parser.add_argument(
         "--teacher-weight", action="append", metavar="TEACHER=W", help="(repeatable; default 1)"
     )
-    parser.add_argument(
-        "--reward-bound",
-        type=float,
-        default=defaults.reward_bound,
-        help="the bound of g: rewards are clipped to +-this",
-    )
-    parser.add_argument(
-        "--rate", type=float, default=defaults.rate, help="utterances/s per teacher"
-    )
-    parser.add_argument("--burst", type=float, default=defaults.burst, help="utterances at once")
-    parser.add_argument(
-        "--settle",
-        type=float,
-        default=defaults.settle,
-        help="seconds after an episode ends before its interventions are final",
-    )
+    add_settings_argument(parser, "ArbiterConfig (services/arbiter/config.py)", "settle=5")
 
 
 def config_from(args: argparse.Namespace) -> ArbiterConfig:
-    return ArbiterConfig(
+    """The flags over ArbiterConfig's defaults, then the --set settings."""
+    flags = ArbiterConfig(
         min_confidence=args.min_confidence,
         delay=parse_window(args.delay),
         teacher_delay=parse_per_teacher(
             args.teacher_delay, parse_window, "--teacher-delay", "ana=0.5:1.2"
         ),
         robot_time=parse_teachers(args.robot_time, "--robot-time"),
-        learning=DelayLearning(enabled=not args.no_delay_learning),
-        reward_bound=args.reward_bound,
         merge=args.merge,
-        merge_window=args.merge_window,
         teacher_weight=parse_per_teacher(args.teacher_weight, float, "--teacher-weight", "ana=2"),
-        rate=args.rate,
-        burst=args.burst,
-        settle=args.settle,
     )
+    try:
+        return replaced(flags, args.set)
+    except SettingsError as e:
+        raise ArbiterConfigError(str(e)) from None
 
 
 class _Publisher:
@@ -186,7 +165,6 @@ def run(args: argparse.Namespace) -> int:
                 delay=args.delay,
                 learning=config.learning.enabled,
                 merge=config.merge,
-                reward_bound=config.reward_bound,
             ),
         )
         refetch_at = time.monotonic() + REFETCH_AFTER_S

@@ -21,12 +21,8 @@ from services.experiment.paper import (
     pool,
 )
 from services.experiment.sweep import sweep
-from services.learner.config import (
-    SettingsError,
-    add_settings_argument,
-    replaced,
-    with_settings,
-)
+from services.learner.config import add_settings_argument, with_settings
+from services.runtime.settings import SettingsError, replaced
 from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 from services.world.maps import MapError, load_map
 
@@ -118,8 +114,8 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="a field of the simulated teacher's TeacherProfile "
-        "(services/teacher/simulated/teacher.py) changed from --teacher-profile, e.g. rate=2; its "
-        "noise is the setting's",
+        "(services/teacher/simulated/teacher.py) changed from --teacher-profile, e.g. "
+        "words_per_robot_minute=2; its noise is the setting's",
     )
 
 

@@ -65,7 +65,7 @@ def spec_of(
     if point.axis == "rl":
         return RunSpec(task, "rl", seed, max_episodes, learner=learner)
     if point.axis == "rate":
-        budget = replace(PERSON, rate=point.value) if point.value else TIRELESS
+        budget = replace(PERSON, words_per_robot_minute=point.value) if point.value else TIRELESS
         return RunSpec(
             task, point.setting, seed, max_episodes, profile=budget, learner=learner,
             teacher=teacher,

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
-from typing import Literal, TypeVar
+from typing import Literal
+
+from services.runtime.settings import add_settings_argument as add_setting
+from services.runtime.settings import replaced
 
 # The fields of a state's key (states.py).
 KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
@@ -129,81 +130,10 @@ class LearnerConfig:
         return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)
 
 
-class SettingsError(ValueError):
-    """A `--set KEY=VALUE` that does not fit the configuration."""
-
-
 def add_settings_argument(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="a hyper-parameter of services/learner/config.py, e.g. alpha=0.1",
-    )
+    add_setting(parser, "services/learner/config.py", "alpha=0.1")
 
 
 def with_settings(settings: list[str], base: LearnerConfig | None = None) -> LearnerConfig:
     """`base` (by default LearnerConfig()) with `--set KEY=VALUE` settings applied."""
     return replaced(base or LearnerConfig(), settings)
-
-
-Config = TypeVar("Config")
-
-
-def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config:
-    """The dataclass `config` with `KEY=VALUE` settings applied (values in JSON: 0.1, true,
-    "replacing", [1.0, 2.5]; KEY.FIELD=VALUE sets a field of a nested dataclass); raises
-    SettingsError naming an unknown key, a value of the wrong type or one the dataclass
-    refuses (`flag` names the option in the message)."""
-    items = []
-    for setting in settings:
-        key, sep, raw = setting.partition("=")
-        items.append((setting, key if sep else "", raw))  # no "=": no key, refused below
-    return _replaced(config, items, flag)
-
-
-def _replaced(config: Config, items: list[tuple[str, str, str]], flag: str) -> Config:
-    """`replaced` over (the setting as given, KEY, VALUE) items."""
-    fields = {f.name: f for f in dataclasses.fields(config)}
-    changes = {}
-    for setting, key, raw in items:
-        outer, dot, inner = key.partition(".")
-        if dot and outer in fields and dataclasses.is_dataclass(getattr(config, outer)):
-            nested = changes.get(outer, getattr(config, outer))
-            changes[outer] = _replaced(nested, [(setting, inner, raw)], flag)
-            continue
-        if key not in fields:
-            raise SettingsError(
-                f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
-            )
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw  # a bare word: a string
-        current = getattr(config, key)
-        if dataclasses.is_dataclass(current):
-            names = ", ".join(f.name for f in dataclasses.fields(current))
-            raise SettingsError(
-                f"{flag} {setting!r}: {key} is not a single value; set its fields as "
-                f"{key}.FIELD=VALUE, FIELD one of {names}"
-            )
-        if isinstance(current, tuple) and isinstance(value, list):
-            value = tuple(value)
-        if type(value) is int and "float" in str(fields[key].type):  # float, float | None
-            value = float(value)
-        ok = (
-            type(value) is type(current)
-            or (current is None and isinstance(value, float))
-            or (value is None and "None" in str(fields[key].type))
-        )
-        if not ok:
-            raise SettingsError(
-                f"{flag} {setting!r}: {key} takes a {type(current).__name__}, "
-                f"like {json.dumps(current)}"
-            )
-        changes[key] = value
-    try:
-        return dataclasses.replace(config, **changes)
-    except ValueError as e:
-        raise SettingsError(f"{flag}: {e}") from None

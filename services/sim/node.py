@@ -22,6 +22,7 @@ from services.runtime import (
     bus_config,
     fields,
 )
+from services.runtime.settings import SettingsError, add_settings_argument, replaced
 from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
 from services.world.maps import TASKS, load_map
@@ -74,17 +75,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=SimConfig.collision,
         help="a collision costs a penalty and goes on (default), or ends the episode",
     )
-    parser.add_argument("--laser-noise", type=float, default=0.0, help="std dev, metres")
-    parser.add_argument("--sonar-noise", type=float, default=0.0, help="std dev, metres")
+    add_settings_argument(
+        parser, "SimConfig (services/sim/task.py)", "laser_noise=0.02 or rewards.goal=50"
+    )
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("--max-steps", type=int, default=None, help="stop after this many steps")
 
 
 def run(args: argparse.Namespace) -> int:
     robots = tuple(args.robots or os.environ.get("VOXSHAPE_ROBOTS", "r1").split(","))
-    config = SimConfig(
-        collision=args.collision, laser_noise=args.laser_noise, sonar_noise=args.sonar_noise
-    )
+    try:
+        config = replaced(SimConfig(collision=args.collision), args.set)
+    except SettingsError as e:
+        raise ConfigError(str(e)) from None
     timeout = args.action_timeout or (2.0 if args.clock == "lockstep" else 0.5)
     if args.rtf <= 0 or timeout <= 0:
         raise ConfigError("--rtf and --action-timeout must be > 0")

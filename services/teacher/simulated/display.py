@@ -1,7 +1,7 @@
 """The simulated teacher watching a display (pure: no bus): observations and its own clock
 in, words to say out, with their onset and end at the display times of the steps they are
 about. Dictates the first `traces` episodes it sees start, then judges through the core
-(teacher.py); never says more than `max_rate` things a robot second."""
+(teacher.py); never says more than `max_words_per_robot_s` things a robot second."""
 
 from __future__ import annotations
 
@@ -54,11 +54,13 @@ class DisplayTeacher:
     """The teacher between the bus and the core: observations and its own clock in, words to
     say out (pure: no bus). Dictates the first `traces` episodes it sees start, then judges."""
 
+    MAX_WORDS_PER_ROBOT_S = 3.0  # a person says at most 2-3 things a second
+
     def __init__(
         self,
         teacher: SimulatedTeacher,
         traces: int = 0,
-        max_rate: float = 3.0,
+        max_words_per_robot_s: float = MAX_WORDS_PER_ROBOT_S,
         control_period: float = CONTROL_PERIOD_S,
         counters: Counter[str] | None = None,
     ) -> None:
@@ -67,7 +69,7 @@ class DisplayTeacher:
         self.control_period = control_period
         self.counters: Counter[str] = Counter() if counters is None else counters
         self.display = DisplayClock()
-        self.max_rate = max_rate
+        self.max_words_per_robot_s = max_words_per_robot_s
         self._bucket: TokenBucket | None = None
         self._pending: list[tuple[float, int, str, float]] = []  # (end, order, text, onset)
         self._order = 0
@@ -104,7 +106,8 @@ class DisplayTeacher:
 
     def _may_say(self, spoken: Spoken, t: float) -> bool:
         if self._bucket is None or t < self._bucket.updated:  # none yet, or a new simulator
-            self._bucket = TokenBucket(self.max_rate, max(1.0, self.max_rate), t)
+            most = self.max_words_per_robot_s
+            self._bucket = TokenBucket(most, max(1.0, most), t)
         if self._bucket.take(t):
             self.counters[f"said.{spoken.kind}"] += 1
             return True

@@ -17,10 +17,10 @@ reacts in the robot's time (its interval, reaction delay and speaking time are r
 with its onset and end at the display times of those steps, on the teacher's own clock. On a
 paced simulator at real time this is a person; on a lockstep one it is a person watching the
 robot fast-forwarded, who still reacts after as many steps as at normal speed (a real-time
-reaction would land hundreds of steps late). It never says more than `--max-rate` things per
-robot second (a person says at most 2-3 a second); the arbiter must be told it lives in robot
-time (`voxshape arbiter --robot-time <teacher>`), or it refuses the fast-forwarded words as a
-flood and credits them with a person's delays.
+reaction would land hundreds of steps late). It never says more than
+`--max-words-per-robot-s` words a robot second (a person says at most 2-3 a second); the
+arbiter must be told it lives in robot time (`voxshape arbiter --robot-time <teacher>`), or it
+refuses the fast-forwarded words as a flood and credits them with a person's delays.
 """
 
 from __future__ import annotations
@@ -49,12 +49,14 @@ from services.runtime import (
     bus_config,
     fields,
 )
+from services.runtime.settings import add_settings_argument, replaced
 from services.teacher.session import join_as_teacher
 from services.teacher.simulated.display import DisplayTeacher, Spoken
 from services.teacher.simulated.synthesis import LEAD_S, VOICE, Voice
 from services.teacher.simulated.teacher import (
     PERSON,
     PROFILES,
+    TIRELESS,
     Confusion,
     SimulatedTeacher,
     TeacherProfile,
@@ -79,7 +81,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--noise",
         type=float,
-        default=0.0,
         help="share of its judgements it gets wrong (the opposite qualifier); recognition "
         "errors are the speech service's",
     )
@@ -87,46 +88,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--teacher-profile",
         choices=tuple(PROFILES),
         default="person",
-        help="person: at most --rate words a robot minute, at salient moments; tireless: "
-        "judges every look (about 50 words a minute); the options below change it",
+        help=f"person: {PERSON.describe()}; tireless: {TIRELESS.describe()} (about 50 words "
+        "a minute); --set changes it",
     )
-    parser.add_argument("--positive-bias", type=float, help="share of scolding unsaid")
-    parser.add_argument(
-        "--stuck-after",
-        type=float,
-        help="robot seconds without progress after which the robot is 'bad' (0: never)",
-    )
-    parser.add_argument(
-        "--repeat-after",
-        type=float,
-        help="robot seconds before it says the same judgement again while nothing changes "
-        "(0: at every look)",
-    )
-    parser.add_argument(
-        "--rate",
-        type=float,
-        help=f"a person's budget: words a robot minute at most, bumps included (0: no "
-        f"budget; person: {PERSON.rate:g})",
-    )
-    parser.add_argument(
-        "--salient",
-        action=argparse.BooleanOptionalAction,
-        help="speak where the robot's course changes (a bump, setting off the right way, "
-        "turning away, stuck, near the goal), not at every look (person: yes)",
-    )
-    parser.add_argument("--delay", type=float, help="reaction delay, robot seconds")
-    parser.add_argument("--jitter", type=float, help="its std dev")
-    parser.add_argument("--interval", type=float, help="robot seconds between looks")
-    parser.add_argument(
-        "--always-for",
-        type=int,
-        help="feedback schedule: it comments on everything it judges for this many episodes...",
-    )
-    parser.add_argument("--fade-over", type=int, help="...then fades over these...")
-    parser.add_argument(
-        "--sporadic",
-        type=float,
-        help="...to commenting on this share (person: 1, tireless: 0.2)",
+    add_settings_argument(
+        parser, "TeacherProfile (services/teacher/simulated/teacher.py)", "words_per_robot_minute=2"
     )
     parser.add_argument(
         "--traces",
@@ -135,10 +101,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="dictate the first N episodes it sees start: commands along the shortest path",
     )
     parser.add_argument(
-        "--max-rate",
+        "--max-words-per-robot-s",
         type=float,
-        default=3.0,
-        help="utterances per robot second at most (the arbiter allows 4)",
+        default=DisplayTeacher.MAX_WORDS_PER_ROBOT_S,
+        help="at most this many words a robot second, whatever the profile (the arbiter takes 4)",
     )
     parser.add_argument(
         "--audio",
@@ -154,32 +120,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def profile_from(args: argparse.Namespace) -> TeacherProfile:
-    """The --teacher-profile with the options given changed."""
+    """The --teacher-profile with --noise and the --set settings applied."""
     profile = PROFILES[args.teacher_profile]
-    schedule = {
-        name: value
-        for name, value in (
-            ("permanent_episodes", args.always_for),
-            ("fade_episodes", args.fade_over),
-            ("sporadic", args.sporadic),
-        )
-        if value is not None
-    }
-    options = ("interval", "positive_bias", "delay", "jitter", "stuck_after", "repeat_after")
-    changes = {
-        name: getattr(args, name)
-        for name in (*options, "rate", "salient")
-        if getattr(args, name) is not None
-    }
+    if args.noise is not None:
+        profile = replace(profile, noise=args.noise)
     try:
-        return replace(
-            profile,
-            **changes,
-            schedule=replace(profile.schedule, **schedule),
-            noise=args.noise,
-            # Over the bus the speech service mishears: the teacher's own errors are slips.
-            confusion=Confusion(wrong_qualifier=1.0, misheard=0.0),
-        )
+        profile = replaced(profile, args.set)
+        # Over the bus the speech service mishears: the teacher's own errors are slips.
+        return replace(profile, confusion=Confusion(wrong_qualifier=1.0, misheard=0.0))
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None
 
@@ -207,8 +155,8 @@ def audio_messages(spoken: Spoken, teacher: str, robot: str, voice: Voice) -> li
 def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     teacher_id = check_id(args.teacher, "teacher")
-    if args.traces < 0 or args.max_rate <= 0:
-        raise ConfigError("--traces must be >= 0 and --max-rate > 0")
+    if args.traces < 0 or args.max_words_per_robot_s <= 0:
+        raise ConfigError("--traces must be >= 0 and --max-words-per-robot-s > 0")
     profile = profile_from(args)
     m = load_map(args.task)
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
@@ -223,7 +171,9 @@ def run(args: argparse.Namespace) -> int:
 
     with Node("simteacher", bus_config("simteacher", args)) as node, ExitStack() as stack:
         core = SimulatedTeacher(m, load_vocabulary(), profile, seed=seed)
-        teacher = DisplayTeacher(core, args.traces, args.max_rate, counters=node.counters)
+        teacher = DisplayTeacher(
+            core, args.traces, args.max_words_per_robot_s, counters=node.counters
+        )
         node.input("obs", robot_key(node.session_id, robot, "obs"))
         topic = "audio" if voice else "said"
         (out,) = join_as_teacher(
@@ -247,8 +197,8 @@ def run(args: argparse.Namespace) -> int:
                 speaks=topic,
                 seed=seed,
                 traces=args.traces,
-                noise=args.noise,
-                delay=args.delay,
+                profile=profile.describe(),
+                noise=profile.noise,
             ),
         )
         for event in node.events(tick=1.0):

@@ -105,10 +105,10 @@ class TeacherProfile:
     # nothing changes: a person says "good" once as the robot sets off on the right way, not
     # every second it keeps going. Bumps and the goal are always said. 0: says every one.
     repeat_after: float = 0.0
-    # A person's budget: at most `rate` words a robot minute on average (bumps and the goal
-    # included), at most `burst` at once; 0: no budget.
-    rate: float = 4.0
-    burst: float = 2.0
+    # A person's budget: words a robot minute on average (bumps and the goal included), and
+    # at most this many at once; 0 words a minute: no budget.
+    words_per_robot_minute: float = 4.0
+    words_at_once: float = 2.0
     # Speak at salient moments only, as a person watching does: a bump, the goal, nearing
     # it (within `near_goal` metres of the way), getting going the right way after standing,
     # turning or regressing, turning away after progress, being stuck; not at every look.
@@ -132,19 +132,20 @@ class TeacherProfile:
             )
         if not 0 < self.small_change <= self.large_change:
             raise ValueError("need 0 < small_change <= large_change (metres)")
-        if self.rate < 0 or self.burst < 1:
-            raise ValueError("rate must be >= 0 words a minute and burst >= 1 word")
+        if self.words_per_robot_minute < 0 or self.words_at_once < 1:
+            raise ValueError("need words_per_robot_minute >= 0 and words_at_once >= 1")
 
     def describe(self) -> str:
         """How often it speaks, in a few words."""
         when = "at salient moments" if self.salient else f"judging every {self.interval:g} s"
-        budget = f"at most {self.rate:g} words a robot minute" if self.rate else "no budget"
+        rate = self.words_per_robot_minute
+        budget = f"at most {rate:g} words a robot minute" if rate else "no budget"
         return f"{budget}, {when}"
 
 
 PERSON = TeacherProfile()
 # Judges every look, with the paper's fading schedule: about 50 words a robot minute.
-TIRELESS = TeacherProfile(rate=0.0, salient=False, schedule=FeedbackSchedule())
+TIRELESS = TeacherProfile(words_per_robot_minute=0.0, salient=False, schedule=FeedbackSchedule())
 PROFILES = {"person": PERSON, "tireless": TIRELESS}
 
 
@@ -251,7 +252,7 @@ class SimulatedTeacher:
         self._bumping = False
         self._progress = (math.inf, 0.0)  # (best distance this episode, when it was reached)
         self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
-        self._budget = (profile.burst, 0.0)  # (words left, when counted): a token bucket
+        self._budget = (profile.words_at_once, 0.0)  # (words left, when counted): a token bucket
         self._trend, self._stuck_said, self._neared = 0, False, False  # salient moments
 
     def phrase(self, meaning: str) -> str:
@@ -315,10 +316,11 @@ class SimulatedTeacher:
     def _afford(self, now: float) -> bool:
         """Whether the word budget has a word left (and spends it)."""
         p = self.profile
-        if not p.rate:
+        if not p.words_per_robot_minute:
             return True
         tokens, since = self._budget
-        tokens = min(p.burst, tokens + max(0.0, now - since) * p.rate / 60)
+        refill = max(0.0, now - since) * p.words_per_robot_minute / 60
+        tokens = min(p.words_at_once, tokens + refill)
         self._budget = (tokens - 1, now) if tokens >= 1 else (tokens, now)
         return tokens >= 1
 
