@@ -18,7 +18,7 @@ from services.experiment.paper import (
     speedup_interval,
     summarize,
 )
-from services.learner.config import SettingsError, replaced
+from services.runtime.settings import SettingsError, replaced
 from services.sim.task import Simulation
 from services.teacher.simulated.teacher import PERSON, TIRELESS, TeacherProfile
 from services.world.maps import TASKS
@@ -50,8 +50,10 @@ def test_feedback_goes_through_the_arbiter_into_the_learner():
 def test_the_default_teacher_keeps_to_a_persons_budget():
     result = run(RunSpec("1", "rl+f", seed=0, max_episodes=4))
     minutes = result.learning_time_s / 60
-    assert 0 < result.interventions <= PERSON.rate * minutes + PERSON.burst
-    assert result.spec["profile"]["rate"] == PERSON.rate  # the results say who taught
+    assert (
+        0 < result.interventions <= PERSON.words_per_robot_minute * minutes + PERSON.words_at_once
+    )
+    assert result.spec["profile"]["words_per_robot_minute"] == 4.0  # the results say who taught
 
 
 def test_runs_are_deterministic_and_plain_rl_has_no_teacher():
@@ -283,7 +285,9 @@ def test_the_budget_sweep_runs_both_feedback_settings_at_each_rate(tmp_path):
     )
     runs = [json.loads(line)["spec"] for line in (out / "runs.jsonl").read_text().splitlines()]
     profiles = {
-        (r["profile"]["rate"], r["profile"]["salient"]) for r in runs if r["setting"] != "rl"
+        (r["profile"]["words_per_robot_minute"], r["profile"]["salient"])
+        for r in runs
+        if r["setting"] != "rl"
     }
     assert profiles == {(0.0, False), (4.0, True)}  # the tireless teacher, and a person
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"

@@ -12,16 +12,17 @@ import numpy as np
 import pytest
 
 from protocol import ACTION_NAMES, Credit, CreditedFeedback, ProtocolError
-from services.experiment.train import train
+from services.experiment.inprocess import RunSpec, run
 from services.learner import checkpoint
 from services.learner import node as learner_node
 from services.learner.actions import ActionSet
-from services.learner.config import LearnerConfig, SettingsError, with_settings
+from services.learner.config import LearnerConfig, with_settings
 from services.learner.features import pose_tiles
 from services.learner.sarsa import Learner
 from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError
+from services.runtime.settings import SettingsError
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
 
@@ -282,7 +283,7 @@ def test_action_bias_keeps_teacher_rewards_out_of_q():
     for step in range(3):
         learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
     learner.credit(step=2, weight=1.0, f=10.0)
-    assert learner.Q[0, FORWARD] == 0.0 and learner.H[0, FORWARD] > 0
+    assert learner.Q[0, FORWARD] == 0.0 and learner.taught.H[0, FORWARD] > 0
 
 
 @pytest.mark.parametrize("shaping, kept", [("additive", False), ("action_bias", True)])
@@ -374,7 +375,7 @@ def test_with_tiles_advice_speaks_for_nearby_places_and_headings_not_far_ones():
 
 
 def test_the_tiled_learner_learns_task_1():
-    result = train("1", seed=1, config=LearnerConfig(representation="tiles"), max_episodes=80)
+    result = run(RunSpec("1", "rl", seed=1, max_episodes=80, learner=('representation="tiles"',)))
     assert result.converged and result.states > 1000  # features: many places, headings
 
 
@@ -399,7 +400,7 @@ def test_with_the_action_bias_a_replayed_trace_teaches_advice_not_values():
     run_episode(Learner(EXACT, seed=1), book, command_at=0)  # left, left, left, ..., the goal
     student = Learner(replace(EXACT, shaping="action_bias"), seed=2)
     book.replay(student)
-    assert student.H[:, LEFT].max() > 0  # h's bonus, as advice
+    assert student.taught.H[:, LEFT].max() > 0  # h's bonus, as advice
     assert not student.Q.any()  # the route's values stay untried (optimistic)
 
 
@@ -462,9 +463,9 @@ def test_checkpoint_round_trip(tmp_path, config):
     path = tmp_path / "learner.npz"
     checkpoint.save(learner, path)
     back = checkpoint.load(path, config)
-    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
-    assert np.array_equal(back.Phi, learner.Phi)
-    assert (config.shaping == "action_bias") == back.H.any()
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
+    assert np.array_equal(back.taught.Phi, learner.taught.Phi)
+    assert (config.shaping == "action_bias") == back.taught.H.any()
     assert back.features.coordinates() == learner.features.coordinates()
     assert back.episode == learner.episode
     assert back.rng.random() == learner.rng.random()  # the random stream goes on
@@ -472,8 +473,8 @@ def test_checkpoint_round_trip(tmp_path, config):
     run_episode(back, TraceBook())
     run_episode(learner, TraceBook())
     assert back.credit(step=1, weight=1.0, f=-10.0) and learner.credit(step=1, weight=1.0, f=-10.0)
-    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.H, learner.H)
-    assert np.array_equal(back.Phi, learner.Phi)
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
+    assert np.array_equal(back.taught.Phi, learner.taught.Phi)
 
 
 def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):
@@ -543,14 +544,14 @@ def test_goal_sectors_must_match_and_checkpoints_of_another_version_are_refused(
 
 
 def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():
-    result = train("1", seed=1, max_episodes=80)  # the default configuration, no teacher
+    result = run(RunSpec("1", "rl", seed=1, max_episodes=80))  # the defaults, no teacher
     print(
         f"task 1, seed 1: converged={result.converged} after {result.episodes} episodes, "
-        f"{result.learning_time / 60:.1f} min of robot time, {result.states} states"
+        f"{result.learning_time_s / 60:.1f} min of robot time, {result.states} states"
     )
     assert result.converged and result.episodes <= 80
-    last = result.history[-LearnerConfig().converge_episodes :]
-    assert all(e.outcome == "goal" for e in last)
+    last = result.outcomes[-LearnerConfig().converge_episodes :]
+    assert last == ["goal"] * len(last)
 
 
 def test_settings_from_the_command_line_are_typed_and_checked():

@@ -19,6 +19,7 @@ Interventions are the utterances the arbiter understood (its own count), per epi
 from __future__ import annotations
 
 import heapq
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
 from protocol import CreditedFeedback, TeacherNotice, Utterance
@@ -26,10 +27,11 @@ from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.experiment.dictation import dictate
-from services.learner.config import replaced, with_settings
+from services.learner.config import with_settings
 from services.learner.convergence import EpisodeResult, convergence_on
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
+from services.runtime.settings import replaced
 from services.sim.stepper import observation
 from services.sim.task import Reading, SimConfig, Simulation
 from services.teacher.simulated.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
@@ -67,6 +69,7 @@ class RunSpec:
     noise: float | None = None  # None: the setting's
     delay: float | None = None  # the teacher's mean reaction delay; None: the profile's
     delay_learning: bool = True  # the arbiter learns the teacher's delay (else TAMER's window)
+    traces: int | None = None  # episodes dictated before learning; None: the setting's
     profile: TeacherProfile = field(default_factory=TeacherProfile)
     learner: tuple[str, ...] = ()  # KEY=VALUE changes to LearnerConfig (`--set`)
     teacher: tuple[str, ...] = ()  # KEY=VALUE changes to the profile (`--teacher`)
@@ -87,17 +90,23 @@ class RunResult:
     delay_window_s: tuple[float, float]  # the arbiter's window at the end (seconds)
     counters: dict[str, int]
     trace_words: int = 0  # the commands a person says to dictate the traces (TraceBook.words)
+    outcomes: list[str] = field(default_factory=list)  # of every episode run
+    states: int = 0  # the learner's states (features) at the end
     spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     def to_json(self) -> dict:
         return asdict(self)
 
 
-def run(spec: RunSpec, reference: bool = False) -> RunResult:
+def run(
+    spec: RunSpec,
+    reference: bool = False,
+    on_episode: Callable[[EpisodeResult, Learner], None] | None = None,
+) -> RunResult:
     """Trains one robot on one task in one setting until convergence or max_episodes. The
     simulator senses only as far as the learner reads (SimConfig.sensor_reach), on its fast
     path; `reference` runs the reference path with full scans instead: the same results,
-    slower (`voxshape bench experiment` compares them)."""
+    slower (`voxshape bench experiment` compares them). `on_episode` sees each episode."""
     setting = SETTINGS[spec.setting]
     m = load_map(spec.task)
     vocabulary = load_vocabulary()
@@ -121,6 +130,7 @@ def run(spec: RunSpec, reference: bool = False) -> RunResult:
     sim = Simulation(m, (ROBOT,), sim_config, seed=spec.seed)
     now, order = START, 0
     durations: list[float] = []
+    outcomes: list[str] = []
     try:
         for episode in range(spec.max_episodes):
             if book and episode == 0:
@@ -145,9 +155,11 @@ def run(spec: RunSpec, reference: bool = False) -> RunResult:
             interventions += deliver(heard, now, arbiter, learner)
             seconds = reading.episode_step * sim.config.control_period
             durations.append(seconds)
-            if progress.add(
-                EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
-            ):
+            outcomes.append(reading.outcome)
+            result = EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
+            if on_episode is not None:
+                on_episode(result, learner)
+            if progress.add(result):
                 break
     finally:
         sim.close()
@@ -168,13 +180,15 @@ def run(spec: RunSpec, reference: bool = False) -> RunResult:
         delay_learned=arbiter.delay_learned(TEACHER),
         delay_window_s=(round(window.lo, 3), round(window.hi, 3)),
         counters=counters,
+        outcomes=outcomes,
+        states=len(learner.features),
         spec=asdict(spec),
     )
 
 
 def initial_traces(spec: RunSpec, m: Map | None = None) -> TraceBook | None:
     """The episodes the teacher dictates before learning in the run's setting (None: none)."""
-    traces = SETTINGS[spec.setting].traces
+    traces = SETTINGS[spec.setting].traces if spec.traces is None else spec.traces
     return dictate(m or load_map(spec.task), traces, seed=10_000 + spec.seed) if traces else None
 
 

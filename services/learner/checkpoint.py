@@ -107,8 +107,8 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
         np.savez(
             f,
             Q=learner.Q,
-            H=learner.H,
-            Phi=learner.Phi,
+            H=learner.taught.H,
+            Phi=learner.taught.Phi,
             meta=np.array(json.dumps(meta)),
             visits=np.array([(v.first, v.last, v.episode) for v in visits], dtype=np.int64).reshape(
                 len(visits), 3
@@ -163,7 +163,8 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
             f"{path}: inconsistent tables {q.shape}, {h.shape}, {phi.shape} for "
             f"{learner.features.sizes} features; start afresh with another file"
         )
-    learner.Q, learner.H, learner.Phi, learner.e = q.copy(), h.copy(), phi.copy(), np.zeros_like(q)
+    learner.Q, learner.e = q.copy(), np.zeros_like(q)
+    learner.taught.H, learner.taught.Phi = h.copy(), phi.copy()
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:

@@ -46,6 +46,7 @@ import numpy as np
 
 from protocol import ACTION_NAMES, CreditedFeedback
 from services.learner.actions import N_ACTIONS, ActionSet, Decision
+from services.learner.advice import Advice, add_rows
 from services.learner.config import LearnerConfig
 from services.learner.features import PosePercept, State, representation
 
@@ -74,8 +75,7 @@ class Learner:
         self.actions = ActionSet(c)
         self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per feature
         self.e = np.zeros((0, N_ACTIONS))  # eligibility traces, a row per feature of Q
-        self.H = np.zeros((0, N_ACTIONS))  # teacher's action bias (shaping="action_bias")
-        self.Phi = np.zeros(0)  # the potential the words imply (potential_rate)
+        self.taught = Advice(c)  # H, the teacher's action bias, and Phi, the words' potential
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
         self.s: State | None = None  # the previous state ...
@@ -178,49 +178,34 @@ class Learner:
             )
         )
         if self.config.shaping == "action_bias":
-            self._advise([s], (self.config.alpha * bonus * a.weights)[None, :])
+            self.taught.advise([s], (self.config.alpha * bonus * a.weights)[None, :])
             return r
         return r + bonus
 
     # -- late credit --------------------------------------------------------------------
     def credit(self, step: int, weight: float, f: float) -> bool:
-        """Teacher feedback f about the action taken at observation `step`, with the weight
-        the arbiter gave it: g(r, f) = r + clip(f), applied after the fact as
-        Q <- Q + alpha w f e_k, the change on-time feedback would have made through delta.
-        It approximates that: e_k is rebuilt from the recent decisions, (gamma lambda)^j for
-        the j-th decision back in the episode (a held action decayed by gamma^k lambda in
-        the update; a revisited state counts once per visit, as accumulating traces do),
-        and what the change would have done to the updates since is ignored. With the
-        action bias the change goes to H instead of Q. False (counted) if that step is no
-        longer in the window."""
+        """Feedback f about the action taken at observation `step`, with the arbiter's weight
+        w: g(r, f) = r + clip(f) after the fact, Q <- Q + alpha w f e_k (H with the action
+        bias), e_k rebuilt from the recent decisions (`_traces_back_from`); the change it
+        would have made to the updates since is ignored. False (counted) if `step` has left
+        the window."""
         c = self.config
         f = float(np.clip(f, -c.feedback_bound, c.feedback_bound))
         k = self._decision_at(step)
         if k is None:
             return False
         visits, e_k = self._traces_back_from(k)
+        states, weights = [v.state for v in visits], np.array([v.weights for v in visits])
         if c.potential_rate:
-            self._toward_potential(visits, e_k, weight, f)
+            self.taught.toward(states, e_k, weight, f)
         scale = c.alpha * weight * f
-        changes = np.array([scale * t for t in e_k])[:, None] * np.array(
-            [v.weights for v in visits]
-        )
-        states = [v.state for v in visits]
+        changes = np.array([scale * t for t in e_k])[:, None] * weights
         if c.shaping == "action_bias":
-            self._advise(states, changes)
+            self.taught.advise(states, changes)
         else:  # in order, as one update after another
-            _add_rows(self.Q, [s.q for s in states], changes)
+            add_rows(self.Q, [s.q for s in states], changes)
         self.counters["feedback_credited"] += 1
         return True
-
-    def _toward_potential(
-        self, visits: list[Visit], e_k: list[float], weight: float, f: float
-    ) -> None:
-        """Phi(s_j) moved towards the word's reward f, by its share w e_k(s_j)."""
-        rate = self.config.potential_rate
-        for visit, trace in zip(visits, e_k, strict=True):
-            place = visit.state.place
-            self.Phi[place] += rate * weight * trace * (f - self.phi(visit.state))
 
     def _decision_at(self, step: int) -> int | None:
         """The index in `recent` of the decision whose action ran at observation `step`;
@@ -235,7 +220,9 @@ class Learner:
 
     def _traces_back_from(self, k: int) -> tuple[list[Visit], list[float]]:
         """The decisions back from the k-th in its episode, and e_k(s_j, a_j) =
-        (gamma lambda)^(k - j) of each, until it is negligible."""
+        (gamma lambda)^(k - j) of each, until it is negligible: a held action decays by
+        gamma^k lambda in the update, a revisited state counts once per visit (as
+        accumulating traces do)."""
         c, episode = self.config, self.recent[k].episode
         visits, traces, trace = [], [], 1.0
         for j in range(k, -1, -1):
@@ -270,16 +257,12 @@ class Learner:
         return self.Q[s.q].sum(axis=0) / len(s.q)
 
     def advice(self, s: State) -> np.ndarray:
-        """H(s, .) as the policy weighs it: the mean of the rows of its advice features."""
-        return self.H[s.advice].sum(axis=0) / len(s.advice)
+        """H(s, .) as the policy weighs it (advice.py)."""
+        return self.taught.h(s)
 
     def phi(self, s: State) -> float:
-        """Phi(s), the potential the teacher's words imply (0 when potential_rate is 0)."""
-        return float(self.Phi[s.place].sum()) / len(s.place) if self.config.potential_rate else 0.0
-
-    def _advise(self, states: list[State], changes: np.ndarray) -> None:
-        """H(s) += change for each state and its change (rows), in order."""
-        _add_rows(self.H, [s.advice for s in states], changes)
+        """Phi(s), the potential the teacher's words imply (advice.py)."""
+        return self.taught.phi(s)
 
     # -- states and episodes ------------------------------------------------------------
     def _state_of(self, p: LearnerPercept) -> State:
@@ -294,10 +277,7 @@ class Learner:
                 row = self.Q[known].sum(axis=0) / len(known)  # the state's other features'
             self.Q = np.vstack([self.Q, np.zeros((n_q - len(self.Q), N_ACTIONS)) + row])
             self.e = np.vstack([self.e, np.zeros((n_q - len(self.e), N_ACTIONS))])
-        if n_advice > len(self.H):
-            self.H = np.vstack([self.H, np.zeros((n_advice - len(self.H), N_ACTIONS))])
-        if n_place > len(self.Phi):
-            self.Phi = np.concatenate([self.Phi, np.zeros(n_place - len(self.Phi))])
+        self.taught.grow(n_advice, n_place)
         return s
 
     def _end_episode(self) -> None:
@@ -311,9 +291,3 @@ class Learner:
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0
-
-
-def _add_rows(table: np.ndarray, rows: list[np.ndarray], changes: np.ndarray) -> None:
-    """table[r] += change for every feature r of each state's rows, in order."""
-    counts = [len(r) for r in rows]
-    np.add.at(table, np.concatenate(rows), np.repeat(changes, counts, axis=0))

@@ -1,0 +1,60 @@
+"""What the teacher's words leave in the learner besides Q: H, the action bias the policy ranks
+actions with (TAMER+RL, shaping="action_bias"), and Phi, the potential the words imply
+(potential-based shaping: F = gamma^k Phi(s') - Phi(s), which keeps the optimum).
+
+Both are linear over the state's binary features, as Q is (features.py): H(s) is the mean of
+the rows of its advice features, Phi(s) the mean of its place features."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from services.learner.actions import N_ACTIONS
+from services.learner.config import LearnerConfig
+from services.learner.features import State
+
+
+class Advice:
+    """H and Phi, grown with the features, moved by the teacher's words."""
+
+    def __init__(self, config: LearnerConfig) -> None:
+        self.config = config
+        self.H = np.zeros((0, N_ACTIONS))  # the teacher's action bias, a row per feature
+        self.Phi = np.zeros(0)  # the potential, a value per place feature
+
+    def h(self, s: State) -> np.ndarray:
+        """H(s, .): the mean of the rows of the state's advice features."""
+        return self.H[s.advice].sum(axis=0) / len(s.advice)
+
+    def phi(self, s: State) -> float:
+        """Phi(s) (0 when potential_rate is 0)."""
+        if not self.config.potential_rate:
+            return 0.0
+        return float(self.Phi[s.place].sum()) / len(s.place)
+
+    def advise(self, states: Sequence[State], changes: np.ndarray) -> None:
+        """H(s) += change for each state and its change (rows), in order."""
+        add_rows(self.H, [s.advice for s in states], changes)
+
+    def toward(
+        self, states: Sequence[State], e_k: Sequence[float], weight: float, f: float
+    ) -> None:
+        """Phi(s_j) moved towards the word's reward f, by its share w e_k(s_j)."""
+        rate = self.config.potential_rate
+        for s, trace in zip(states, e_k, strict=True):
+            self.Phi[s.place] += rate * weight * trace * (f - self.phi(s))
+
+    def grow(self, n_advice: int, n_place: int) -> None:
+        """Rows for new features, at 0."""
+        if n_advice > len(self.H):
+            self.H = np.vstack([self.H, np.zeros((n_advice - len(self.H), N_ACTIONS))])
+        if n_place > len(self.Phi):
+            self.Phi = np.concatenate([self.Phi, np.zeros(n_place - len(self.Phi))])
+
+
+def add_rows(table: np.ndarray, rows: list[np.ndarray], changes: np.ndarray) -> None:
+    """table[r] += change for every feature r of each state's rows, in order."""
+    counts = [len(r) for r in rows]
+    np.add.at(table, np.concatenate(rows), np.repeat(changes, counts, axis=0))
