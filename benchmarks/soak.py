@@ -27,38 +27,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from tests.chaos_support import Probe, Session
 
 WARM_UP_S = 60.0  # memory "at start" is taken after a minute: imports, first episodes done
+Sample = tuple[float, dict[str, int], dict[str, int]]  # seconds, memory (kB), sizes (bytes)
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--minutes", type=float, default=60.0)
-    parser.add_argument("--robots", type=int, default=4)
-    parser.add_argument("--rtf", type=float, default=1.0)
-    parser.add_argument("--window", type=float, default=5.0, help="minutes of latency samples")
-    parser.add_argument("--sample-every", type=float, default=60.0, help="seconds")
-    parser.add_argument("--out", type=Path, help="write the tables here too (rewritten as it goes)")
-    parser.add_argument("--workdir", type=Path, help="default: a new temporary directory")
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args()
+    args = _parser().parse_args()
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="voxshape-soak-"))
     robots = tuple(f"r{i + 1}" for i in range(args.robots))
     session = Session(workdir, robots, args.rtf, session_id="soak", seed=args.seed)
-    total = args.minutes * 60
     samples: list[Sample] = []
-
-    def sizes() -> dict[str, int]:
-        return {
-            name: (session.run_dir / name).stat().st_size
-            for name in ("events.msgpack", "recording.rrd")
-            if (session.run_dir / name).exists()
-        }
-
-    def write(final: bool = False) -> str:
-        text = report(samples, probe, session, args, final)
-        if args.out:
-            args.out.write_text(text)
-        return text
-
     print(f"soak: {len(robots)} robots at {args.rtf:g}x for {args.minutes:g} min in {workdir}")
     # stopped early (SIGTERM, or SIGINT, which a background job ignores): the tables so far
     signal.signal(signal.SIGTERM, signal.default_int_handler)
@@ -69,29 +46,87 @@ def main() -> int:
     t0 = time.monotonic()
     args.t0_wall = time.time()
     try:
-        next_sample = WARM_UP_S
-        while True:
-            elapsed = time.monotonic() - t0
-            if session.up is not None and session.up.poll() is not None:
-                print("the session stopped by itself", file=sys.stderr)
-                break
-            if elapsed >= next_sample or elapsed >= total:
-                samples.append((elapsed, session.memory(), sizes()))
-                write()
-                next_sample += args.sample_every
-            if elapsed >= total:
-                break
-            time.sleep(min(1.0, max(0.05, min(next_sample, total) - elapsed)))
-        samples.append((time.monotonic() - t0, session.memory(), sizes()))
+        _sample_until_done(samples, probe, session, args, t0)
+        samples.append(_sample(session, time.monotonic() - t0))
     except KeyboardInterrupt:
         print("stopped early: the tables so far", file=sys.stderr)
-        samples.append((time.monotonic() - t0, session.memory(), sizes()))
+        samples.append(_sample(session, time.monotonic() - t0))
     finally:
         probe.stop()
         code, counters, teachers = session.stop()
         session.kill_all()
-    text = write(final=True)
-    extra = {
+    text = _publish(samples, probe, session, args, final=True)
+    extra = _counters(code, counters, teachers)
+    text += "\n```\n" + json.dumps(extra, indent=1, sort_keys=True) + "\n```\n"
+    if args.out:
+        args.out.write_text(text)
+    print(text)
+    return 0 if code == 0 else 1
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line, as the module's docstring shows it."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", type=float, default=60.0)
+    parser.add_argument("--robots", type=int, default=4)
+    parser.add_argument("--rtf", type=float, default=1.0)
+    parser.add_argument("--window", type=float, default=5.0, help="minutes of latency samples")
+    parser.add_argument("--sample-every", type=float, default=60.0, help="seconds")
+    parser.add_argument("--out", type=Path, help="write the tables here too (rewritten as it goes)")
+    parser.add_argument("--workdir", type=Path, help="default: a new temporary directory")
+    parser.add_argument("--seed", type=int, default=0)
+    return parser
+
+
+def _sample_until_done(
+    samples: list[Sample], probe: Probe, session: Session, args: argparse.Namespace, t0: float
+) -> None:
+    """A sample every `--sample-every` seconds after the warm-up, the tables rewritten with
+    each, until `--minutes` have passed or the session stops by itself."""
+    total = args.minutes * 60
+    next_sample = WARM_UP_S
+    while True:
+        elapsed = time.monotonic() - t0
+        if session.up is not None and session.up.poll() is not None:
+            print("the session stopped by itself", file=sys.stderr)
+            return
+        if elapsed >= next_sample or elapsed >= total:
+            samples.append(_sample(session, elapsed))
+            _publish(samples, probe, session, args)
+            next_sample += args.sample_every
+        if elapsed >= total:
+            return
+        time.sleep(min(1.0, max(0.05, min(next_sample, total) - elapsed)))
+
+
+def _sample(session: Session, elapsed: float) -> Sample:
+    """The services' memory and the sizes of the event log and the recording, now."""
+    sizes = {
+        name: (session.run_dir / name).stat().st_size
+        for name in ("events.msgpack", "recording.rrd")
+        if (session.run_dir / name).exists()
+    }
+    return elapsed, session.memory(), sizes
+
+
+def _publish(
+    samples: list[Sample],
+    probe: Probe,
+    session: Session,
+    args: argparse.Namespace,
+    final: bool = False,
+) -> str:
+    """The tables so far, written to `--out` too."""
+    text = report(samples, probe, session, args, final)
+    if args.out:
+        args.out.write_text(text)
+    return text
+
+
+def _counters(code: int | None, counters: dict[str, dict], teachers: dict[str, dict]) -> dict:
+    """The launcher's exit code, each service's messages missed for good, what each teacher
+    said and the notices it got."""
+    return {
         "launcher_exit": code,
         "missed": {
             s: {k: v for k, v in c.items() if k.startswith("missed.")} for s, c in counters.items()
@@ -101,14 +136,6 @@ def main() -> int:
             for r, c in teachers.items()
         },
     }
-    text += "\n```\n" + json.dumps(extra, indent=1, sort_keys=True) + "\n```\n"
-    if args.out:
-        args.out.write_text(text)
-    print(text)
-    return 0 if code == 0 else 1
-
-
-Sample = tuple[float, dict[str, int], dict[str, int]]  # seconds, memory (kB), sizes (bytes)
 
 
 def report(

@@ -35,7 +35,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from protocol import load_vocabulary  # noqa: E402
+from protocol import Vocabulary, load_vocabulary  # noqa: E402
 from services.speech import bench  # noqa: E402
 from services.speech.engines import open_recognizer  # noqa: E402
 from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
@@ -53,6 +53,21 @@ ENGINES = [
 
 
 def main() -> int:
+    args = _parser().parse_args()
+    folder, synthesis_s = _fixtures(args)
+    vocabulary = load_vocabulary()
+    clips = [c for c in bench.load_clips(folder) if args.split in ("all", c.split)]
+    results = _measure_engines(args, vocabulary, clips)
+    mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
+    summary = bench.run_mock(clips, mock).summary(vocabulary)
+    summary["error_rate_setting"] = args.mock_error_rate
+    results.append(summary)
+    _print_results(args, folder, synthesis_s, clips, results)
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    """The command line, as the module's docstring shows it."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fixtures", type=Path, default=FIXTURES)
     parser.add_argument("--synthesize", type=Path, metavar="DIR", help="make the larger set")
@@ -73,16 +88,24 @@ def main() -> int:
         help="pocketsphinx's lattice posterior as confidence (to calibrate it)",
     )
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
-    args = parser.parse_args()
-    folder, synthesis_s = args.fixtures, None
-    if args.synthesize:
-        script = FIXTURES / "make_fixtures.py"
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, str(script), "--full", str(args.synthesize)], check=True)
-        synthesis_s = round(time.perf_counter() - t0, 1)
-        folder = args.synthesize
-    vocabulary = load_vocabulary()
-    clips = [c for c in bench.load_clips(folder) if args.split in ("all", c.split)]
+    return parser
+
+
+def _fixtures(args: argparse.Namespace) -> tuple[Path, float | None]:
+    """The folder of clips, synthesized first with --synthesize (and the seconds it took)."""
+    if not args.synthesize:
+        return args.fixtures, None
+    script = FIXTURES / "make_fixtures.py"
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, str(script), "--full", str(args.synthesize)], check=True)
+    return args.synthesize, round(time.perf_counter() - t0, 1)
+
+
+def _measure_engines(
+    args: argparse.Namespace, vocabulary: Vocabulary, clips: list[bench.Clip]
+) -> list[dict]:
+    """Each engine asked for on the clips, with the seconds it took to load and to run; one
+    that cannot be opened is skipped, said on stderr, as is vosk without a model."""
     # only the settings given on the command line; the rest are each engine's defaults
     given = {"distractors": args.distractors, "distractor_weight": args.distractor_weight}
     given["calibrated"] = False if args.raw_confidence else None
@@ -106,21 +129,27 @@ def main() -> int:
         summary["load_s"], summary["run_s"] = round(load_s, 2), round(time.perf_counter() - t0)
         print(f"{engine} ({language}): {len(clips)} clips in {summary['run_s']} s", file=sys.stderr)
         results.append(summary)
-    mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
-    summary = bench.run_mock(clips, mock).summary(vocabulary)
-    summary["error_rate_setting"] = args.mock_error_rate
-    results.append(summary)
+    return results
+
+
+def _print_results(
+    args: argparse.Namespace,
+    folder: Path,
+    synthesis_s: float | None,
+    clips: list[bench.Clip],
+    results: list[dict],
+) -> None:
+    """One JSON object (--json), or a line on the clips and each engine's tables."""
     counts = Counter(c.split for c in clips)
     if args.json:
         head = {"fixtures": str(folder), "clips": len(clips), "splits": counts}
         print(json.dumps({**head, "synthesis_s": synthesis_s, "engines": results}))
-        return 0
+        return
     made = f", synthesized in {synthesis_s} s" if synthesis_s is not None else ""
     splits = ", ".join(f"{n} {s}" for s, n in sorted(counts.items(), reverse=True))
     print(f"{len(clips)} clips ({splits}) in {folder}{made}")
     for r in results:
         (print_markdown if args.markdown else print_summary)(r)
-    return 0
 
 
 def _name(r: dict) -> str:

@@ -466,64 +466,19 @@ def _mark_runs(axes: Sequence[Axes], at: Sequence[float]) -> None:
 
 
 def draw_learning(robot: RobotSummary, path: Path, counts: EpisodeCounts | None = None) -> None:
+    """Episode returns (with their moving average), steps and interventions, one panel each,
+    marking where the robot converged and where the simulator restarted."""
     ended = robot.ended
     x = [e.position for e in ended]
     fig, axes = plt.subplots(3, 1, figsize=(7.5, 7), dpi=100, sharex=True)
     try:
-        returns = [e.env_return for e in ended]
-        colors = [
-            {"goal": "#2ca02c", "collision": "#d62728"}.get(e.outcome, "#7f7f7f") for e in ended
-        ]
-        axes[0].scatter(x, returns, c=colors, s=12)
-        if ended:
-            axes[0].plot(
-                x,
-                moving_average(returns),
-                color="black",
-                lw=1.2,
-                label=f"mean of the last {MOVING_AVERAGE}",
-            )
-            axes[0].legend(fontsize=7, loc="lower right")
-        clipped = _clip_outliers(axes[0], x, returns)
-        axes[0].set_ylabel("return R_RL\n(reward units)")
-        axes[0].set_title(
-            f"robot {robot.robot}: {len(ended)} episodes (green goal, red collision, grey "
-            f"timeout){clipped}",
-            fontsize=9,
-            wrap=True,
-        )
+        _draw_returns(axes[0], robot.robot, ended, x)
         axes[1].plot(x, [e.steps for e in ended], ".-", color="#1f77b4", lw=0.8, ms=4)
         axes[1].set_ylim(bottom=0)
         axes[1].set_ylabel(f"steps\n({STEP_SECONDS:g} robot s each)")
-        interventions = [e.interventions for e in ended]
-        final = [e.final for e in ended]
-        axes[2].bar(x, interventions, color=["#9467bd" if f else "#c5b0d5" for f in final])
-        axes[2].set_ylim(0, max([*interventions, 1]) * 1.15)
-        axes[2].yaxis.set_major_locator(MaxNLocator(integer=True))
-        if not any(interventions):
-            axes[2].text(0.5, 0.5, "no interventions", transform=axes[2].transAxes, ha="center")
-        elif not all(final):
-            axes[2].text(
-                0.01,
-                0.92,
-                "pale: not the arbiter's final count",
-                transform=axes[2].transAxes,
-                fontsize=7,
-                va="top",
-            )
-        axes[2].set_ylabel("interventions\n(understood utterances)")
+        _draw_interventions(axes[2], ended, x)
         if counts is not None and counts.convergence.converged_at is not None:
-            at = x[counts.convergence.converged_at]
-            for ax in axes:
-                ax.axvline(at, color="#2ca02c", lw=0.8, alpha=0.7)
-            axes[1].annotate(
-                f"converged (episode {counts.converged_at})",
-                (at, 1.0),
-                xycoords=("data", "axes fraction"),
-                xytext=(3, -10),
-                textcoords="offset points",
-                fontsize=7,
-            )
+            _mark_convergence(axes, x[counts.convergence.converged_at], counts)
         _mark_runs(axes, [position - 0.5 for _, position in robot.restarts])
         if robot.restarts:
             axes[2].set_xlabel("episode, in the order they happened (the runs one after another)")
@@ -535,6 +490,66 @@ def draw_learning(robot: RobotSummary, path: Path, counts: EpisodeCounts | None 
         plt.close(fig)
 
 
+def _draw_returns(
+    ax: Axes, robot: str, ended: Sequence[EpisodeSummary], x: Sequence[float]
+) -> None:
+    """Each episode's return, coloured by how it ended, and their moving average."""
+    returns = [e.env_return for e in ended]
+    colors = [{"goal": "#2ca02c", "collision": "#d62728"}.get(e.outcome, "#7f7f7f") for e in ended]
+    ax.scatter(x, returns, c=colors, s=12)
+    if ended:
+        ax.plot(
+            x,
+            moving_average(returns),
+            color="black",
+            lw=1.2,
+            label=f"mean of the last {MOVING_AVERAGE}",
+        )
+        ax.legend(fontsize=7, loc="lower right")
+    clipped = _clip_outliers(ax, x, returns)
+    ax.set_ylabel("return R_RL\n(reward units)")
+    ax.set_title(
+        f"robot {robot}: {len(ended)} episodes (green goal, red collision, grey timeout){clipped}",
+        fontsize=9,
+        wrap=True,
+    )
+
+
+def _draw_interventions(ax: Axes, ended: Sequence[EpisodeSummary], x: Sequence[float]) -> None:
+    """Each episode's interventions, pale where the count is not the arbiter's final one."""
+    interventions = [e.interventions for e in ended]
+    final = [e.final for e in ended]
+    ax.bar(x, interventions, color=["#9467bd" if f else "#c5b0d5" for f in final])
+    ax.set_ylim(0, max([*interventions, 1]) * 1.15)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    if not any(interventions):
+        ax.text(0.5, 0.5, "no interventions", transform=ax.transAxes, ha="center")
+    elif not all(final):
+        ax.text(
+            0.01,
+            0.92,
+            "pale: not the arbiter's final count",
+            transform=ax.transAxes,
+            fontsize=7,
+            va="top",
+        )
+    ax.set_ylabel("interventions\n(understood utterances)")
+
+
+def _mark_convergence(axes: Sequence[Axes], at: float, counts: EpisodeCounts) -> None:
+    """A green line through every panel at the episode that converged."""
+    for ax in axes:
+        ax.axvline(at, color="#2ca02c", lw=0.8, alpha=0.7)
+    axes[1].annotate(
+        f"converged (episode {counts.converged_at})",
+        (at, 1.0),
+        xycoords=("data", "axes fraction"),
+        xytext=(3, -10),
+        textcoords="offset points",
+        fontsize=7,
+    )
+
+
 def draw_rewards(robot: RobotSummary, path: Path) -> None:
     """The environment's return within each episode; the teacher's words at their value when
     they arrived; the reward each step was credited with; when things were heard."""
@@ -542,63 +557,72 @@ def draw_rewards(robot: RobotSummary, path: Path) -> None:
         4, 1, figsize=(9.5, 9), dpi=100, sharex=True, height_ratios=(3, 2.2, 2.2, 1.2)
     )
     try:
-        steps = np.asarray(robot.steps)
-        within = np.zeros(len(steps))
-        total, current = 0.0, None
-        for i, (reward, episode) in enumerate(
-            zip(robot.rewards, robot.episode_of_step, strict=True)
-        ):
-            if episode != current:
-                total, current = 0.0, episode
-            total += reward
-            within[i] = total
-        axes[0].plot(steps, within, color="#7f7f7f", lw=0.8)
+        axes[0].plot(np.asarray(robot.steps), _returns_so_far(robot), color="#7f7f7f", lw=0.8)
         axes[0].set_ylabel("return so far in\nthe episode (R_RL)")
         axes[0].set_title(
             f"robot {robot.robot}: rewards over the steps (reward units: the vocabulary's, "
             "e.g. good +10)",
             fontsize=10,
         )
-
-        # The teacher's words at their value: what each feedback message gave, in all.
-        if robot.words:
-            s, v, _ = zip(*robot.words, strict=True)
-            colors = ["#2ca02c" if r > 0 else "#d62728" for r in v]
-            axes[1].vlines(s, 0, v, colors=colors, lw=0.8)
-            axes[1].scatter(s, v, c=colors, s=14, zorder=3)
-        else:
-            axes[1].text(0.5, 0.5, "no teacher reward", transform=axes[1].transAxes, ha="center")
-        axes[1].axhline(0, color="#bbbbbb", lw=0.6)
-        axes[1].set_ylabel("teacher's word R_T\n(at arrival)")
-
-        # Each word's reward split over the steps it is about (the shares sum to the word).
-        if robot.credits:
-            s, v = zip(*robot.credits, strict=True)
-            colors = ["#2ca02c" if r > 0 else "#d62728" for r in v]
-            axes[2].scatter(s, v, c=colors, s=8, zorder=3)
-        else:
-            axes[2].text(0.5, 0.5, "nothing credited", transform=axes[2].transAxes, ha="center")
-        axes[2].axhline(0, color="#bbbbbb", lw=0.6)
-        axes[2].set_ylabel("credited to the step\n(word's R_T x share)")
-
-        # When things arrived: one row each, no values.
-        rows = (
-            ("utterance heard", [s for s, _ in robot.utterances], "d", "#17becf"),
-            ("reward arrives", [s for s, _, _ in robot.words], "v", "#9467bd"),
-            ("command arrives", [s for s, _ in robot.commands], "s", "#ff7f0e"),
-        )
-        for row, (_, at, marker, color) in enumerate(rows):
-            axes[3].scatter(at, [row] * len(at), marker=marker, color=color, s=14)
-        axes[3].set_yticks(range(len(rows)), [name for name, *_ in rows], fontsize=7)
-        axes[3].set_ylim(-0.6, len(rows) - 0.4)
-        axes[3].set_xlabel(
-            "step (continued across restarts of the simulator)" if robot.restarts else "step"
-        )
+        _draw_words(axes[1], robot)
+        _draw_credits(axes[2], robot)
+        _draw_arrivals(axes[3], robot)
         _mark_runs(axes, [step - 0.5 for step, _ in robot.restarts])
         fig.tight_layout()
         fig.savefig(path)
     finally:
         plt.close(fig)
+
+
+def _returns_so_far(robot: RobotSummary) -> np.ndarray:
+    """At each observed step, the sum of the rewards of its episode up to it."""
+    within = np.zeros(len(robot.steps))
+    total, current = 0.0, None
+    for i, (reward, episode) in enumerate(zip(robot.rewards, robot.episode_of_step, strict=True)):
+        if episode != current:
+            total, current = 0.0, episode
+        total += reward
+        within[i] = total
+    return within
+
+
+def _draw_words(ax: Axes, robot: RobotSummary) -> None:
+    """The teacher's words at their value: what each feedback message gave, in all."""
+    if robot.words:
+        s, v, _ = zip(*robot.words, strict=True)
+        colors = ["#2ca02c" if r > 0 else "#d62728" for r in v]
+        ax.vlines(s, 0, v, colors=colors, lw=0.8)
+        ax.scatter(s, v, c=colors, s=14, zorder=3)
+    else:
+        ax.text(0.5, 0.5, "no teacher reward", transform=ax.transAxes, ha="center")
+    ax.axhline(0, color="#bbbbbb", lw=0.6)
+    ax.set_ylabel("teacher's word R_T\n(at arrival)")
+
+
+def _draw_credits(ax: Axes, robot: RobotSummary) -> None:
+    """Each word's reward split over the steps it is about (the shares sum to the word)."""
+    if robot.credits:
+        s, v = zip(*robot.credits, strict=True)
+        colors = ["#2ca02c" if r > 0 else "#d62728" for r in v]
+        ax.scatter(s, v, c=colors, s=8, zorder=3)
+    else:
+        ax.text(0.5, 0.5, "nothing credited", transform=ax.transAxes, ha="center")
+    ax.axhline(0, color="#bbbbbb", lw=0.6)
+    ax.set_ylabel("credited to the step\n(word's R_T x share)")
+
+
+def _draw_arrivals(ax: Axes, robot: RobotSummary) -> None:
+    """When things arrived: one row each, no values."""
+    rows = (
+        ("utterance heard", [s for s, _ in robot.utterances], "d", "#17becf"),
+        ("reward arrives", [s for s, _, _ in robot.words], "v", "#9467bd"),
+        ("command arrives", [s for s, _ in robot.commands], "s", "#ff7f0e"),
+    )
+    for row, (_, at, marker, color) in enumerate(rows):
+        ax.scatter(at, [row] * len(at), marker=marker, color=color, s=14)
+    ax.set_yticks(range(len(rows)), [name for name, *_ in rows], fontsize=7)
+    ax.set_ylim(-0.6, len(rows) - 0.4)
+    ax.set_xlabel("step (continued across restarts of the simulator)" if robot.restarts else "step")
 
 
 # -- summary -----------------------------------------------------------------------------------

@@ -68,59 +68,31 @@ def in_process(spec: RunSpec) -> Outcome:
     )
 
 
+@dataclass(frozen=True)
+class _Bus:
+    """The session the services join, through a router listening on a loopback port."""
+
+    session: str
+    router: str
+
+    def join(self, node: str) -> list[str]:
+        """A service's arguments to join the session as `node`."""
+        where = ["--session", self.session, "--node", node]
+        return [*where, "--mode", "client", "--connect", self.router]
+
+
 def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
     """The same run with every service as its own process; the simulator's episode events
     tell when it converged (the rule of services/learner/convergence.py)."""
-    setting = SETTINGS[spec.setting]
-    session = f"equivalence-{os.getpid()}"
-    router = f"tcp/127.0.0.1:{free_loopback_port()}"
-
-    def bus(node: str) -> list[str]:
-        return ["--session", session, "--node", node, "--mode", "client", "--connect", router]
-
-    seed = ["--seed", str(spec.seed)]
-    # The simulator starts last, once the others are present: in lockstep it waits for an
-    # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
-    sim = ["sim", *bus("sim"), "--task", spec.task, "--clock", "lockstep", "--robot", ROBOT]
-    sim += [*seed, "--action-timeout", str(ACTION_WAIT_S)]
-    commands = [["router", "--session", session, "--node", "router", "--listen", router]]
-    if setting.feedback:
-        slips, misheard = noise_shares(setting.noise)
-        teacher = ["--teacher", TEACHER, "--task", spec.task, "--noise", str(slips)]
-        # The mock's recognition latency is wall seconds: 0 here, where 0.3 s would be 100+
-        # lockstep steps (the in-process run's recognition is 0.3 robot seconds, 3 steps).
-        speech = ["--engine", "mock", "--latency", "0", *seed]
-        speech += ["--error-rate", str(misheard), "--confusion", "misheard=1,dropped=0,inserted=0"]
-        commands += [
-            ["arbiter", *bus("arbiter"), "--robot-time", TEACHER],
-            ["speech", *bus("speech"), *speech],
-            ["sim-teacher", *bus("sim-teacher"), "--robot", ROBOT, *teacher, *seed],
-        ]
+    bus = _Bus(f"equivalence-{os.getpid()}", f"tcp/127.0.0.1:{free_loopback_port()}")
     with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
-        checkpoint = str(Path(folder) / "learner.npz")
-        learner = ["learner", *bus("learner"), "--robot", ROBOT, "--fresh", *seed]
-        commands.append([*learner, "--checkpoint", checkpoint])
-        if book := initial_traces(spec):  # the in-process run's traces, replayed alike
-            book.save(Path(folder) / "traces.npz")
-            commands[-1] += ["--traces", str(Path(folder) / "traces.npz")]
+        commands = _service_commands(spec, bus, folder)
         children: list[subprocess.Popen] = []
         start = time.monotonic()
         try:
-            children.append(_start(commands[0], folder))
-            time.sleep(1.0)  # the router listens before the others connect
-            config = replace(bus_config("equivalence"), session=session, mode="client")
-            with Node("equivalence", replace(config, connect=(router,))) as node:
-                node.input("episode", robot_key(session, ROBOT, "episode"))
-                node.input("notice", teacher_key(session, TEACHER, "notice"))
-                node.watch_presence()
-                children += [_start(c, folder) for c in commands[1:]]
-                _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
-                time.sleep(0.5)  # their subscriptions reach the router with their tokens
-                children.append(_start(sim, folder))
-                progress = convergence_on(load_map(spec.task), LearnerConfig())
-                interventions = _watch(
-                    node, progress, spec.max_episodes, start + timeout_s, children
-                )
+            progress, interventions = _follow(
+                spec, bus, commands, folder, children, start + timeout_s
+            )
         finally:
             for child in reversed(children):
                 _stop(child)
@@ -132,6 +104,78 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
         round(time.monotonic() - start, 1),
         interventions,
     )
+
+
+def _service_commands(spec: RunSpec, bus: _Bus, folder: str) -> list[list[str]]:
+    """The router first, the teacher's services in a feedback setting, then the learner,
+    replaying the in-process run's traces (the simulator is apart: it starts last)."""
+    commands = [["router", "--session", bus.session, "--node", "router", "--listen", bus.router]]
+    if SETTINGS[spec.setting].feedback:
+        commands += _teacher_commands(spec, bus)
+    checkpoint = str(Path(folder) / "learner.npz")
+    learner = [
+        "learner",
+        *bus.join("learner"),
+        "--robot",
+        ROBOT,
+        "--fresh",
+        "--seed",
+        str(spec.seed),
+    ]
+    commands.append([*learner, "--checkpoint", checkpoint])
+    if book := initial_traces(spec):  # the in-process run's traces, replayed alike
+        book.save(Path(folder) / "traces.npz")
+        commands[-1] += ["--traces", str(Path(folder) / "traces.npz")]
+    return commands
+
+
+def _teacher_commands(spec: RunSpec, bus: _Bus) -> list[list[str]]:
+    """The arbiter, the mock speech service and the simulated teacher, erring as in-process."""
+    seed = ["--seed", str(spec.seed)]
+    slips, misheard = noise_shares(SETTINGS[spec.setting].noise)
+    teacher = ["--teacher", TEACHER, "--task", spec.task, "--noise", str(slips)]
+    # The mock's recognition latency is wall seconds: 0 here, where 0.3 s would be 100+
+    # lockstep steps (the in-process run's recognition is 0.3 robot seconds, 3 steps).
+    speech = ["--engine", "mock", "--latency", "0", *seed]
+    speech += ["--error-rate", str(misheard), "--confusion", "misheard=1,dropped=0,inserted=0"]
+    return [
+        ["arbiter", *bus.join("arbiter"), "--robot-time", TEACHER],
+        ["speech", *bus.join("speech"), *speech],
+        ["sim-teacher", *bus.join("sim-teacher"), "--robot", ROBOT, *teacher, *seed],
+    ]
+
+
+def _sim_command(spec: RunSpec, bus: _Bus) -> list[str]:
+    """The simulator on the lockstep clock, waiting ACTION_WAIT_S at most for each answer."""
+    sim = ["sim", *bus.join("sim"), "--task", spec.task, "--clock", "lockstep", "--robot", ROBOT]
+    return [*sim, "--seed", str(spec.seed), "--action-timeout", str(ACTION_WAIT_S)]
+
+
+def _follow(
+    spec: RunSpec,
+    bus: _Bus,
+    commands: list[list[str]],
+    folder: str,
+    children: list[subprocess.Popen],
+    deadline: float,
+) -> tuple[Convergence, int]:
+    """Starts the services into `children` (the caller stops them), the simulator last, and
+    follows the run to convergence or its episode limit: its progress and interventions."""
+    children.append(_start(commands[0], folder))
+    time.sleep(1.0)  # the router listens before the others connect
+    config = replace(bus_config("equivalence"), session=bus.session, mode="client")
+    with Node("equivalence", replace(config, connect=(bus.router,))) as node:
+        node.input("episode", robot_key(bus.session, ROBOT, "episode"))
+        node.input("notice", teacher_key(bus.session, TEACHER, "notice"))
+        node.watch_presence()
+        children.extend(_start(c, folder) for c in commands[1:])
+        _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
+        time.sleep(0.5)  # their subscriptions reach the router with their tokens
+        # The simulator starts last, once the others are present: in lockstep it waits for an
+        # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
+        children.append(_start(_sim_command(spec, bus), folder))
+        progress = convergence_on(load_map(spec.task), LearnerConfig())
+        return progress, _watch(node, progress, spec.max_episodes, deadline, children)
 
 
 def noise_shares(noise: float) -> tuple[float, float]:

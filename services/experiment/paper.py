@@ -31,7 +31,7 @@ import statistics
 from collections import Counter
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from operator import attrgetter
 from pathlib import Path
 
@@ -389,15 +389,55 @@ def paper_note(tasks: list[str], built_in: list[str]) -> str:
     return note
 
 
+@dataclass(frozen=True)
+class _Scope:
+    """The tasks a report covers, and the paper's figures over the same built-in tasks."""
+
+    tasks: list[str]
+    built_in: list[str]  # the built-in tasks among them: map files have no paper figures
+    paper: dict[str, dict[str, float]]  # paper_average over built_in
+
+    @classmethod
+    def of(cls, tasks: list[str]) -> _Scope:
+        built_in = [t for t in tasks if t in TASKS]
+        return cls(tasks, built_in, paper_average(built_in))
+
+    @property
+    def mixed(self) -> bool:
+        """Built-in tasks and map files: the paper's figures go on rows of the built-in alone."""
+        return bool(self.built_in) and len(self.built_in) < len(self.tasks)
+
+    @property
+    def average_label(self) -> str:
+        return "Avg" if self.tasks == list(TASKS) else f"Avg of {_labels(self.tasks)}"
+
+
 def report(summary: dict, command: str, wall_seconds: float) -> str:
     """The Markdown report: Tables 2 and 3 in the paper's layout, ours beside the paper's."""
     tasks = list(summary["tasks"])
     settings = [s for s in SETTINGS if any(s in summary["tasks"][t] for t in tasks)]
+    feedback = [s for s in settings if SETTINGS[s].feedback]
+    scope = _Scope.of(tasks)
+    lines = _introduction(summary, command, wall_seconds)
+    lines += _table2(summary, scope, settings)
+    lines += _speedups(summary, scope)
+    lines += _table3(summary, scope, feedback)
+    lines += _teacher_words(summary, feedback)
+    lines += _noisy_against_perfect(summary)
+    lines += _FIGURE2_SECTION
+    return "\n".join(lines)
+
+
+def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]:
+    """The title, what was run, and how to read a cell, naming the censored runs (a few)."""
     runs = summary["runs"]
     censored = [r for r in runs if not r["converged"]]
-    head = "| task | " + " | ".join(f"{LABELS[s]} ours | paper" for s in settings) + " |"
-    rule = "|---|" + "---|---|" * len(settings)
-    lines = [
+    named = (
+        ": " + ", ".join(f"task {r['task']} {r['setting']} seed {r['seed']}" for r in censored)
+        if 0 < len(censored) <= 12
+        else ""
+    )
+    return [
         "# Dynamic reward shaping: the paper's experiments again",
         "",
         f"`{command}`: {len(runs)} runs ({summary['seeds']} seeds per task and setting, "
@@ -409,102 +449,125 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         + Convergence(LearnerConfig()).rule()
         + ", the shortest time of each task's map). **Censored runs**: a run that did not "
         "converge within the episode limit counts with its time so far, so its cell's mean "
-        f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored"
-        + (
-            ": " + ", ".join(f"task {r['task']} {r['setting']} seed {r['seed']}" for r in censored)
-            if 0 < len(censored) <= 12
-            else ""
-        )
-        + ").",
+        f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored{named}).",
         "",
-        "## Table 2: episodes (left) and learning time in minutes (right)",
-        "",
-        "Episodes:",
-        "",
-        head,
-        rule,
     ]
-    for task in tasks:
-        row = [f"{_cell(summary, task, s, 'episodes')} | {_paper(PAPER_EPISODES, s, task)}"
-               for s in settings]  # fmt: skip
-        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
-    lines += ["", "Learning time (minutes):", "", head, rule]
-    for task in tasks:
-        row = [f"{_cell(summary, task, s, 'learning_time_s', 60)} | "
-               f"{_paper(PAPER_MINUTES, s, task)}" for s in settings]  # fmt: skip
-        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
-    # The paper's averages over the same tasks: all of them when all are built-in, else
-    # none on the row of all tasks and a row of the built-in tasks alone.
-    built_in = [t for t in tasks if t in TASKS]
-    mixed = bool(built_in) and len(built_in) < len(tasks)
-    paper = paper_average(built_in)
-    average_label = "Avg" if tasks == list(TASKS) else f"Avg of {_labels(tasks)}"
-    average = [
-        f"{summary['mean_learning_time_s'][s] / 60:.1f} | "
-        + ("-" if mixed else _figure(paper["minutes"].get(s)))
-        for s in settings
-    ]
-    lines.append(f"| {average_label} | " + " | ".join(average) + " |")
-    if mixed:
-        lines.append(
-            _built_in_row(summary, built_in, settings, "learning_time_s", paper["minutes"])
-        )
-    note = paper_note(tasks, built_in)
-    lines += ["", note] if note else []
-    lines += ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
-    lines += ["| setting | ours | 95% interval | paper |", "|---|---|---|---|"]
+
+
+def _table2(summary: dict, scope: _Scope, settings: list[str]) -> list[str]:
+    """Table 2: episodes, then learning time in minutes with its averages over the tasks."""
+    lines = ["## Table 2: episodes (left) and learning time in minutes (right)", ""]
+    lines += ["Episodes:", "", *_head(settings)]
+    lines += _task_rows(summary, scope.tasks, settings, "episodes", PAPER_EPISODES)
+    lines += ["", "Learning time (minutes):", "", *_head(settings)]
+    lines += _task_rows(summary, scope.tasks, settings, "learning_time_s", PAPER_MINUTES, 60)
+    minutes = {s: summary["mean_learning_time_s"][s] / 60 for s in settings}
+    lines += _average_rows(summary, scope, settings, "learning_time_s", minutes, "minutes")
+    note = paper_note(scope.tasks, scope.built_in)
+    return lines + (["", note] if note else [])
+
+
+def _speedups(summary: dict, scope: _Scope) -> list[str]:
+    """Each setting's speedup over RL with its bootstrap interval, beside the paper's."""
     bound = "≥ " if summary["speedup_is_lower_bound"] else ""
+    lines = ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
+    lines += ["| setting | ours | 95% interval | paper |", "|---|---|---|---|"]
     for setting, value in summary["speedup"].items():
-        theirs = "-" if mixed else _figure(paper["speedup"].get(setting))
+        theirs = "-" if scope.mixed else _figure(scope.paper["speedup"].get(setting))
         low, high = summary["speedup_ci95"][setting]
         lines.append(
             f"| {LABELS[setting]} | {bound}{value:.2f} | {low:.2f}-{high:.2f} | {theirs} |"
         )
-    if mixed and summary["speedup"]:
-        lines += [
-            "",
-            f"On the built-in tasks alone ({_labels(built_in)}), against the paper's "
-            "speedups over them:",
-            "",
-            "| setting | ours | paper |",
-            "|---|---|---|",
-        ]
-        rl = _over(summary, built_in, "rl", "learning_time_s")
-        for setting in summary["speedup"]:
-            ours = _over(summary, built_in, setting, "learning_time_s")
-            value = "-" if rl is None or not ours else f"{bound}{rl / ours:.2f}"
-            lines.append(
-                f"| {LABELS[setting]} | {value} | {_figure(paper['speedup'].get(setting))} |"
-            )
+    if scope.mixed and summary["speedup"]:
+        lines += _built_in_speedups(summary, scope, bound)
     if bound:
         lines += [
             "",
             "RL did not always converge within the episode limit: its mean is a lower bound, "
             "so the speedups are lower bounds too.",
         ]
-    feedback = [s for s in settings if SETTINGS[s].feedback]
-    lines += [
+    return lines
+
+
+def _built_in_speedups(summary: dict, scope: _Scope, bound: str) -> list[str]:
+    """The speedups over the built-in tasks alone, against the paper's over them."""
+    lines = [
         "",
-        "## Table 3: interventions (understood utterances until convergence)",
+        f"On the built-in tasks alone ({_labels(scope.built_in)}), against the paper's "
+        "speedups over them:",
         "",
-        "| task | " + " | ".join(f"{LABELS[s]} ours | paper" for s in feedback) + " |",
-        "|---|" + "---|---|" * len(feedback),
+        "| setting | ours | paper |",
+        "|---|---|---|",
     ]
-    for task in tasks:
-        row = [f"{_cell(summary, task, s, 'interventions')} | "
-               f"{_paper(PAPER_INTERVENTIONS, s, task)}" for s in feedback]  # fmt: skip
-        lines.append(f"| {task_label(task)} | " + " | ".join(row) + " |")
-    average = [
-        f"{summary['interventions'][s]:.1f} | "
-        + ("-" if mixed else _figure(paper["interventions"].get(s)))
-        for s in feedback
-    ]
-    lines.append(f"| {average_label} | " + " | ".join(average) + " |")
-    if mixed:
+    rl = _over(summary, scope.built_in, "rl", "learning_time_s")
+    for setting in summary["speedup"]:
+        ours = _over(summary, scope.built_in, setting, "learning_time_s")
+        value = "-" if rl is None or not ours else f"{bound}{rl / ours:.2f}"
         lines.append(
-            _built_in_row(summary, built_in, feedback, "interventions", paper["interventions"])
+            f"| {LABELS[setting]} | {value} | {_figure(scope.paper['speedup'].get(setting))} |"
         )
-    lines += [
+    return lines
+
+
+def _table3(summary: dict, scope: _Scope, feedback: list[str]) -> list[str]:
+    """Table 3: the interventions of each feedback setting, with their averages."""
+    lines = ["", "## Table 3: interventions (understood utterances until convergence)", ""]
+    lines += _head(feedback)
+    lines += _task_rows(summary, scope.tasks, feedback, "interventions", PAPER_INTERVENTIONS)
+    interventions = summary["interventions"]
+    return lines + _average_rows(
+        summary, scope, feedback, "interventions", interventions, "interventions"
+    )
+
+
+def _head(settings: list[str]) -> list[str]:
+    """A table's header: per setting, ours and the paper's."""
+    return [
+        "| task | " + " | ".join(f"{LABELS[s]} ours | paper" for s in settings) + " |",
+        "|---|" + "---|---|" * len(settings),
+    ]
+
+
+def _task_rows(
+    summary: dict,
+    tasks: list[str],
+    settings: list[str],
+    key: str,
+    table: dict[str, dict[str, float]],
+    scale: float = 1.0,
+) -> list[str]:
+    """A row per task: our cell of `key` beside the paper's figure in `table`, per setting."""
+    rows = []
+    for task in tasks:
+        cells = [f"{_cell(summary, task, s, key, scale)} | {_paper(table, s, task)}"
+                 for s in settings]  # fmt: skip
+        rows.append(f"| {task_label(task)} | " + " | ".join(cells) + " |")
+    return rows
+
+
+def _average_rows(
+    summary: dict,
+    scope: _Scope,
+    settings: list[str],
+    key: str,
+    ours: dict[str, float],
+    figure: str,
+) -> list[str]:
+    """Our averages over all the tasks beside the paper's `figure` (none with map files among
+    them), and with map files a row of the built-in tasks alone."""
+    theirs = scope.paper[figure]
+    cells = [
+        f"{ours[s]:.1f} | " + ("-" if scope.mixed else _figure(theirs.get(s))) for s in settings
+    ]
+    lines = [f"| {scope.average_label} | " + " | ".join(cells) + " |"]
+    if scope.mixed:
+        lines.append(_built_in_row(summary, scope.built_in, settings, key, theirs))
+    return lines
+
+
+def _teacher_words(summary: dict, feedback: list[str]) -> list[str]:
+    """Every word a teacher says per run: while the robot learns, and dictating the traces."""
+    lines = [
         "",
         "Every word a teacher says per run, mean over the tasks: the words understood while "
         "the robot learns, the commands said to dictate the initial traces (a command lasts "
@@ -519,34 +582,43 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
         lines.append(
             f"| {LABELS[s]} | {learning:.1f} | {dictating:.1f} | {learning + dictating:.1f} |"
         )
+    return lines
+
+
+def _noisy_against_perfect(summary: dict) -> list[str]:
+    """Task 2 with traces, noisy against perfect feedback, as the paper compares them (when
+    both were run)."""
     noisy, perfect = "rl+t+f", "rl+t+f-perfect"
-    if "2" in summary["tasks"] and {noisy, perfect} <= set(summary["tasks"]["2"]):
-        lines += [
-            "",
-            "Task 2 with initial traces, noisy (20%) against perfect feedback (PF):",
-            "",
-            "| | time (min) ours | paper | interventions ours | paper |",
-            "|---|---|---|---|---|",
-        ]
-        for setting, name in ((noisy, "T2"), (perfect, "T2 PF")):
-            lines.append(
-                f"| {name} | {_cell(summary, '2', setting, 'learning_time_s', 60)} | "
-                f"{_paper(PAPER_MINUTES, setting, '2')} | "
-                f"{_cell(summary, '2', setting, 'interventions')} | "
-                f"{_paper(PAPER_INTERVENTIONS, setting, '2')} |"
-            )
-    lines += [
+    if "2" not in summary["tasks"] or not {noisy, perfect} <= set(summary["tasks"]["2"]):
+        return []
+    lines = [
         "",
-        "## Figure 2",
+        "Task 2 with initial traces, noisy (20%) against perfect feedback (PF):",
         "",
-        "![episode duration against episode](figure2.png)",
-        "",
-        "Mean episode duration (robot minutes) of the runs still learning at each episode, "
-        "over all tasks and seeds, one line per setting, as long as a quarter of its runs "
-        "(3 at least) are.",
-        "",
+        "| | time (min) ours | paper | interventions ours | paper |",
+        "|---|---|---|---|---|",
     ]
-    return "\n".join(lines)
+    for setting, name in ((noisy, "T2"), (perfect, "T2 PF")):
+        lines.append(
+            f"| {name} | {_cell(summary, '2', setting, 'learning_time_s', 60)} | "
+            f"{_paper(PAPER_MINUTES, setting, '2')} | "
+            f"{_cell(summary, '2', setting, 'interventions')} | "
+            f"{_paper(PAPER_INTERVENTIONS, setting, '2')} |"
+        )
+    return lines
+
+
+_FIGURE2_SECTION = (
+    "",
+    "## Figure 2",
+    "",
+    "![episode duration against episode](figure2.png)",
+    "",
+    "Mean episode duration (robot minutes) of the runs still learning at each episode, "
+    "over all tasks and seeds, one line per setting, as long as a quarter of its runs "
+    "(3 at least) are.",
+    "",
+)
 
 
 def figure2(results: list[RunResult], path: Path) -> None:

@@ -13,7 +13,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from protocol import Action, Observation, robot_key
-from services.runtime import Input, Node, bus_config, free_loopback_port
+from services.runtime import Input, Node, Output, bus_config, free_loopback_port
 from services.sim.task import SimConfig, Simulation
 from services.world.maps import load_map
 
@@ -49,76 +49,65 @@ def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float
     session = f"bench{uuid.uuid4().hex[:8]}"
     router = f"tcp/127.0.0.1:{free_loopback_port()}"
     voxshape = str(Path(sys.executable).parent / "voxshape")
-    common = ["--session", session, "--connect", router]
-    children = [
-        subprocess.Popen(
-            [voxshape, "router", "--session", session, "--listen", router],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-    ]
+    children = [_quiet([voxshape, "router", "--session", session, "--listen", router])]
     try:
         config = replace(bus_config("bench"), session=session, connect=(router,))
         with Node("bench", config, quiet=True) as node:
             node.input("obs", robot_key(session, "r1", "obs"))
             act = node.output("action", robot_key(session, "r1", "action"))
-            children.append(
-                subprocess.Popen(
-                    [
-                        voxshape,
-                        "sim",
-                        *common,
-                        "--task",
-                        task,
-                        "--clock",
-                        "lockstep",
-                        "--max-steps",
-                        str(warmup + steps),
-                        "--action-timeout",
-                        "5",
-                        "--seed",
-                        "0",
-                    ],
-                    stdout=subprocess.DEVNULL,
-                    stderr=subprocess.DEVNULL,
-                )
-            )
-            answered, t0, sent_at = 0, 0.0, None
-            step_times: list[float] = []  # action sent -> next observation received
-            deadline = time.monotonic() + 120
-            while answered < warmup + steps and time.monotonic() < deadline:
-                event = node.poll(1.0)
-                if not isinstance(event, Input) or not isinstance(event.message, Observation):
-                    continue
-                obs = event.message
-                if sent_at is not None and answered > warmup:
-                    step_times.append(time.perf_counter() - sent_at)
-                sent_at = None
-                if obs.outcome != "running":
-                    continue
-                v, omega = policy(obs.laser)
-                act.put(
-                    Action(
-                        robot="r1",
-                        episode=obs.episode,
-                        step=obs.step,
-                        discrete=None,
-                        v=v,
-                        omega=omega,
-                        chooser="policy",
-                    )
-                )
-                sent_at = time.perf_counter()
-                answered += 1
-                if answered == warmup:
-                    t0 = time.perf_counter()
-            if answered < warmup + steps:
-                raise RuntimeError(f"the simulator answered only {answered} steps in 120 s")
-            return steps / (time.perf_counter() - t0), statistics.median(step_times)
+            sim = [voxshape, "sim", "--session", session, "--connect", router, "--task", task]
+            sim += ["--clock", "lockstep", "--max-steps", str(warmup + steps)]
+            children.append(_quiet([*sim, "--action-timeout", "5", "--seed", "0"]))
+            return _answer(node, act, warmup, steps)
     finally:
         for child in reversed(children):
             child.terminate()
             child.wait(10)
+
+
+def _quiet(command: list[str]) -> subprocess.Popen:
+    """A child process whose output is discarded."""
+    return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def _answer(node: Node, act: Output, warmup: int, steps: int) -> tuple[float, float]:
+    """Answers the simulator's observations with the policy's actions: steps per second after
+    `warmup` steps, and the median seconds from an action sent to the next observation."""
+    answered, t0, sent_at = 0, 0.0, None
+    step_times: list[float] = []  # action sent -> next observation received
+    deadline = time.monotonic() + 120
+    while answered < warmup + steps and time.monotonic() < deadline:
+        event = node.poll(1.0)
+        if not isinstance(event, Input) or not isinstance(event.message, Observation):
+            continue
+        obs = event.message
+        if sent_at is not None and answered > warmup:
+            step_times.append(time.perf_counter() - sent_at)
+        sent_at = None
+        if obs.outcome != "running":
+            continue
+        act.put(_action(obs))
+        sent_at = time.perf_counter()
+        answered += 1
+        if answered == warmup:
+            t0 = time.perf_counter()
+    if answered < warmup + steps:
+        raise RuntimeError(f"the simulator answered only {answered} steps in 120 s")
+    return steps / (time.perf_counter() - t0), statistics.median(step_times)
+
+
+def _action(obs: Observation) -> Action:
+    """The policy's action for an observation."""
+    v, omega = policy(obs.laser)
+    return Action(
+        robot="r1",
+        episode=obs.episode,
+        step=obs.step,
+        discrete=None,
+        v=v,
+        omega=omega,
+        chooser="policy",
+    )
 
 
 def bench_command(args: argparse.Namespace) -> int:

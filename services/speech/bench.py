@@ -18,9 +18,10 @@ from __future__ import annotations
 import csv
 import time
 from collections import defaultdict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -156,6 +157,49 @@ class Tally:
         self.accepted += accepted
 
 
+def _by_key() -> defaultdict[Any, Tally]:
+    """Tallies by key, each begun at its key's first count."""
+    return defaultdict(Tally)
+
+
+@dataclass
+class _Tallies:
+    """A report's outcomes counted the ways its summary states them."""
+
+    conditions: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)
+    voices: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)  # clean speech
+    outside: dict[tuple[str, str], Tally] = field(default_factory=_by_key)  # (split, kind)
+    words: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)  # (lang, text, split)
+    bands: dict[tuple[str, float], Tally] = field(default_factory=_by_key)  # (split, confidence)
+
+    def count_confidences(self, o: Outcome) -> None:
+        """Each phrase recognized (before the gate) in its confidence band, right or not."""
+        for text, confidence in o.recognized:
+            band = max(b for b in CONFIDENCE_BANDS if confidence >= b)
+            right = normalize(text) == normalize(o.clip.text)
+            self.bands[o.clip.split, band].add(right, right, confidence >= MIN_CONFIDENCE)
+
+    def count_other_language(self, o: Outcome, vocabulary: Vocabulary, own: Container[str]) -> None:
+        """Speech in another language is outside the engine's vocabulary too; heard as a phrase
+        of the same meaning ("excellent" as "excelente") it is right."""
+        c = o.clip
+        meant = vocabulary.lookup(c.text) if c.kind == "vocabulary" else None
+        wrong = any(meant is None or vocabulary.lookup(h) is not meant for h in o.heard)
+        if normalize(c.text) not in own:
+            self.outside[c.split, OTHER_LANGUAGE].add(False, False, wrong)
+
+    def count_vocabulary(self, o: Outcome, vocabulary: Vocabulary) -> None:
+        """A vocabulary clip: by condition, by voice when clean, by phrase."""
+        c, accepted = o.clip, bool(o.heard)
+        correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
+        meaning = len(o.heard) == 1 and vocabulary.lookup(o.heard[0]) is vocabulary.lookup(c.text)
+        self.conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
+        if c.condition == "clean":
+            self.voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
+        if c.split != "tune" or c.condition == "clean":
+            self.words[c.language, c.text, c.split].add(correct, meaning, accepted)
+
+
 @dataclass
 class Report:
     engine: str
@@ -168,46 +212,10 @@ class Report:
         false accepts by split and kind, accuracy per phrase, and the calibration: of the
         phrases recognized in vocabulary speech with a confidence in each band (before the
         gate), the share right."""
-        conditions: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
-        voices: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
-        outside: dict[tuple[str, str], Tally] = defaultdict(Tally)
-        words: dict[tuple[str, str, str], Tally] = defaultdict(Tally)
-        own = written_phrases(vocabulary, self.language) if self.language else {}
-        bands: dict[tuple[str, float], Tally] = defaultdict(Tally)
+        tallies = self._count(vocabulary)
         language = self.language or "en"
-        for o in self.outcomes:
-            c = o.clip
-            mine = c.kind == "vocabulary" and c.language == language
-            for text, confidence in o.recognized if mine else ():
-                band = max(b for b in CONFIDENCE_BANDS if confidence >= b)
-                right = normalize(text) == normalize(c.text)
-                bands[c.split, band].add(right, right, confidence >= MIN_CONFIDENCE)
-            accepted = bool(o.heard)
-            if self.language is not None and c.language != self.language:
-                # speech in another language is outside this engine's vocabulary too; heard
-                # as a phrase of the same meaning ("excellent" as "excelente") it is right
-                meant = vocabulary.lookup(c.text) if c.kind == "vocabulary" else None
-                wrong = any(meant is None or vocabulary.lookup(h) is not meant for h in o.heard)
-                if normalize(c.text) not in own:
-                    outside[c.split, OTHER_LANGUAGE].add(False, False, wrong)
-            elif c.kind == "vocabulary":
-                correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
-                meaning = len(o.heard) == 1 and (
-                    vocabulary.lookup(o.heard[0]) is vocabulary.lookup(c.text)
-                )
-                conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
-                if c.condition == "clean":
-                    voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
-                if c.split != "tune" or c.condition == "clean":
-                    words[c.language, c.text, c.split].add(correct, meaning, accepted)
-            else:
-                outside[c.split, OUTSIDE.get(c.kind, c.kind)].add(False, False, accepted)
-        tune, held_out = (conditions.get((s, language, "clean"), Tally()) for s in SPLITS)
-        rejected = {s: _sum(t for k, t in outside.items() if k[0] == s) for s in SPLITS}
-        spent = sum(o.recognize_s for o in self.outcomes)
-        audio = sum(o.audio_s for o in self.outcomes)
-        onsets = [abs(o.onset_error_s) for o in self.outcomes if o.onset_error_s is not None]
-        latencies = [o.latency_s for o in self.outcomes if o.latency_s is not None]
+        tune, held_out = (tallies.conditions.get((s, language, "clean"), Tally()) for s in SPLITS)
+        rejected = {s: _sum(t for k, t in tallies.outside.items() if k[0] == s) for s in SPLITS}
         return {
             "engine": self.engine,
             "language": self.language,
@@ -220,35 +228,77 @@ class Report:
             "held_out_false_accept_rate": _ratio(
                 rejected["held-out"].accepted, rejected["held-out"].n
             ),
+            **self._speed(),
+            "conditions": _nested(tallies.conditions),
+            "voices": _nested(tallies.voices),
+            "false_accepts": _false_accepts(tallies.outside),
+            "calibration": _calibration(tallies.bands),
+            "per_word_accuracy": _per_phrase(tallies.words),
+        }
+
+    def _count(self, vocabulary: Vocabulary) -> _Tallies:
+        """Every outcome counted: its recognized phrases by confidence (vocabulary speech in
+        the engine's language), then the clip as vocabulary or as outside speech."""
+        tallies = _Tallies()
+        own = written_phrases(vocabulary, self.language) if self.language else {}
+        language = self.language or "en"
+        for o in self.outcomes:
+            c = o.clip
+            if c.kind == "vocabulary" and c.language == language:
+                tallies.count_confidences(o)
+            if self.language is not None and c.language != self.language:
+                tallies.count_other_language(o, vocabulary, own)
+            elif c.kind == "vocabulary":
+                tallies.count_vocabulary(o, vocabulary)
+            else:
+                kind = OUTSIDE.get(c.kind, c.kind)
+                tallies.outside[c.split, kind].add(False, False, bool(o.heard))
+        return tallies
+
+    def _speed(self) -> dict[str, float | None]:
+        """The real-time factor, the segmenter's onset error and the latency."""
+        spent = sum(o.recognize_s for o in self.outcomes)
+        audio = sum(o.audio_s for o in self.outcomes)
+        onsets = [abs(o.onset_error_s) for o in self.outcomes if o.onset_error_s is not None]
+        latencies = [o.latency_s for o in self.outcomes if o.latency_s is not None]
+        return {
             "realtime_factor": round(spent / audio, 4) if audio else None,
             "onset_error_p50_s": _percentile(onsets, 50),
             "latency_p50_s": _percentile(latencies, 50),
             "latency_p95_s": _percentile(latencies, 95),
-            "conditions": _nested(conditions),
-            "voices": _nested(voices),
-            "false_accepts": {
-                split: {
-                    kind: {"n": t.n, "accepted": t.accepted, "rate": _ratio(t.accepted, t.n)}
-                    for (s, kind), t in sorted(outside.items())
-                    if s == split
-                }
-                for split in SPLITS
-            },
-            "calibration": {
-                split: {
-                    f"{band:g}": {"n": t.n, "right": t.correct, "share": _ratio(t.correct, t.n)}
-                    for (s, band), t in sorted(bands.items())
-                    if s == split
-                }
-                for split in SPLITS
-            },
-            "per_word_accuracy": {
-                f"{lang}:{text}": {
-                    split: _accuracy(words.get((lang, text, split))) for split in SPLITS
-                }
-                for lang, text in sorted({k[:2] for k in words})
-            },
         }
+
+
+def _false_accepts(outside: dict[tuple[str, str], Tally]) -> dict:
+    """{split: {kind: figures}} of the speech outside the vocabulary."""
+    return {
+        split: {
+            kind: {"n": t.n, "accepted": t.accepted, "rate": _ratio(t.accepted, t.n)}
+            for (s, kind), t in sorted(outside.items())
+            if s == split
+        }
+        for split in SPLITS
+    }
+
+
+def _calibration(bands: dict[tuple[str, float], Tally]) -> dict:
+    """{split: {band: figures}}: of the phrases recognized in each band, the share right."""
+    return {
+        split: {
+            f"{band:g}": {"n": t.n, "right": t.correct, "share": _ratio(t.correct, t.n)}
+            for (s, band), t in sorted(bands.items())
+            if s == split
+        }
+        for split in SPLITS
+    }
+
+
+def _per_phrase(words: dict[tuple[str, str, str], Tally]) -> dict:
+    """{"language:phrase": {split: accuracy}}."""
+    return {
+        f"{lang}:{text}": {split: _accuracy(words.get((lang, text, split))) for split in SPLITS}
+        for lang, text in sorted({k[:2] for k in words})
+    }
 
 
 def _sum(tallies: Iterable[Tally]) -> Tally:
