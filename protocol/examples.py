@@ -29,7 +29,18 @@ def example_messages(
     session: str, robot: str = "r1", teacher: str = "ana"
 ) -> list[tuple[str, Message]]:
     now = time.time()
-    said = Utterance(
+    said = _utterance(robot, teacher, now)
+    return [
+        *_sim_examples(session, robot, now),
+        *_speech_examples(session, robot, teacher, said, now),
+        *_learning_examples(session, robot, teacher, said),
+        *_arbiter_examples(session, robot, teacher, said, now),
+    ]
+
+
+def _utterance(robot: str, teacher: str, now: float) -> Utterance:
+    """What the teacher said, as recognized: the feedback and the notice below refer to it."""
+    return Utterance(
         teacher=teacher,
         robot=robot,
         text="muy bien",
@@ -41,6 +52,10 @@ def example_messages(
         language="es",
         alternatives=(Alternative(text="muy mal", confidence=0.08),),
     )
+
+
+def _sim_examples(session: str, robot: str, now: float) -> list[tuple[str, Message]]:
+    """The simulator's loop: an observation, the action chosen for it, an episode's end."""
     return [
         (
             robot_key(session, robot, "obs"),
@@ -84,6 +99,14 @@ def example_messages(
                 env_return=-4.0,
             ),
         ),
+    ]
+
+
+def _speech_examples(
+    session: str, robot: str, teacher: str, said: Utterance, now: float
+) -> list[tuple[str, Message]]:
+    """A teacher's voice: the audio, what speech recognition made of it, and the text said."""
+    return [
         (
             teacher_key(session, teacher, "audio"),
             AudioChunk(
@@ -109,6 +132,14 @@ def example_messages(
                 end=now - 0.7,
             ),
         ),
+    ]
+
+
+def _learning_examples(
+    session: str, robot: str, teacher: str, said: Utterance
+) -> list[tuple[str, Message]]:
+    """What reaches the learner and what it reports: credited feedback, a learning summary."""
+    return [
         (
             robot_key(session, robot, "feedback"),
             CreditedFeedback(
@@ -136,7 +167,6 @@ def example_messages(
                 episode_return=37.5,
             ),
         ),
-        *_arbiter_examples(session, robot, teacher, said, now),
     ]
 
 

@@ -285,20 +285,54 @@ def run(args: argparse.Namespace) -> int:
     mode = speech_mode(args.speech)
     session_id = prepare_environment(args, mode)
     session = launcher.open_session(args)
-    if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
-        session.say("error: compose.yaml lacks a service the demo needs (sim, learner, ...)")
-        return 2
     simulated = not args.web or args.sim_teacher
+    problem = _arrange_services(session, args, mode, simulated)
+    if problem is not None:
+        session.say(f"error: {problem}")
+        return 2
+    _introduce(session, session_id, args, mode, simulated)
+    robot = args.robots[0]
+    progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
+    session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
+    session.input("teaching", robot_key(session_id, robot, "teaching"))
+    session.input("learning", robot_key(session_id, robot, "learning"))  # its steps
+    t0 = time.monotonic()
+    code = _train_session(session, progress, args)
+    for line in progress.due_lines(time.monotonic(), flush=True):
+        session.say(line)
+    minutes = (time.monotonic() - t0) / 60
+    if code == 0:
+        code = _verdict(session, progress, args.max_episodes, minutes)
+    return outputs(session, session_id, progress) or code
+
+
+def _arrange_services(
+    session: launcher.LocalSession, args: argparse.Namespace, mode: str, simulated: bool
+) -> str | None:
+    """Adds the simulated teacher and keeps the web page only with --web, the simulator
+    last; what is wrong with compose.yaml for the demo, if anything."""
+    if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
+        return "compose.yaml lacks a service the demo needs (sim, learner, ...)"
     if simulated:
         session.specs.append(teacher_spec(session, mode, args.seed, args.teacher_profile))
     if not args.web:  # the page only when a person teaches
         session.specs = [s for s in session.specs if s.name != "web"]
     elif launcher.web_page(session) is None:
-        session.say("error: compose.yaml has no web service for --web")
-        return 2
+        return "compose.yaml has no web service for --web"
     # The robot starts once its learner and teacher listen: at 20x, a start slowed by a busy
     # machine would otherwise run minutes of robot time untaught.
     session.specs.sort(key=lambda spec: spec.name == "sim")
+    return None
+
+
+def _introduce(
+    session: launcher.LocalSession,
+    session_id: str,
+    args: argparse.Namespace,
+    mode: str,
+    simulated: bool,
+) -> None:
+    """Says what is about to run: the task, the robot and its speed, who teaches it, how."""
     speaks = (
         "synthesized speech (espeak-ng) heard by pocketsphinx"
         if mode == "audio"
@@ -314,12 +348,13 @@ def run(args: argparse.Namespace) -> int:
         f"robot {robot} at {args.rtf:g}x real time, taught by {taught}"
         + (f"; {', '.join(others)} also learning, untaught and not counted" if others else "")
     )
-    progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
-    session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
-    session.input("teaching", robot_key(session_id, robot, "teaching"))
-    session.input("learning", robot_key(session_id, robot, "learning"))  # its steps
+
+
+def _train_session(
+    session: launcher.LocalSession, progress: ConvergenceWatch, args: argparse.Namespace
+) -> int:
+    """Starts the session, trains until done and stops it: 0, 1 on an error, 130 on Ctrl-C."""
     code = 0
-    t0 = time.monotonic()
     try:
         took = session.start()
         session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
@@ -334,24 +369,27 @@ def run(args: argparse.Namespace) -> int:
         code = 130
     finally:
         session.stop()
-    for line in progress.due_lines(time.monotonic(), flush=True):
-        session.say(line)
-    minutes = (time.monotonic() - t0) / 60
-    if code == 0 and not progress.convergence.converged:
+    return code
+
+
+def _verdict(
+    session: launcher.LocalSession, progress: ConvergenceWatch, max_episodes: int, minutes: float
+) -> int:
+    """Says whether the robot converged within `max_episodes`: 0 if it did, else 1."""
+    c = progress.convergence
+    if not c.converged:
         goals = sum(e.outcome == "goal" for e in progress.episodes)
         session.say(
-            f"gave up: not converged within {args.max_episodes} episodes, {goals} of which "
-            f"reached the goal; converged means {progress.convergence.rule()} (--max-episodes; "
+            f"gave up: not converged within {max_episodes} episodes, {goals} of which "
+            f"reached the goal; converged means {c.rule()} (--max-episodes; "
             "learning is random, another --seed or more episodes may do)"
         )
-        code = 1
-    elif code == 0:
-        c = progress.convergence
-        session.say(
-            f"converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} robot minutes, "
-            f"{minutes:.1f} wall minutes in all)"
-        )
-    return outputs(session, session_id, progress) or code
+        return 1
+    session.say(
+        f"converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} robot minutes, "
+        f"{minutes:.1f} wall minutes in all)"
+    )
+    return 0
 
 
 def train(

@@ -143,7 +143,9 @@ def rehearse(
     """Runs the scripted session through a fresh arbiter core; every event at its true time."""
     rng = random.Random(seed)
     config = config or ArbiterConfig(
-        rate=50.0, burst=50.0, learning=replace(DelayLearning(), enabled=learn)
+        utterances_per_s=50.0,
+        utterances_at_once=50.0,
+        learning=replace(DelayLearning(), enabled=learn),
     )
     arbiter = Arbiter(config, load_vocabulary())
     result = Rehearsal()
@@ -152,21 +154,12 @@ def rehearse(
         estimate, _ = sync_in_process(arbiter, teacher, START - 1.0, rng)
         result.clock_error = estimate.offset - (-teacher.skew)
     shown = [START + (k + rng.uniform(-0.03, 0.03)) * period for k in range(steps + 1)]
-    bumps: set[int] = set()
-    k = rng.randint(*bump_every)
-    while k < steps:
-        bumps.add(k)
-        k += rng.randint(*bump_every)
+    bumps = _bumps(steps, bump_every, rng)
+    reactions = _reactions(steps, bumps, judge_every, rng)
     # Events on the true clock: (time, order, kind, payload); order keeps ties stable.
     events: list[tuple[float, int, str, object]] = []
     for k in range(steps + 1):
         events.append((shown[k] + 3e-4, len(events), "obs", k))
-    reactions: list[tuple[int, str]] = [(k - 1, "bad") for k in sorted(bumps)]
-    j = rng.randint(*judge_every)
-    while j < steps - 1:
-        if j + 1 not in bumps:
-            reactions.append((j, rng.choice(("good", "bad", "excellent", "terrible"))))
-        j += rng.randint(*judge_every)
     truth: dict[str, int] = {}
     for step, text in reactions:
         onset = shown[step + 1] + max(0.0, rng.gauss(teacher.delay, teacher.jitter))
@@ -182,13 +175,45 @@ def rehearse(
             arbiter.on_observation(observation(robot, k, shown[k], collided=k in bumps), t)
             continue
         assert isinstance(payload, Utterance)
-        learned = arbiter.delay_learned(teacher.name)
-        for message in arbiter.on_utterance(payload, t):
-            if isinstance(message, CreditedFeedback) and message.kind == "reward":
-                steps_weights = [(c.step, c.weight) for c in message.credits]
-                centre = sum(s * w for s, w in steps_weights)
-                heaviest = max(steps_weights, key=lambda sw: sw[1])[0]
-                result.judged.append((truth[payload.id], centre, heaviest))
-                if learned and result.learned_after is None:
-                    result.learned_after = len(result.judged) - 1
+        _judge(arbiter, teacher.name, payload, t, truth[payload.id], result)
     return result
+
+
+def _bumps(steps: int, every: tuple[int, int], rng: random.Random) -> set[int]:
+    """The steps the robot bumps into something at, `every` (min, max) steps apart."""
+    bumps: set[int] = set()
+    k = rng.randint(*every)
+    while k < steps:
+        bumps.add(k)
+        k += rng.randint(*every)
+    return bumps
+
+
+def _reactions(
+    steps: int, bumps: set[int], every: tuple[int, int], rng: random.Random
+) -> list[tuple[int, str]]:
+    """(step, text) the teacher says about: "bad" for the step before each bump, and a random
+    judgement every (min, max) steps on a step whose result is not a bump."""
+    reactions: list[tuple[int, str]] = [(k - 1, "bad") for k in sorted(bumps)]
+    j = rng.randint(*every)
+    while j < steps - 1:
+        if j + 1 not in bumps:
+            reactions.append((j, rng.choice(("good", "bad", "excellent", "terrible"))))
+        j += rng.randint(*every)
+    return reactions
+
+
+def _judge(
+    arbiter: Arbiter, teacher: str, said: Utterance, t: float, truth: int, result: Rehearsal
+) -> None:
+    """Hands `said` to the arbiter at `t` and records where its reward was credited, against
+    the step it was about (and when the teacher's delay was first learnt)."""
+    learned = arbiter.delay_learned(teacher)
+    for message in arbiter.on_utterance(said, t):
+        if isinstance(message, CreditedFeedback) and message.kind == "reward":
+            steps_weights = [(c.step, c.weight) for c in message.credits]
+            centre = sum(s * w for s, w in steps_weights)
+            heaviest = max(steps_weights, key=lambda sw: sw[1])[0]
+            result.judged.append((truth, centre, heaviest))
+            if learned and result.learned_after is None:
+                result.learned_after = len(result.judged) - 1

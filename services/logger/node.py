@@ -28,6 +28,7 @@ import sys
 import threading
 import time
 from collections import Counter
+from typing import Any
 
 import zenoh
 
@@ -41,7 +42,15 @@ from services.logger.run import (
     write_json_atomically,
     write_session_info,
 )
-from services.runtime import ConfigError, Node, Tick, add_bus_arguments, bus_config, fields
+from services.runtime import (
+    BusConfig,
+    ConfigError,
+    Node,
+    Tick,
+    add_bus_arguments,
+    bus_config,
+    fields,
+)
 
 RENDERER_STOP_S = 8.0  # then the renderer finishes on its own (it notices the logger is gone)
 # Samples zenoh may hold for this process before it makes the router wait (~20 s of a session)
@@ -150,26 +159,10 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_config("logger", args)
     port = viewer_port(args.serve_port)
     run_dir = RunDir.for_session(bus.session)
-    settings = {
-        "task": args.task,
-        "flush_every": args.flush_every,
-        "fsync_every": args.fsync_every,
-        "serve": f"{args.serve_bind}:{port}" if port and not args.no_recording else None,
-        "bus": {"mode": bus.mode, "connect": list(bus.connect), "listen": list(bus.listen)},
-    }
-    code = 0
+    settings = _settings(args, bus, port)
     with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up
-        try:
-            write_session_info(run_dir, describe_session(bus.session, args.task, settings))
-            writer = EventLogWriter(run_dir.events, bus.session)
-        except EventLogError as e:
-            raise RunError(str(e)) from None
+        writer = _open_event_log(node, run_dir, bus.session, args.task, settings)
         receiver = Receiver(writer)
-        if writer.repaired_bytes:
-            node.log.warning(
-                "cut off an incomplete last record a killed logger left",
-                extra=fields(file=writer.path, bytes=writer.repaired_bytes),
-            )
         samples = node.zenoh.declare_subscriber(
             session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE)
         )
@@ -190,43 +183,91 @@ def run(args: argparse.Namespace) -> int:
                 serving=settings["serve"] or "no",
             ),
         )
-        last_sync = last_stats = time.monotonic()
-        renderer_reported = False
-        for event in node.events(tick=args.flush_every):
-            if not isinstance(event, Tick):
-                continue
-            now = time.monotonic()
-            try:
-                writer.flush()
-                if args.fsync_every and now - last_sync >= args.fsync_every:
-                    writer.sync()
-                    last_sync = now
-            except OSError as e:  # disk full, file gone
-                node.log.error(f"cannot write the event log {writer.path}: {e}; stopping")
-                code = 1
-                break
-            if renderer is not None and renderer.poll() is not None and not renderer_reported:
-                renderer_reported = True
-                node.log.error(
-                    "the recording process died; the event log goes on. Re-render the "
-                    f"recording afterwards with `voxshape replay {run_dir.path}`",
-                    extra=fields(exit_code=renderer.returncode),
-                )
-            if now - last_stats >= 1.0:
-                _save_stats(node, receiver, run_dir)
-                last_stats = now
+        code = _flush_until_stopped(node, args, writer, receiver, renderer, run_dir)
         samples.undeclare()  # the drainer records what was queued, then ends
         drainer.join(10)
         presence.undeclare()
-        try:
-            writer.close()
-        except OSError as e:
-            node.log.error(f"cannot write the event log {writer.path}: {e}")
+        if not _close_event_log(node, writer):
             code = 1
         _save_stats(node, receiver, run_dir)
         if renderer is not None:
             _stop_renderer(node, renderer)
     return code
+
+
+def _settings(args: argparse.Namespace, bus: BusConfig, port: int) -> dict[str, Any]:
+    """The logger's settings, as session.json records them."""
+    return {
+        "task": args.task,
+        "flush_every": args.flush_every,
+        "fsync_every": args.fsync_every,
+        "serve": f"{args.serve_bind}:{port}" if port and not args.no_recording else None,
+        "bus": {"mode": bus.mode, "connect": list(bus.connect), "listen": list(bus.listen)},
+    }
+
+
+def _open_event_log(
+    node: Node, run_dir: RunDir, session: str, task: str, settings: dict[str, Any]
+) -> EventLogWriter:
+    """Writes session.json and opens the event log, cutting off what a killed logger left."""
+    try:
+        write_session_info(run_dir, describe_session(session, task, settings))
+        writer = EventLogWriter(run_dir.events, session)
+    except EventLogError as e:
+        raise RunError(str(e)) from None
+    if writer.repaired_bytes:
+        node.log.warning(
+            "cut off an incomplete last record a killed logger left",
+            extra=fields(file=writer.path, bytes=writer.repaired_bytes),
+        )
+    return writer
+
+
+def _flush_until_stopped(
+    node: Node,
+    args: argparse.Namespace,
+    writer: EventLogWriter,
+    receiver: Receiver,
+    renderer: subprocess.Popen | None,
+    run_dir: RunDir,
+) -> int:
+    """Every tick: writes the event log out (and syncs it every --fsync-every), reports a dead
+    renderer once and saves the stats. 1 when the event log cannot be written, else 0."""
+    last_sync = last_stats = time.monotonic()
+    renderer_reported = False
+    for event in node.events(tick=args.flush_every):
+        if not isinstance(event, Tick):
+            continue
+        now = time.monotonic()
+        try:
+            writer.flush()
+            if args.fsync_every and now - last_sync >= args.fsync_every:
+                writer.sync()
+                last_sync = now
+        except OSError as e:  # disk full, file gone
+            node.log.error(f"cannot write the event log {writer.path}: {e}; stopping")
+            return 1
+        if renderer is not None and renderer.poll() is not None and not renderer_reported:
+            renderer_reported = True
+            node.log.error(
+                "the recording process died; the event log goes on. Re-render the "
+                f"recording afterwards with `voxshape replay {run_dir.path}`",
+                extra=fields(exit_code=renderer.returncode),
+            )
+        if now - last_stats >= 1.0:
+            _save_stats(node, receiver, run_dir)
+            last_stats = now
+    return 0
+
+
+def _close_event_log(node: Node, writer: EventLogWriter) -> bool:
+    """Writes out the rest of the event log; False (and logged) if it cannot."""
+    try:
+        writer.close()
+    except OSError as e:
+        node.log.error(f"cannot write the event log {writer.path}: {e}")
+        return False
+    return True
 
 
 def _save_stats(node: Node, receiver: Receiver, run_dir: RunDir) -> None:

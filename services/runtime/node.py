@@ -16,6 +16,9 @@ missed, and on joining the last S seconds), as the role's flows in protocol/data
 the messages' ids tell a copy from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
 SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
+
+The typed events, Output and the kept/recovering declarations are in flows.py; opening the
+zenoh session, and BusError, in session.py; all are importable from here too.
 """
 
 from __future__ import annotations
@@ -29,154 +32,34 @@ import threading
 import time
 from collections import Counter
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, replace
 
 import zenoh
-from zenoh.ext import (
-    CacheConfig,
-    HistoryConfig,
-    Miss,
-    MissDetectionConfig,
-    RecoveryConfig,
-    declare_advanced_publisher,
-    declare_advanced_subscriber,
-)
+from zenoh.ext import Miss
 
-from protocol import Message, ProtocolError, decode, encode, parse_key, presence_key
+from protocol import ProtocolError, decode, parse_key, presence_key
 from protocol.dataflow import Direction, check, flow_of
-from services.runtime.config import BusConfig, tcp_address
+from services.runtime.config import BusConfig
+from services.runtime.flows import (
+    Event,
+    Input,
+    Output,
+    Presence,
+    Tick,
+    kept_publisher,
+    query_history,
+    recovering_subscriber,
+)
 from services.runtime.logs import fields, worth_logging
+from services.runtime.session import BusError as BusError  # importable from here too
+from services.runtime.session import open_session
 
 SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM within this
-HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
-HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
-
-
-class BusError(RuntimeError):
-    """The bus cannot be joined; the message says why and what to do."""
-
-
-@dataclass(frozen=True)
-class Input:
-    """A decoded message that arrived on the input called `name`."""
-
-    name: str
-    key: str
-    message: Message
-
-
-@dataclass(frozen=True)
-class Presence:
-    """A node appeared (`alive`) or left the session."""
-
-    role: str
-    node: str
-    alive: bool
-
-
-@dataclass(frozen=True)
-class Tick:
-    """The periodic timer of `events(tick=...)`."""
-
-    time: float
-
-
-Event = Input | Presence | Tick
 _STOP = object()
 
 
 def default_node_id(role: str) -> str:
     host = "".join(c if c.isalnum() or c in "_-" else "-" for c in socket.gethostname())
     return f"{role}-{host[:40]}-{os.getpid()}"
-
-
-LOGIN_WAIT_S = 1.2  # a router that answers lets a good login in within milliseconds
-
-
-def open_session(config: BusConfig) -> zenoh.Session:
-    """Opens a zenoh session, translating zenoh's errors into what a user should do. A user
-    whose router answers is either let in within milliseconds or refused: refused, it is told
-    so at once, not after the whole connect timeout."""
-    answering = config.mode != "router" and _router_answers(config.connect)
-    if config.user is not None and answering:
-        quick = replace(config, connect_timeout=min(config.connect_timeout, LOGIN_WAIT_S))
-        try:
-            return zenoh.open(quick.zenoh_config())
-        except zenoh.ZError as e:
-            if "Unable to connect" not in str(e):
-                raise _bus_error(config, str(e)) from None
-            tls = any(e.startswith("tls/") for e in config.connect)
-            raise BusError(
-                f"the router at {', '.join(config.connect)} refused user {config.user!r}: a "
-                "wrong password or a user it does not know"
-                + (
-                    ", or a certificate it does not accept (--tls-root-ca; mutual TLS: "
-                    "--tls-cert/--tls-key)"
-                    if tls
-                    else " (or this port is its TLS endpoint: connect with tls/)"
-                )
-                + ". Check the password (VOXSHAPE_PASSWORD or VOXSHAPE_PASSWORD_FILE; `voxshape "
-                "certs` wrote it in the session's credentials file) with the session's admin; "
-                "RUST_LOG=debug shows zenoh's own log of the refusal."
-            ) from None
-    try:
-        return zenoh.open(config.zenoh_config())
-    except zenoh.ZError as e:
-        raise _bus_error(config, str(e), answering) from None
-
-
-def _bus_error(config: BusConfig, text: str, answering: bool = False) -> BusError:
-    if "Unable to connect" in text:
-        if answering:
-            return BusError(
-                f"the router at {', '.join(config.connect)} answers but refused this session "
-                f"within {config.connect_timeout:g} s: a secured router needs a user and its "
-                "password (--user, VOXSHAPE_PASSWORD) and, on tls/, --tls-root-ca"
-            )
-        return BusError(
-            f"cannot reach {', '.join(config.connect)} within {config.connect_timeout:g} s. "
-            "Is the session's router running? Locally, `voxshape up` starts one; remotely, "
-            "check --connect/VOXSHAPE_CONNECT and the credentials."
-        )
-    if "listen" in text.lower() or "address" in text.lower():
-        return BusError(
-            f"cannot listen on {', '.join(config.listen)}: {text.split(' at ')[0]}. "
-            "Is another router already using it? Choose another with --listen."
-        )
-    return BusError(f"zenoh refused to open the session: {text.split(' at ')[0]}")
-
-
-def _router_answers(endpoints: tuple[str, ...], timeout: float = 0.5) -> bool:
-    """Whether something accepts TCP connections at one of the tcp/ or tls/ endpoints."""
-    for address in filter(None, map(tcp_address, endpoints)):
-        try:
-            with socket.create_connection(address, timeout=timeout):
-                return True
-        except OSError:
-            continue
-    return False
-
-
-class Output:
-    """A declared publisher of one key; `put` stamps, validates, encodes and sends."""
-
-    def __init__(
-        self, node: Node, name: str, key: str, publisher: zenoh.Publisher, kept: bool = False
-    ) -> None:
-        self.name, self.key, self.kept = name, key, kept
-        self._node, self._publisher = node, publisher
-
-    def put(self, message: Message) -> None:
-        stamped = replace(message, sender=self._node.id, sent_at=time.time())
-        self._publisher.put(encode(stamped))
-        self._node.counters[f"sent.{self.name}"] += 1
-
-    def has_subscribers(self) -> bool:
-        """Whether a subscriber matches this key now, as far as zenoh knows (through a
-        router: once the router has told this session of the subscription)."""
-        if self.kept:
-            raise TypeError(f"output {self.name!r} is kept: zenoh cannot tell its subscribers")
-        return self._publisher.matching_status.matching
 
 
 class Node:
@@ -241,17 +124,7 @@ class Node:
             keep = flow.kept if flow is not None else 0
         congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
         if keep > 0:
-            publisher = declare_advanced_publisher(
-                self.zenoh,
-                key,
-                congestion_control=congestion,
-                express=True,
-                cache=CacheConfig(max_samples=keep),
-                sample_miss_detection=MissDetectionConfig(
-                    heartbeat=None, sporadic_heartbeat=HEARTBEAT_S
-                ),
-                publisher_detection=True,
-            )
+            publisher = kept_publisher(self.zenoh, key, congestion, keep)
         else:
             publisher = self.zenoh.declare_publisher(
                 key, congestion_control=congestion, express=True
@@ -294,14 +167,7 @@ class Node:
             self.counters[f"missed.{name}"] += miss.nb
             self.log.warning("messages lost for good", extra=fields(input=name, count=miss.nb))
 
-        subscriber = declare_advanced_subscriber(
-            self.zenoh,
-            key,
-            on_sample,
-            history=HistoryConfig(detect_late_publishers=True, max_age=recover),
-            recovery=RecoveryConfig(periodic_queries=None, heartbeat=True),
-            subscriber_detection=True,
-        )
+        subscriber = recovering_subscriber(self.zenoh, key, on_sample, recover)
         self._declared.extend([subscriber, subscriber.sample_miss_listener(on_miss)])
         self._recovering[name] = (key, on_sample, recover)
 
@@ -311,17 +177,7 @@ class Node:
         router dropping a killed peer). What comes are copies, behind live messages."""
         key, on_sample, seconds = self._recovering[name]
         self.counters[f"refetched.{name}"] += 1
-
-        def on_reply(reply: zenoh.Reply) -> None:
-            if reply.ok is not None and zenoh.KeyExpr(key).intersects(reply.ok.key_expr):
-                on_sample(reply.ok)
-
-        self.zenoh.get(
-            f"{key}/{HISTORY_SUFFIX}?_time=[now(-{seconds:g}s)..]",
-            on_reply,
-            consolidation=zenoh.ConsolidationMode.NONE,
-            accept_replies=zenoh.ReplyKeyExpr.ANY,
-        )
+        query_history(self.zenoh, key, on_sample, seconds)
 
     def watch_presence(self, role: str = "*", node: str = "*") -> None:
         """Presence events for nodes of the session, including those already present."""

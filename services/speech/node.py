@@ -15,6 +15,7 @@ import argparse
 import os
 import time
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 
 from protocol import (
@@ -78,6 +79,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=env("VOXSHAPE_VOCABULARY"),
         help="vocabulary file (default: built in; VOXSHAPE_VOCABULARY, as the arbiter's)",
     )
+    _pocketsphinx_arguments(parser)
+    _mock_arguments(parser)
+    limits = StreamLimits()
+    parser.add_argument("--max-streams", type=int, default=limits.max_streams)
+    parser.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=limits.idle_timeout_s,
+        help="seconds after which a stream without its final chunk is ended",
+    )
+
+
+def _pocketsphinx_arguments(parser: argparse.ArgumentParser) -> None:
     ps = parser.add_argument_group("pocketsphinx rejection of words outside the vocabulary")
     defaults = PocketsphinxSettings()
     ps.add_argument(
@@ -89,6 +103,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "600, docs/speech.md#accuracy)",
     )
     ps.add_argument("--distractor-weight", type=float, default=defaults.distractor_weight)
+
+
+def _mock_arguments(parser: argparse.ArgumentParser) -> None:
     mock = parser.add_argument_group("mock engine")
     mock.add_argument("--error-rate", type=float, default=0.0, help="0..1 of utterances")
     mock.add_argument(
@@ -99,14 +116,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     mock.add_argument("--latency", type=float, default=0.3, help="seconds after the speech")
     mock.add_argument("--latency-jitter", type=float, default=0.0, help="+- seconds, uniform")
     mock.add_argument("--seed", type=int, default=None)
-    limits = StreamLimits()
-    parser.add_argument("--max-streams", type=int, default=limits.max_streams)
-    parser.add_argument(
-        "--idle-timeout",
-        type=float,
-        default=limits.idle_timeout_s,
-        help="seconds after which a stream without its final chunk is ended",
-    )
 
 
 def mock_settings(args: argparse.Namespace) -> MockSettings:
@@ -132,13 +141,7 @@ def mock_settings(args: argparse.Namespace) -> MockSettings:
 
 
 def run(args: argparse.Namespace) -> int:
-    vocabulary = load_vocabulary(args.vocabulary)
-    if args.engine != "mock" and args.language not in vocabulary.languages:
-        raise ConfigError(
-            f"--language {args.language}: the vocabulary has no phrases in it; it has "
-            f"{', '.join(vocabulary.languages)} (another language needs a --vocabulary file "
-            "with its phrases, docs/speech.md)"
-        )
+    vocabulary = _vocabulary(args)
     bus = bus_config("speech", args)
     if args.max_streams < 1 or args.idle_timeout <= 0:
         raise ConfigError("--max-streams must be >= 1 and --idle-timeout > 0")
@@ -146,49 +149,12 @@ def run(args: argparse.Namespace) -> int:
     engine = MockRecognizer(vocabulary, mock_settings(args)) if args.engine == "mock" else None
     recognizer = None if engine else _audio_engine(args, vocabulary)
     with Node("speech", bus) as node:
-        counts: Counter[str] = Counter()
-
-        def report(kind: str, detail: str) -> None:
-            counts[kind] += 1
-            if worth_logging(counts[kind]):
-                node.log.warning(detail, extra=fields(problem=kind, count=counts[kind]))
-
-        core: AudioTranscriber | MockTranscriber
-        if engine is not None:
-            core = MockTranscriber(engine, node.counters)
-            node.input("said", teacher_key(node.session_id, "*", "said"))  # recovered
-            node.log.info("listening", extra=fields(engine="mock", error_rate=args.error_rate))
-        else:
-            assert recognizer is not None
-            _describe(recognizer, node)
-            limits = StreamLimits(args.max_streams, args.idle_timeout)
-            streams = AudioStreams(limits=limits, counters=node.counters, report=report)
-            core = AudioTranscriber(recognizer, streams, report)
-            node.input("audio", teacher_key(node.session_id, "*", "audio"))  # recovered
-            node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
+        core = _transcriber(node, args, engine, recognizer)
         # The input this engine cannot hear, taken only to tell its senders so.
         unheard_kind = "audio" if engine is not None else "said"
         unheard = Unheard(args.engine, node.counters)
         node.input(unheard_kind, teacher_key(node.session_id, "*", unheard_kind), recover=0.0)
-        outputs: dict[tuple[str, str], Output] = {}
-
-        def publish(results: list[Recognized]) -> None:
-            for r in results:
-                topic = "utterance" if isinstance(r, Utterance) else "notice"
-                if (r.teacher, topic) not in outputs:
-                    key = teacher_key(node.session_id, r.teacher, topic)
-                    outputs[r.teacher, topic] = node.output(topic, key)  # utterances kept
-                outputs[r.teacher, topic].put(r)
-                if isinstance(r, Utterance):
-                    heard = fields(
-                        teacher=r.teacher,
-                        robot=r.robot,
-                        text=r.text,
-                        confidence=f"{r.confidence:.2f}",
-                        after_end_s=f"{r.recognized_at - r.end:.2f}",
-                    )
-                    node.log.info("heard", extra=heard)
-
+        publish = _publisher(node)
         for event in node.events(tick=TICK_S):
             now = time.time()
             match event:
@@ -211,6 +177,79 @@ def run(args: argparse.Namespace) -> int:
                     publish(core.on_tick(now))
         publish(core.close(time.time()))
     return 0
+
+
+def _vocabulary(args: argparse.Namespace) -> Vocabulary:
+    """The vocabulary, which an engine that hears audio needs in --language."""
+    vocabulary = load_vocabulary(args.vocabulary)
+    if args.engine != "mock" and args.language not in vocabulary.languages:
+        raise ConfigError(
+            f"--language {args.language}: the vocabulary has no phrases in it; it has "
+            f"{', '.join(vocabulary.languages)} (another language needs a --vocabulary file "
+            "with its phrases, docs/speech.md)"
+        )
+    return vocabulary
+
+
+def _transcriber(
+    node: Node,
+    args: argparse.Namespace,
+    engine: MockRecognizer | None,
+    recognizer: Recognizer | None,
+) -> AudioTranscriber | MockTranscriber:
+    """The mock engine's transcriber of text said, or an audio engine's of audio streams;
+    either subscribes to its input, which recovers what it missed."""
+    if engine is not None:
+        core = MockTranscriber(engine, node.counters)
+        node.input("said", teacher_key(node.session_id, "*", "said"))  # recovered
+        node.log.info("listening", extra=fields(engine="mock", error_rate=args.error_rate))
+        return core
+    assert recognizer is not None
+    _describe(recognizer, node)
+    report = _reporter(node)
+    limits = StreamLimits(args.max_streams, args.idle_timeout)
+    streams = AudioStreams(limits=limits, counters=node.counters, report=report)
+    audio = AudioTranscriber(recognizer, streams, report)
+    node.input("audio", teacher_key(node.session_id, "*", "audio"))  # recovered
+    node.log.info("listening", extra=fields(engine=args.engine, language=args.language))
+    return audio
+
+
+def _reporter(node: Node) -> Callable[[str, str], None]:
+    """Counts the audio streams' problems by kind, logging a few of each."""
+    counts: Counter[str] = Counter()
+
+    def report(kind: str, detail: str) -> None:
+        counts[kind] += 1
+        if worth_logging(counts[kind]):
+            node.log.warning(detail, extra=fields(problem=kind, count=counts[kind]))
+
+    return report
+
+
+def _publisher(node: Node) -> Callable[[list[Recognized]], None]:
+    """Puts each result on its teacher's utterance or notice output (declared when first
+    needed; utterances kept), and logs what was heard."""
+    outputs: dict[tuple[str, str], Output] = {}
+
+    def publish(results: list[Recognized]) -> None:
+        for r in results:
+            topic = "utterance" if isinstance(r, Utterance) else "notice"
+            if (r.teacher, topic) not in outputs:
+                key = teacher_key(node.session_id, r.teacher, topic)
+                outputs[r.teacher, topic] = node.output(topic, key)  # utterances kept
+            outputs[r.teacher, topic].put(r)
+            if isinstance(r, Utterance):
+                heard = fields(
+                    teacher=r.teacher,
+                    robot=r.robot,
+                    text=r.text,
+                    confidence=f"{r.confidence:.2f}",
+                    after_end_s=f"{r.recognized_at - r.end:.2f}",
+                )
+                node.log.info("heard", extra=heard)
+
+    return publish
 
 
 def _audio_engine(args: argparse.Namespace, vocabulary: Vocabulary) -> Recognizer:

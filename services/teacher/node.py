@@ -30,17 +30,21 @@ import time
 from contextlib import ExitStack
 from pathlib import Path
 
+import numpy as np
+
 from protocol import (
     CreditedFeedback,
     EpisodeEvent,
     Observation,
     TeacherNotice,
     Utterance,
+    Vocabulary,
     check_id,
     load_vocabulary,
     robot_key,
 )
 from services.runtime import (
+    BusConfig,
     ConfigError,
     Input,
     Node,
@@ -50,7 +54,7 @@ from services.runtime import (
     bus_config,
 )
 from services.runtime.audio import AudioError
-from services.teacher.board import Board, Shown, SpeechWatch
+from services.teacher.board import Board, Shown, SpeechUse, SpeechWatch
 from services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
 from services.teacher.session import join_as_teacher
 from services.teacher.sources import (
@@ -129,30 +133,9 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_config("teacher", args, ask=getpass.getpass if sys.stdin.isatty() else None)
     teacher = check_id(args.teacher or bus.user or default_teacher_id(), "teacher")
     robot = check_id(args.robot, "robot")
-    if min(args.linger, args.status_every, args.wait_speech) < 0:
-        raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
-    vocabulary = load_vocabulary(args.vocabulary)
-    if not (args.wav or args.mic) and args.language not in vocabulary.languages:
-        known = ", ".join(vocabulary.languages)  # typing needs phrases in its language
-        raise ConfigError(f"--language {args.language}: the vocabulary has {known} only")
+    vocabulary = _check_arguments(args)
     screen = Screen(args.json)
-    session = bus.session
-    hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
-    if bus.user is not None and bus.user != teacher:
-        refused = (
-            f"a secured router lets user {bus.user!r} speak only as teacher {bus.user!r}: it "
-            f"drops the words of teacher {teacher!r} (leave --teacher out: it defaults to --user)"
-        )
-        screen.note("warning", refused)
-        hint = f"{hint}, or {refused}"
-    board = Board(
-        args.status_every,
-        ANSWER_WITHIN_S,
-        hint,
-        robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
-        f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
-        started_at=time.monotonic(),
-    )
+    board = _board(bus, teacher, robot, args.status_every, screen)
     mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
     try:
         recordings = read_recordings(args.wav or [])
@@ -167,59 +150,113 @@ def run(args: argparse.Namespace) -> int:
             except TeachError as e:
                 raise ConfigError(str(e)) from None
         node = stack.enter_context(Node("teacher", bus, quiet=True))
-        session = node.session_id
-        says = ("audio",) if args.wav or args.mic else ("utterance",)
-        says += ("said",) if args.through_speech else ()
-        outputs = join_as_teacher(
-            node,
-            stack,
-            teacher,
-            says,
-            synced=lambda e: screen.note(
-                "clock",
-                f"clock: the arbiter's is {e.offset:+.3f} s from this one "
-                f"(+-{e.rtt / 2 * 1000:.1f} ms)",
-                offset=e.offset,
-                rtt=e.rtt,
-            ),
-            problem=lambda text: screen.note(
-                "warning", f"{text}; your timing is taken as is until one answers"
-            ),
-        )
+        outputs = _join(node, stack, teacher, args, screen)
         for topic in ("obs", "episode", "feedback"):
-            node.input(topic, robot_key(session, robot, topic))
-        speech = SpeechWatch(
-            "audio"
-            if args.wav or args.mic
-            else "through_speech"
-            if args.through_speech
-            else "typed"
-        )
+            node.input(topic, robot_key(node.session_id, robot, topic))
+        speech = SpeechWatch(_speech_use(args))
         node.watch_presence(role="speech")
         if args.wav or args.mic or args.through_speech:
             _wait_for_speech(node, speech, board, screen, args.wait_speech)
-        if args.wav:
-            start = time.time()
-            sender: Sender = ScheduledSender(
-                wav_stream(recordings, teacher, robot, start, args.fast)
-            )
-            screen.note(
-                "streaming",
-                f"streaming {len(args.wav)} file(s) to robot {robot}",
-                files=[str(f) for f in args.wav],
-                start_time=start,
-            )
-        elif args.mic:
-            sender = MicrophoneSender(mic_chunks, teacher, robot)
-            screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
-        else:
-
-            def via_speech() -> bool:
-                return args.through_speech and speech.available
-
-            sender = TypedSender(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
+        sender = _sender(args, teacher, robot, recordings, mic_chunks, speech, vocabulary, screen)
         _loop(node, outputs, sender, speech, board, screen, args.linger)
     return 0
+
+
+def _check_arguments(args: argparse.Namespace) -> Vocabulary:
+    """Refuses arguments that cannot work; returns the vocabulary (typing needs --language)."""
+    if min(args.linger, args.status_every, args.wait_speech) < 0:
+        raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
+    vocabulary = load_vocabulary(args.vocabulary)
+    if not (args.wav or args.mic) and args.language not in vocabulary.languages:
+        known = ", ".join(vocabulary.languages)  # typing needs phrases in its language
+        raise ConfigError(f"--language {args.language}: the vocabulary has {known} only")
+    return vocabulary
+
+
+def _board(bus: BusConfig, teacher: str, robot: str, every: float, screen: Screen) -> Board:
+    """The status board, with what it says when nothing answers; warns at once of a --teacher
+    that a secured router would silence."""
+    session = bus.session
+    hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
+    if bus.user is not None and bus.user != teacher:
+        refused = (
+            f"a secured router lets user {bus.user!r} speak only as teacher {bus.user!r}: it "
+            f"drops the words of teacher {teacher!r} (leave --teacher out: it defaults to --user)"
+        )
+        screen.note("warning", refused)
+        hint = f"{hint}, or {refused}"
+    return Board(
+        every,
+        ANSWER_WITHIN_S,
+        hint,
+        robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
+        f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
+        started_at=time.monotonic(),
+    )
+
+
+def _join(
+    node: Node, stack: ExitStack, teacher: str, args: argparse.Namespace, screen: Screen
+) -> dict[type, Output]:
+    """Joins as `teacher`, saying audio or typed words (and `said` with --through-speech);
+    the clock exchange's result and problems go to the screen."""
+    says = ("audio",) if args.wav or args.mic else ("utterance",)
+    says += ("said",) if args.through_speech else ()
+    return join_as_teacher(
+        node,
+        stack,
+        teacher,
+        says,
+        synced=lambda e: screen.note(
+            "clock",
+            f"clock: the arbiter's is {e.offset:+.3f} s from this one "
+            f"(+-{e.rtt / 2 * 1000:.1f} ms)",
+            offset=e.offset,
+            rtt=e.rtt,
+        ),
+        problem=lambda text: screen.note(
+            "warning", f"{text}; your timing is taken as is until one answers"
+        ),
+    )
+
+
+def _speech_use(args: argparse.Namespace) -> SpeechUse:
+    """How this teacher's words travel, which decides what losing speech means to it."""
+    if args.wav or args.mic:
+        return "audio"
+    return "through_speech" if args.through_speech else "typed"
+
+
+def _sender(
+    args: argparse.Namespace,
+    teacher: str,
+    robot: str,
+    recordings: list[np.ndarray],
+    mic_chunks: queue.SimpleQueue,
+    speech: SpeechWatch,
+    vocabulary: Vocabulary,
+    screen: Screen,
+) -> Sender:
+    """What sends: the recordings (--wav), the microphone (--mic) or the typed words."""
+    if args.wav:
+        start = time.time()
+        sender: Sender = ScheduledSender(wav_stream(recordings, teacher, robot, start, args.fast))
+        screen.note(
+            "streaming",
+            f"streaming {len(args.wav)} file(s) to robot {robot}",
+            files=[str(f) for f in args.wav],
+            start_time=start,
+        )
+        return sender
+    if args.mic:
+        sender = MicrophoneSender(mic_chunks, teacher, robot)
+        screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
+        return sender
+
+    def via_speech() -> bool:
+        return args.through_speech and speech.available
+
+    return TypedSender(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
 
 
 def _wait_for_speech(

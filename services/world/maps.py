@@ -250,35 +250,68 @@ def _table(data: dict, key: str, allowed: set[str], source: str) -> dict:
     return value
 
 
+_MAP_KEYS = {
+    "name",
+    "size",
+    "timeout",
+    "wall_thickness",
+    "walls",
+    "boxes",
+    "cylinders",
+    "start",
+    "goal",
+    "description",
+}
+
+
 def parse_map(data: dict, source: str = "<map>") -> Map:
-    allowed = {
-        "name",
-        "size",
-        "timeout",
-        "wall_thickness",
-        "walls",
-        "boxes",
-        "cylinders",
-        "start",
-        "goal",
-        "description",
-    }
-    unknown = sorted(set(data) - allowed)
+    unknown = sorted(set(data) - _MAP_KEYS)
     if unknown:
-        raise MapError(f"{source}: unknown key {unknown[0]!r}; allowed: {sorted(allowed)}")
+        raise MapError(f"{source}: unknown key {unknown[0]!r}; allowed: {sorted(_MAP_KEYS)}")
     name = data.get("name")
     if not isinstance(name, str) or not name:
         raise MapError(f'{source}: needs `name = "..."`')
     width, height = _numbers(data.get("size"), 2, f"{source} size", lo=1.0)
     timeout = _number(data.get("timeout"), f"{source} timeout", 1.0, 1e5)
     thickness = _number(data.get("wall_thickness", 0.1), f"{source} wall_thickness", 0.01, 2.0)
+    shapes = [
+        *_border(width, height, thickness),
+        *_walls(data, thickness, source),
+        *_boxes(data, source),
+        *_cylinders(data, source),
+    ]
+    start, jitter = _start(data, source)
+    gx, gy, radius = _goal(data, source)
+    m = Map(
+        name=name,
+        source=source,
+        width=width,
+        height=height,
+        timeout=timeout,
+        shapes=tuple(shapes),
+        start=start,
+        start_jitter=jitter,
+        goal_x=gx,
+        goal_y=gy,
+        goal_radius=radius,
+    )
+    _check_layout(m)
+    return m
 
-    shapes: list[Shape] = [  # the border, outside the [0, width] x [0, height] floor
+
+def _border(width: float, height: float, thickness: float) -> list[Shape]:
+    """The four walls around the [0, width] x [0, height] floor, just outside it."""
+    return [
         Box(width / 2, -thickness / 2, width + 2 * thickness, thickness),
         Box(width / 2, height + thickness / 2, width + 2 * thickness, thickness),
         Box(-thickness / 2, height / 2, thickness, height),
         Box(width + thickness / 2, height / 2, thickness, height),
     ]
+
+
+def _walls(data: dict, thickness: float, source: str) -> list[Shape]:
+    """`walls = [[x1, y1, x2, y2], ...]`: boxes `thickness` wide, overlapping at the ends."""
+    shapes: list[Shape] = []
     for i, wall in enumerate(data.get("walls", [])):
         x1, y1, x2, y2 = _numbers(wall, 4, f"{source} walls[{i}]")
         length = math.hypot(x2 - x1, y2 - y1)
@@ -286,6 +319,12 @@ def parse_map(data: dict, source: str = "<map>") -> Map:
             raise MapError(f"{source} walls[{i}]: the two ends are the same point")
         angle = math.atan2(y2 - y1, x2 - x1)
         shapes.append(Box((x1 + x2) / 2, (y1 + y2) / 2, length + thickness, thickness, angle))
+    return shapes
+
+
+def _boxes(data: dict, source: str) -> list[Shape]:
+    """`[[boxes]]`: center, size and angle in degrees."""
+    shapes: list[Shape] = []
     for i, box in enumerate(data.get("boxes", [])):
         where = f"{source} boxes[{i}]"
         if not isinstance(box, dict) or set(box) - {"center", "size", "angle"}:
@@ -294,35 +333,34 @@ def parse_map(data: dict, source: str = "<map>") -> Map:
         w, d = _numbers(box.get("size"), 2, f"{where} size", lo=0.01)
         angle = math.radians(_number(box.get("angle", 0.0), f"{where} angle"))
         shapes.append(Box(x, y, w, d, angle))
+    return shapes
+
+
+def _cylinders(data: dict, source: str) -> list[Shape]:
+    """`[[cylinders]]`: center and radius."""
+    shapes: list[Shape] = []
     for i, cyl in enumerate(data.get("cylinders", [])):
         where = f"{source} cylinders[{i}]"
         if not isinstance(cyl, dict) or set(cyl) - {"center", "radius"}:
             raise MapError(f"{where}: expected center = [x, y], radius = r")
         x, y = _numbers(cyl.get("center"), 2, f"{where} center")
         shapes.append(Cylinder(x, y, _number(cyl.get("radius"), f"{where} radius", 0.01)))
+    return shapes
 
+
+def _start(data: dict, source: str) -> tuple[Pose, Pose]:
+    """The [start] table: the pose and its jitter (degrees in the file, radians here)."""
     start = _table(data, "start", {"pose", "jitter"}, source)
     sx, sy, sdeg = _numbers(start.get("pose"), 3, f"{source} [start] pose")
     jx, jy, jdeg = _numbers(start.get("jitter", [0, 0, 0]), 3, f"{source} [start] jitter", lo=0)
+    return Pose(sx, sy, math.radians(sdeg)), Pose(jx, jy, math.radians(jdeg))
+
+
+def _goal(data: dict, source: str) -> tuple[float, float, float]:
+    """The [goal] table: its center x, y and radius."""
     goal = _table(data, "goal", {"center", "radius"}, source)
     gx, gy = _numbers(goal.get("center"), 2, f"{source} [goal] center")
-    radius = _number(goal.get("radius"), f"{source} [goal] radius", 0.05)
-
-    m = Map(
-        name=name,
-        source=source,
-        width=width,
-        height=height,
-        timeout=timeout,
-        shapes=tuple(shapes),
-        start=Pose(sx, sy, math.radians(sdeg)),
-        start_jitter=Pose(jx, jy, math.radians(jdeg)),
-        goal_x=gx,
-        goal_y=gy,
-        goal_radius=radius,
-    )
-    _check_layout(m)
-    return m
+    return gx, gy, _number(goal.get("radius"), f"{source} [goal] radius", 0.05)
 
 
 def _check_layout(m: Map) -> None:

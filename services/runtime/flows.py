@@ -1,0 +1,135 @@
+"""A node's flows, typed: the events its loop yields (Input, Presence, Tick) and the Output it
+sends on; and how zenoh's advanced publisher and subscriber make a kept output and a
+recovering input, so that what a restart made a subscriber miss still reaches it."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import zenoh
+from zenoh.ext import (
+    AdvancedPublisher,
+    AdvancedSubscriber,
+    CacheConfig,
+    HistoryConfig,
+    MissDetectionConfig,
+    RecoveryConfig,
+    declare_advanced_publisher,
+    declare_advanced_subscriber,
+)
+
+from protocol import Message, encode
+
+if TYPE_CHECKING:
+    from services.runtime.node import Node
+
+HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
+HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
+
+
+@dataclass(frozen=True)
+class Input:
+    """A decoded message that arrived on the input called `name`."""
+
+    name: str
+    key: str
+    message: Message
+
+
+@dataclass(frozen=True)
+class Presence:
+    """A node appeared (`alive`) or left the session."""
+
+    role: str
+    node: str
+    alive: bool
+
+
+@dataclass(frozen=True)
+class Tick:
+    """The periodic timer of `events(tick=...)`."""
+
+    time: float
+
+
+Event = Input | Presence | Tick
+
+
+class Output:
+    """A declared publisher of one key; `put` stamps, validates, encodes and sends."""
+
+    def __init__(
+        self, node: Node, name: str, key: str, publisher: zenoh.Publisher, kept: bool = False
+    ) -> None:
+        self.name, self.key, self.kept = name, key, kept
+        self._node, self._publisher = node, publisher
+
+    def put(self, message: Message) -> None:
+        stamped = replace(message, sender=self._node.id, sent_at=time.time())
+        self._publisher.put(encode(stamped))
+        self._node.counters[f"sent.{self.name}"] += 1
+
+    def has_subscribers(self) -> bool:
+        """Whether a subscriber matches this key now, as far as zenoh knows (through a
+        router: once the router has told this session of the subscription)."""
+        if self.kept:
+            raise TypeError(f"output {self.name!r} is kept: zenoh cannot tell its subscribers")
+        return self._publisher.matching_status.matching
+
+
+def kept_publisher(
+    session: zenoh.Session, key: str, congestion: zenoh.CongestionControl, keep: int
+) -> AdvancedPublisher:
+    """A publisher that keeps its last `keep` messages for recovering inputs, and announces
+    its sequence numbers so that they notice what they missed."""
+    return declare_advanced_publisher(
+        session,
+        key,
+        congestion_control=congestion,
+        express=True,
+        cache=CacheConfig(max_samples=keep),
+        sample_miss_detection=MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
+        publisher_detection=True,
+    )
+
+
+def recovering_subscriber(
+    session: zenoh.Session,
+    key: str,
+    on_sample: Callable[[zenoh.Sample], None],
+    recover: float,
+) -> AdvancedSubscriber:
+    """A subscriber that fetches from kept outputs what it missed, and on joining what they
+    published in the last `recover` seconds."""
+    return declare_advanced_subscriber(
+        session,
+        key,
+        on_sample,
+        history=HistoryConfig(detect_late_publishers=True, max_age=recover),
+        recovery=RecoveryConfig(periodic_queries=None, heartbeat=True),
+        subscriber_detection=True,
+    )
+
+
+def query_history(
+    session: zenoh.Session,
+    key: str,
+    on_sample: Callable[[zenoh.Sample], None],
+    seconds: float,
+) -> None:
+    """Asks the kept outputs on `key` for what they published in the last `seconds`; the
+    replies go to `on_sample` as they come."""
+
+    def on_reply(reply: zenoh.Reply) -> None:
+        if reply.ok is not None and zenoh.KeyExpr(key).intersects(reply.ok.key_expr):
+            on_sample(reply.ok)
+
+    session.get(
+        f"{key}/{HISTORY_SUFFIX}?_time=[now(-{seconds:g}s)..]",
+        on_reply,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        accept_replies=zenoh.ReplyKeyExpr.ANY,
+    )
