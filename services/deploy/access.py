@@ -264,7 +264,7 @@ def _adv(keys: list[str]) -> list[str]:
 
 
 def _kept_and_recovering(name: str, published: list[str], subscribed: list[str]) -> list[dict]:
-    """zenoh's advanced publishers and subscribers (services/runtime/node.py: kept outputs,
+    """zenoh's advanced publishers and subscribers (services/runtime/flows.py: kept outputs,
     recovering inputs) talk under `<key>/@adv/...`: the publisher announces itself, sends
     heartbeats and answers the subscribers' queries for what they missed with the messages
     themselves (replies on `<key>`). Only a user who may publish `<key>` may answer for it."""

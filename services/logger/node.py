@@ -13,18 +13,16 @@ Two processes, so that recording never slows the session down:
   the samples over through a FIFO channel, so its receiving thread never waits for Python or
   the disk: a subscriber that made zenoh wait would, through BLOCK congestion control, make
   the simulator and learner wait too (benchmarks/logger.py measures one);
-- a child, `voxshape replay RUN --follow`, at a lower CPU priority, follows the event log and
-  draws it with rerun (recording.py), serving viewers on `--serve-port`. When it falls behind
-  it draws fewer scans (counted); the event log is never thinned.
+- a child (renderer.py), `voxshape replay RUN --follow`, at a lower CPU priority, follows the
+  event log and draws it with rerun (recording.py), serving viewers on `--serve-port`. When it
+  falls behind it draws fewer scans (counted); the event log is never thinned.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import os
 import subprocess
-import sys
 import threading
 import time
 from collections import Counter
@@ -34,6 +32,7 @@ import zenoh
 
 from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
 from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord
+from services.logger.renderer import start_renderer, stop_renderer
 from services.logger.run import (
     RunDir,
     RunError,
@@ -52,7 +51,6 @@ from services.runtime import (
     fields,
 )
 
-RENDERER_STOP_S = 8.0  # then the renderer finishes on its own (it notices the logger is gone)
 # Samples zenoh may hold for this process before it makes the router wait (~20 s of a session)
 RECEIVE_QUEUE = 50_000
 
@@ -173,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
         presence = node.zenoh.liveliness().declare_subscriber(  # rare: a callback will do
             presence_key(bus.session), receiver.record, history=True
         )
-        renderer = None if args.no_recording else _start_renderer(args, run_dir, bus.session, port)
+        renderer = None if args.no_recording else start_renderer(args, run_dir, bus.session, port)
         node.log.info(
             "logging",
             extra=fields(
@@ -191,7 +189,7 @@ def run(args: argparse.Namespace) -> int:
             code = 1
         _save_stats(node, receiver, run_dir)
         if renderer is not None:
-            _stop_renderer(node, renderer)
+            stop_renderer(node, renderer)
     return code
 
 
@@ -276,45 +274,3 @@ def _save_stats(node: Node, receiver: Receiver, run_dir: RunDir) -> None:
     for k, v in stats.items():
         if isinstance(v, int):
             node.counters[k] = v
-
-
-def _start_renderer(
-    args: argparse.Namespace, run_dir: RunDir, session: str, port: int
-) -> subprocess.Popen:
-    command = [
-        sys.executable,
-        "-m",
-        "services",
-        "replay",
-        str(run_dir.path),
-        "--follow",
-        "--until-stdin-closes",
-        "--recording-id",
-        session,
-        "--serve-port",
-        str(port),
-        "--serve-bind",
-        args.serve_bind,
-        "--thin-after",
-        str(args.thin_after),
-        "--keep-one-scan-in",
-        str(args.keep_one_scan_in),
-    ]
-    # Its stdin is a pipe from here: closed when the event log is complete, or by the kernel
-    # if this process dies; either way the renderer draws the rest and closes the recording.
-    renderer = subprocess.Popen(command, stdin=subprocess.PIPE)
-    with contextlib.suppress(OSError):  # not allowed here: it runs at normal priority
-        os.setpriority(os.PRIO_PROCESS, renderer.pid, args.render_nice)
-    return renderer
-
-
-def _stop_renderer(node: Node, renderer: subprocess.Popen) -> None:
-    """Lets the renderer draw the rest of the (now closed) event log and close the .rrd."""
-    renderer.stdin.close()
-    try:
-        renderer.wait(RENDERER_STOP_S)
-    except subprocess.TimeoutExpired:
-        node.log.warning(
-            "the recording is still catching up; it finishes on its own",
-            extra=fields(renderer_pid=renderer.pid),
-        )

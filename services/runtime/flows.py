@@ -5,9 +5,9 @@ recovering input, so that what a restart made a subscriber miss still reaches it
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import TYPE_CHECKING
 
 import zenoh
 from zenoh.ext import (
@@ -22,9 +22,6 @@ from zenoh.ext import (
 )
 
 from protocol import Message, encode
-
-if TYPE_CHECKING:
-    from services.runtime.node import Node
 
 HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
 HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
@@ -59,18 +56,25 @@ Event = Input | Presence | Tick
 
 
 class Output:
-    """A declared publisher of one key; `put` stamps, validates, encodes and sends."""
+    """A declared publisher of one key; `put` stamps (as sent by node `sender`), validates,
+    encodes and sends, and counts it in the node's `counters`."""
 
     def __init__(
-        self, node: Node, name: str, key: str, publisher: zenoh.Publisher, kept: bool = False
+        self,
+        sender: str,
+        counters: Counter[str],
+        name: str,
+        key: str,
+        publisher: zenoh.Publisher,
+        kept: bool = False,
     ) -> None:
         self.name, self.key, self.kept = name, key, kept
-        self._node, self._publisher = node, publisher
+        self._sender, self._counters, self._publisher = sender, counters, publisher
 
     def put(self, message: Message) -> None:
-        stamped = replace(message, sender=self._node.id, sent_at=time.time())
+        stamped = replace(message, sender=self._sender, sent_at=time.time())
         self._publisher.put(encode(stamped))
-        self._node.counters[f"sent.{self.name}"] += 1
+        self._counters[f"sent.{self.name}"] += 1
 
     def has_subscribers(self) -> bool:
         """Whether a subscriber matches this key now, as far as zenoh knows (through a

@@ -130,7 +130,7 @@ class Node:
                 key, congestion_control=congestion, express=True
             )
         self._declared.append(publisher)
-        return Output(self, name, key, publisher, kept=keep > 0)
+        return Output(self.id, self.counters, name, key, publisher, kept=keep > 0)
 
     def input(self, name: str, key: str, *, recover: float | None = None) -> None:
         """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...).

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import getpass
-import json
 import os
 import queue
 import sys
@@ -32,29 +31,11 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol import (
-    CreditedFeedback,
-    EpisodeEvent,
-    Observation,
-    TeacherNotice,
-    Utterance,
-    Vocabulary,
-    check_id,
-    load_vocabulary,
-    robot_key,
-)
-from services.runtime import (
-    BusConfig,
-    ConfigError,
-    Input,
-    Node,
-    Output,
-    Presence,
-    add_bus_arguments,
-    bus_config,
-)
+from protocol import Utterance, Vocabulary, check_id, load_vocabulary, robot_key
+from services.runtime import ConfigError, Node, Output, add_bus_arguments, bus_config
 from services.runtime.audio import AudioError
-from services.teacher.board import Board, Shown, SpeechUse, SpeechWatch
+from services.teacher.board import Board, SpeechUse, SpeechWatch
+from services.teacher.screen import Screen, show_event, terminal_board
 from services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
 from services.teacher.session import join_as_teacher
 from services.teacher.sources import (
@@ -66,7 +47,6 @@ from services.teacher.sources import (
 )
 
 TICK_S = 0.02
-ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -115,19 +95,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-class Screen:
-    def __init__(self, as_json: bool) -> None:
-        self.as_json = as_json
-
-    def show(self, items: list[Shown]) -> None:
-        for item in items:
-            line = json.dumps(item.as_json()) if self.as_json else item.text
-            print(line, flush=True)
-
-    def note(self, event: str, message: str, **data: object) -> None:
-        self.show([Shown(event, message, {"message": message, **data})])
-
-
 def run(args: argparse.Namespace) -> int:
     # A person joining a secured session with --user alone is asked for the password.
     bus = bus_config("teacher", args, ask=getpass.getpass if sys.stdin.isatty() else None)
@@ -135,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     vocabulary = _check_arguments(args)
     screen = Screen(args.json)
-    board = _board(bus, teacher, robot, args.status_every, screen)
+    board = terminal_board(bus, teacher, robot, args.status_every, screen)
     mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
     try:
         recordings = read_recordings(args.wav or [])
@@ -171,28 +138,6 @@ def _check_arguments(args: argparse.Namespace) -> Vocabulary:
         known = ", ".join(vocabulary.languages)  # typing needs phrases in its language
         raise ConfigError(f"--language {args.language}: the vocabulary has {known} only")
     return vocabulary
-
-
-def _board(bus: BusConfig, teacher: str, robot: str, every: float, screen: Screen) -> Board:
-    """The status board, with what it says when nothing answers; warns at once of a --teacher
-    that a secured router would silence."""
-    session = bus.session
-    hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
-    if bus.user is not None and bus.user != teacher:
-        refused = (
-            f"a secured router lets user {bus.user!r} speak only as teacher {bus.user!r}: it "
-            f"drops the words of teacher {teacher!r} (leave --teacher out: it defaults to --user)"
-        )
-        screen.note("warning", refused)
-        hint = f"{hint}, or {refused}"
-    return Board(
-        every,
-        ANSWER_WITHIN_S,
-        hint,
-        robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
-        f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
-        started_at=time.monotonic(),
-    )
 
 
 def _join(
@@ -267,31 +212,13 @@ def _wait_for_speech(
     deadline = time.monotonic() + seconds
     while not speech.available and time.monotonic() < deadline:
         event = node.poll(0.05)
-        _show_event(event, speech, board, screen)
+        show_event(event, speech, board, screen)
     if not speech.available:
         screen.note(
             "warning",
             f"no speech service listens in session {node.session_id!r} yet: what you say may be "
             "lost (start one with `voxshape speech`, or `voxshape up`)",
         )
-
-
-def _show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen) -> None:
-    now = time.monotonic()
-    match event:
-        case Presence(role="speech", node=node, alive=alive):
-            screen.show(speech.change(node, alive))
-        case Input(message=Utterance() as utterance):
-            screen.show(board.recognized(utterance, now))
-        case Input(message=Observation() as obs):
-            screen.show(board.observation(obs, now))
-        case Input(message=EpisodeEvent() as episode):
-            screen.show(board.episode(episode))
-        case Input(message=CreditedFeedback() as feedback):
-            screen.show(board.feedback(feedback))
-        case Input(message=TeacherNotice() as notice):
-            screen.show(board.notice(notice, now))
-    screen.show(board.tick(now))
 
 
 def _loop(
@@ -305,7 +232,7 @@ def _loop(
 ) -> None:
     lingering_until = None
     for event in node.events(tick=TICK_S):
-        _show_event(event, speech, board, screen)
+        show_event(event, speech, board, screen)
         for message in sender.due():
             outputs[type(message)].put(message)
             if isinstance(message, Utterance):

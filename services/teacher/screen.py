@@ -1,0 +1,67 @@
+"""What `voxshape teach` shows at the terminal: its lines (text, or JSON with --json), the
+status board in this client's words, and each event of the bus shown on it."""
+
+from __future__ import annotations
+
+import json
+import time
+
+from protocol import CreditedFeedback, EpisodeEvent, Observation, TeacherNotice, Utterance
+from services.runtime import BusConfig, Input, Presence
+from services.teacher.board import Board, Shown, SpeechWatch
+
+ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
+
+
+class Screen:
+    def __init__(self, as_json: bool) -> None:
+        self.as_json = as_json
+
+    def show(self, items: list[Shown]) -> None:
+        for item in items:
+            line = json.dumps(item.as_json()) if self.as_json else item.text
+            print(line, flush=True)
+
+    def note(self, event: str, message: str, **data: object) -> None:
+        self.show([Shown(event, message, {"message": message, **data})])
+
+
+def terminal_board(bus: BusConfig, teacher: str, robot: str, every: float, screen: Screen) -> Board:
+    """The status board, with what it says when nothing answers; warns at once of a --teacher
+    that a secured router would silence."""
+    session = bus.session
+    hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
+    if bus.user is not None and bus.user != teacher:
+        refused = (
+            f"a secured router lets user {bus.user!r} speak only as teacher {bus.user!r}: it "
+            f"drops the words of teacher {teacher!r} (leave --teacher out: it defaults to --user)"
+        )
+        screen.note("warning", refused)
+        hint = f"{hint}, or {refused}"
+    return Board(
+        every,
+        ANSWER_WITHIN_S,
+        hint,
+        robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
+        f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
+        started_at=time.monotonic(),
+    )
+
+
+def show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen) -> None:
+    """Shows what `event` (one of the node's, or None) changed, then what time brought."""
+    now = time.monotonic()
+    match event:
+        case Presence(role="speech", node=node, alive=alive):
+            screen.show(speech.change(node, alive))
+        case Input(message=Utterance() as utterance):
+            screen.show(board.recognized(utterance, now))
+        case Input(message=Observation() as obs):
+            screen.show(board.observation(obs, now))
+        case Input(message=EpisodeEvent() as episode):
+            screen.show(board.episode(episode))
+        case Input(message=CreditedFeedback() as feedback):
+            screen.show(board.feedback(feedback))
+        case Input(message=TeacherNotice() as notice):
+            screen.show(board.notice(notice, now))
+    screen.show(board.tick(now))
