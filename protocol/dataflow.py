@@ -95,7 +95,7 @@ DATAFLOW: dict[str, NodeRole] = {
     "learner": NodeRole(
         "learner",
         "learns from its robot's observations and credited feedback; decides its actions",
-        publishes=_flows("robot", "own", "action", "learning"),
+        publishes=_flows("robot", "own", "action", "learning", "help"),
         subscribes=(
             *_flows("robot", "own", "obs"),
             _recovered("robot", "own", "feedback", FEEDBACK_RECOVER_S),
@@ -106,11 +106,12 @@ DATAFLOW: dict[str, NodeRole] = {
         "turns every teacher's utterances into credited feedback on the robots' step clocks",
         publishes=(
             _kept("robot", ANY, "feedback", FEEDBACK_KEPT),
-            *_flows("robot", ANY, "teaching"),
+            *_flows("robot", ANY, "teaching", "answer"),
             *_flows("teacher", ANY, "notice", "clock-reply"),
         ),
         subscribes=(
             _recovered("robot", ANY, "obs", RECOVER_S),
+            *_flows("robot", ANY, "help"),
             _recovered("teacher", ANY, "utterance", RECOVER_S),
             *_flows("teacher", ANY, "clock"),
         ),
@@ -138,7 +139,7 @@ DATAFLOW: dict[str, NodeRole] = {
         ),
         subscribes=(
             *_flows("teacher", "own", "utterance", "notice", "clock-reply"),
-            *_flows("robot", ANY, "obs", "episode", "feedback"),
+            *_flows("robot", ANY, "obs", "episode", "feedback", "help", "answer"),
         ),
     ),
     "simteacher": NodeRole(
@@ -151,14 +152,14 @@ DATAFLOW: dict[str, NodeRole] = {
         ),
         subscribes=(
             *_flows("teacher", "own", "notice", "clock-reply"),
-            *_flows("robot", ANY, "obs"),
+            *_flows("robot", ANY, "obs", "help"),
         ),
     ),
     "web": NodeRole(
         "observer",
         "the teachers' web page (voxshape web): shows every robot to the browsers; each "
         "browser's teacher is a teacher node of its own",
-        subscribes=_flows("robot", ANY, "obs", "episode", "feedback", "teaching"),
+        subscribes=_flows("robot", ANY, "obs", "episode", "feedback", "teaching", "help", "answer"),
     ),
     "logger": NodeRole("admin", "records every message of the session", everything=True),
     "launcher": NodeRole("admin", "voxshape up and the demo: watch the session", everything=True),

@@ -14,6 +14,8 @@ from protocol.messages import (
     Credit,
     CreditedFeedback,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     LearningSummary,
     Message,
     Observation,
@@ -35,6 +37,7 @@ def example_messages(
         *_speech_examples(session, robot, teacher, said, now),
         *_learning_examples(session, robot, teacher, said),
         *_arbiter_examples(session, robot, teacher, said, now),
+        *_help_examples(session, robot, teacher, said),
     ]
 
 
@@ -216,6 +219,29 @@ def _arbiter_examples(
                         clock_rtt=probe.rtt,
                     ),
                 ),
+            ),
+        ),
+    ]
+
+
+def _help_examples(
+    session: str, robot: str, teacher: str, said: Utterance
+) -> list[tuple[str, Message]]:
+    """The robot asks which way (learner), and who answered (arbiter)."""
+    question = HelpRequest(
+        robot=robot, episode=3, step=405, reason="stuck", detail="stuck for 10 s", x=1.2, y=-0.4
+    )
+    return [
+        (robot_key(session, robot, "help"), question),
+        (
+            robot_key(session, robot, "answer"),
+            HelpAnswer(
+                robot=robot,
+                question=question.id,
+                step=question.step,
+                teacher=teacher,
+                meaning="left",
+                utterance=said.id,
             ),
         ),
     ]

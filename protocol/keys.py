@@ -6,6 +6,8 @@ voxshape/<session>/robot/<robot>/episode          EpisodeEvent
 voxshape/<session>/robot/<robot>/feedback         CreditedFeedback
 voxshape/<session>/robot/<robot>/learning         LearningSummary
 voxshape/<session>/robot/<robot>/teaching         TeachingStats (interventions, teacher stats)
+voxshape/<session>/robot/<robot>/help             HelpRequest (the robot asks which way)
+voxshape/<session>/robot/<robot>/answer           HelpAnswer (who answered, with what)
 voxshape/<session>/teacher/<teacher>/audio        AudioChunk
 voxshape/<session>/teacher/<teacher>/utterance    Utterance
 voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for the mock engine)
@@ -32,6 +34,8 @@ from protocol.messages import (
     ClockReply,
     CreditedFeedback,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     LearningSummary,
     Message,
     Observation,
@@ -51,6 +55,8 @@ ROBOT_TOPICS: dict[str, type[Message]] = {
     "feedback": CreditedFeedback,
     "learning": LearningSummary,
     "teaching": TeachingStats,
+    "help": HelpRequest,
+    "answer": HelpAnswer,
 }
 TEACHER_TOPICS: dict[str, type[Message]] = {
     "audio": AudioChunk,

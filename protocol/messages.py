@@ -323,6 +323,37 @@ class TeacherNotice(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
+class HelpRequest(Message):
+    """The robot asks its teachers "which way?" (learner -> arbiter, teachers): why, and
+    where it is. The arbiter takes the first word said within a few seconds as the answer."""
+
+    TYPE: ClassVar[str] = "help"
+
+    robot: Id
+    episode: Count
+    step: Count  # the observation it asked at: an answer is credited to it
+    reason: Literal["stuck", "late", "unsure"]
+    detail: Text  # for people, e.g. "stuck for 10 s"
+    x: Metres
+    y: Metres
+
+
+@dataclass(frozen=True, kw_only=True)
+class HelpAnswer(Message):
+    """Who answered a robot's question, and with what (arbiter -> learner, teachers): the
+    first understood word after it; the other teachers see it was answered."""
+
+    TYPE: ClassVar[str] = "answer"
+
+    robot: Id
+    question: MessageId  # the HelpRequest's id
+    step: Count  # the question's step
+    teacher: Id
+    meaning: Name  # the vocabulary meaning of the answer, e.g. "left"
+    utterance: MessageId
+
+
+@dataclass(frozen=True, kw_only=True)
 class TeacherStats:
     """One teacher's part in a robot's teaching (within TeachingStats)."""
 
@@ -370,5 +401,7 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         ClockReply,
         TeacherNotice,
         TeachingStats,
+        HelpRequest,
+        HelpAnswer,
     )
 }

@@ -8,7 +8,14 @@ from dataclasses import replace
 
 import pytest
 
-from protocol import ClockProbe, CreditedFeedback, TeacherNotice, TeachingStats
+from protocol import (
+    ClockProbe,
+    CreditedFeedback,
+    HelpAnswer,
+    HelpRequest,
+    TeacherNotice,
+    TeachingStats,
+)
 from protocol.vocabulary import load_vocabulary, parse_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.clocks import SimulatorClock
@@ -549,3 +556,32 @@ def test_a_restarted_arbiter_drops_long_recovered_words_before_its_rate_limit():
     taken = {s for fb in feedback(out) for s in fb.sources}
     assert taken == {u.id for u in new}
     assert a.counters["rejected.stale"] == len(old) and a.counters["rejected.rate_limited"] == 0
+
+
+# -- questions ----------------------------------------------------------------------------------
+
+
+def test_the_first_command_after_a_question_answers_it_credited_to_its_step():
+    a = arbiter()
+    asked = HelpRequest(robot="r1", episode=0, step=60, reason="stuck", detail="stuck", x=0, y=0)
+    assert a.on_help(asked, shown(60)) == [] and a.counters["questions"] == 1
+    praise = a.on_utterance(utterance("ana", "r1", "good", shown(61)), shown(62))
+    assert feedback(praise)[0].kind == "reward"  # a qualifier is no answer to "which way?"
+    out = a.on_utterance(utterance("bob", "r1", "left", shown(80)), shown(85))  # 2 s later
+    (fb,) = feedback(out)
+    assert (fb.kind, fb.command, credits(fb)) == ("command", "left", {60: 1.0})
+    (answered,) = [m for m in out if isinstance(m, HelpAnswer)]
+    assert (answered.question, answered.teacher, answered.meaning) == (asked.id, "bob", "left")
+    assert "answer" in notices(out)[0].text
+    (second,) = feedback(a.on_utterance(utterance("ana", "r1", "right", shown(86)), shown(87)))
+    assert credits(second) == {99: 1.0}  # answered already: a command for now
+    a.on_help(replace(asked, step=90), shown(90))
+    late = a.on_utterance(utterance("ana", "r1", "left", shown(90) + 7.0), shown(99))
+    assert not any(isinstance(m, HelpAnswer) for m in late)  # said 7 s after it: not an answer
+
+
+def test_a_question_about_an_unknown_robot_is_refused():
+    a = arbiter()
+    asked = HelpRequest(robot="r9", episode=0, step=1, reason="late", detail="late", x=0, y=0)
+    assert a.on_help(asked, shown(10)) == []
+    assert a.counters["rejected.question_of_unknown_robot"] == 1

@@ -74,7 +74,7 @@ def test_a_users_router_rules_are_its_rows_keys():
         robot_key("s1", "r1", t) for t in ("obs", "feedback")
     )
     assert rules["learner:publish"]["key_exprs"] == sorted(
-        robot_key("s1", "r1", t) for t in ("action", "learning")
+        robot_key("s1", "r1", t) for t in ("action", "learning", "help")
     )
     assert set(rules["ana:publish"]["key_exprs"]) == {
         teacher_key("s1", "ana", t) for t in ("audio", "utterance", "said", "clock")

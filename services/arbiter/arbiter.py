@@ -12,7 +12,9 @@ teacher gets a TeacherNotice for those marked *):
   low_confidence *   below `min_confidence` ("not understood, please repeat")
   not_understood *   not a phrase of the vocabulary
   too_late *         the steps it is about are no longer remembered
-then becomes a command (credited to the current step, sent at once) or a judgement: its onset
+then answers the robot's open question if it was said within a few seconds of it (credited to
+the question's step, questions.py), or becomes a command (credited to the current step, sent
+at once) or a judgement: its onset
 (not its recognition or arrival time: recognition latency must not move the credit) goes from
 the teacher's clock to the simulator's (clocks.py), the teacher's reaction-delay window
 (credit.py) picks the steps, the merge policy (merge.py) combines teachers, and the reward
@@ -30,6 +32,8 @@ from protocol import (
     ClockProbe,
     Credit,
     CreditedFeedback,
+    HelpAnswer,
+    HelpRequest,
     Message,
     Observation,
     TeacherNotice,
@@ -45,6 +49,7 @@ from services.arbiter.credit import MAX_CREDITS, ReactionDelay, SalientEvents, S
 from services.arbiter.hygiene import RateLimits, RecentIds
 from services.arbiter.meaning import NotUnderstood, examples_of, interpret
 from services.arbiter.merge import Agreement, Judgement, Merged, Merger
+from services.arbiter.questions import OpenQuestions, Question
 from services.runtime.limits import Throttle
 
 FUTURE_TOLERANCE = 0.25  # s: an onset later than its arrival by more is a clock error
@@ -127,6 +132,7 @@ class Arbiter:
         self._teachers: dict[str, _Teacher] = {}
         self._started_at = float("inf") if started_at is None else started_at
         self._held: list[tuple[Utterance, _Teacher, float]] = []  # recovered while starting
+        self.questions = OpenQuestions()
 
     # -- inputs ---------------------------------------------------------------------------
     def on_observation(self, obs: Observation, received_at: float) -> list[Message]:
@@ -157,6 +163,15 @@ class Arbiter:
         episode = robot.episode(obs.episode)
         if obs.outcome != "running" and episode.ended_at is None:
             episode.ended_at = received_at
+        return []
+
+    def on_help(self, request: HelpRequest, received_at: float) -> list[Message]:
+        """A robot asks which way: the next understood word answers it."""
+        if request.robot not in self._robots:
+            self.counters["rejected.question_of_unknown_robot"] += 1
+            return []
+        self.questions.ask(request, received_at)
+        self.counters["questions"] += 1
         return []
 
     def on_utterance(
@@ -218,7 +233,14 @@ class Arbiter:
         if isinstance(understood, NotUnderstood):
             return self._ignore(understood.reason, utterance, tally, received_at, understood.detail)
         meaning = understood.meaning
-        if understood.is_command:
+        onset = self.clocks.to_arbiter(teacher_id, utterance.onset)
+        question = (
+            self.questions.answered_by(robot_id, onset, scale) if understood.is_command else None
+        )
+        if question is not None:
+            out, episode = self._answer(utterance, meaning.action or "stop", question)
+            said = f"the answer to {robot_id}'s question: {meaning.name}"
+        elif understood.is_command:
             out, episode = self._command(utterance, meaning.action or "stop", robot)
             said = f"command {meaning.action}"
         else:
@@ -340,6 +362,31 @@ class Arbiter:
             teachers=(utterance.teacher,),
         )
         return [feedback], episode
+
+    def _answer(
+        self, utterance: Utterance, action: str, question: Question
+    ) -> tuple[list[Message], int]:
+        """The answer to a question (a command), credited to its step, and who gave it."""
+        self.counters["answers"] += 1
+        feedback = CreditedFeedback(
+            id=feedback_id(utterance.robot, "answer", (utterance.id,)),
+            robot=utterance.robot,
+            kind="command",
+            reward=None,
+            command=action,  # type: ignore[arg-type]
+            credits=(Credit(step=question.step, weight=1.0),),
+            sources=(utterance.id,),
+            teachers=(utterance.teacher,),
+        )
+        answered = HelpAnswer(
+            robot=utterance.robot,
+            question=question.id,
+            step=question.step,
+            teacher=utterance.teacher,
+            meaning=action,
+            utterance=utterance.id,
+        )
+        return [feedback, answered], question.episode
 
     def _judge(
         self,

@@ -1,10 +1,12 @@
 """`voxshape arbiter`: the feedback arbiter on the bus (the core is arbiter.py).
 
 Inputs:  voxshape/<session>/robot/*/obs               step timing, bumps, goals, episodes
+         voxshape/<session>/robot/*/help              a robot's question: the next word answers it
          voxshape/<session>/teacher/*/utterance       what teachers said
          voxshape/<session>/teacher/*/clock           teachers' clock probes
 Outputs: voxshape/<session>/robot/<robot>/feedback    credited rewards and commands -> learner
          voxshape/<session>/robot/<robot>/teaching    interventions per episode, teacher stats
+         voxshape/<session>/robot/<robot>/answer      who answered a question, with what
          voxshape/<session>/teacher/<teacher>/notice  understood, or why not -> teacher client
          voxshape/<session>/teacher/<teacher>/clock-reply
 
@@ -24,6 +26,8 @@ from protocol import (
     ClockProbe,
     ClockReply,
     CreditedFeedback,
+    HelpAnswer,
+    HelpRequest,
     Message,
     Observation,
     TeacherNotice,
@@ -136,6 +140,8 @@ class _Publisher:
                 name, key = "feedback", robot_key(session, message.robot, "feedback")
             case TeachingStats():
                 name, key = "teaching", robot_key(session, message.robot, "teaching")
+            case HelpAnswer():
+                name, key = "answer", robot_key(session, message.robot, "answer")
             case TeacherNotice():
                 name, key = "notice", teacher_key(session, message.teacher, "notice")
             case ClockReply():
@@ -157,6 +163,7 @@ def run(args: argparse.Namespace) -> int:
         node.input("obs", robot_key(node.session_id, "*", "obs"))  # recovered
         node.input("utterance", teacher_key(node.session_id, "*", "utterance"))  # recovered
         node.input("clock", teacher_key(node.session_id, "*", "clock"))
+        node.input("help", robot_key(node.session_id, "*", "help"))
         node.log.info(
             "arbitrating",
             extra=fields(
@@ -199,6 +206,11 @@ def _handle(arbiter: Arbiter, event: object) -> list[Message]:
     match event:
         case Input(message=Observation() as obs):
             return arbiter.on_observation(obs, received)
+        case Input(key=key, message=HelpRequest() as request):
+            if parse_key(key).owner != request.robot:  # a question on another robot's key
+                arbiter.counters["rejected.robot_mismatch"] += 1
+                return []
+            return arbiter.on_help(request, received)
         case Input(key=key, message=Utterance() as said):
             return arbiter.on_utterance(said, received, parse_key(key).owner)
         case Input(key=key, message=ClockProbe() as probe):

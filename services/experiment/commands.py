@@ -11,7 +11,7 @@ from pathlib import Path
 
 from services.experiment import distributed
 from services.experiment.cluster import ClusterError
-from services.experiment.inprocess import SETTINGS, RunSpec
+from services.experiment.inprocess import PAPER_SETTINGS, SETTINGS, RunSpec
 from services.experiment.paper import (
     TASKS,
     PoolError,
@@ -131,7 +131,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     paper.add_argument(
         "--settings",
         type=lambda s: _names(s, tuple(SETTINGS), "setting"),
-        default=list(SETTINGS),
+        default=list(PAPER_SETTINGS),
         help=f"comma-separated from {', '.join(SETTINGS)}",
     )
     sweeping = sub.add_parser(

@@ -22,13 +22,14 @@ import heapq
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
-from protocol import CreditedFeedback, TeacherNotice, Utterance
+from protocol import CreditedFeedback, HelpRequest, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.experiment.dictation import dictate
-from services.learner.config import with_settings
-from services.learner.convergence import EpisodeResult, convergence_on
+from services.learner.asking import Asker
+from services.learner.config import LearnerConfig, with_settings
+from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.runtime.settings import replaced
@@ -49,6 +50,7 @@ class Setting:
     feedback: bool  # the teacher judges while the robot learns
     traces: int  # episodes the teacher dictates before learning (initial traces)
     noise: float  # probability an utterance comes out wrong
+    ask: bool = False  # the robot asks "which way?" (learner/asking.py)
 
 
 # The paper's four settings (Section 4): noise ~20% is its recognizer's error rate.
@@ -57,7 +59,10 @@ SETTINGS: dict[str, Setting] = {
     "rl+f": Setting(feedback=True, traces=0, noise=0.2),
     "rl+t+f": Setting(feedback=True, traces=3, noise=0.2),
     "rl+t+f-perfect": Setting(feedback=True, traces=3, noise=0.0),
+    "rl+f+ask": Setting(feedback=True, traces=0, noise=0.2, ask=True),
+    "rl+t+f+ask": Setting(feedback=True, traces=3, noise=0.2, ask=True),
 }
+PAPER_SETTINGS = ("rl", "rl+f", "rl+t+f", "rl+t+f-perfect")  # the paper's, run by default
 
 
 @dataclass(frozen=True)
@@ -109,103 +114,154 @@ def run(
     slower (`voxshape bench experiment` compares them). `on_episode` sees each episode."""
     setting = SETTINGS[spec.setting]
     m = load_map(spec.task)
-    vocabulary = load_vocabulary()
-    profile = replaced(spec.profile, list(spec.teacher), "--teacher")
-    profile = replace(
-        profile,
-        noise=setting.noise if spec.noise is None else spec.noise,
-        delay=profile.delay if spec.delay is None else spec.delay,
-    )
     learner_config = with_settings(list(spec.learner))
-    learner = Learner(learner_config, seed=spec.seed)
+    session = _Session(spec, m, learner_config, reference)
     progress = convergence_on(m, learner_config)
     book = initial_traces(spec, m)
-    teacher = SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
-    arbiter = Arbiter(
-        ArbiterConfig(learning=replace(DelayLearning(), enabled=spec.delay_learning)), vocabulary
-    )
-    heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance), a heap
-    fast = not reference
-    sim_config = SimConfig(sensor_reach=learner.features.reach if fast else None, fast=fast)
-    sim = Simulation(m, (ROBOT,), sim_config, seed=spec.seed)
-    now, order = START, 0
-    durations: list[float] = []
-    outcomes: list[str] = []
     try:
         for episode in range(spec.max_episodes):
             if book and episode == 0:
-                book.replay(learner)
+                book.replay(session.learner)
             elif book:
-                book.replay_if_due(learner)
-            interventions = 0
-            reading = sim.reset(ROBOT)
-            for _ in range(sim.max_episode_steps + 1):
-                arbiter.on_observation(observation(reading, now, scans=False), now)
-                if teacher is not None:
-                    for speech in teacher.watch(look(reading, now)):
-                        heapq.heappush(heard, (speech.heard_at, order, utterance(speech)))
-                        order += 1
-                interventions += deliver(heard, now, arbiter, learner)
-                decision = learner.step(reading)
-                if decision is None:
-                    break
-                reading = sim.step({ROBOT: (decision.v, decision.omega)})[ROBOT]
-                now += sim.config.control_period
-            now += PAUSE
-            interventions += deliver(heard, now, arbiter, learner)
-            seconds = reading.episode_step * sim.config.control_period
-            durations.append(seconds)
-            outcomes.append(reading.outcome)
-            result = EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
+                book.replay_if_due(session.learner)
+            result = session.episode()
             if on_episode is not None:
-                on_episode(result, learner)
+                on_episode(result, session.learner)
             if progress.add(result):
                 break
     finally:
-        sim.close()
-    window = arbiter.delay_window(TEACHER)
-    counters = {f"arbiter.{k}": v for k, v in arbiter.counters.items()}
-    counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
-    return RunResult(
-        task=spec.task,
-        setting=spec.setting,
-        seed=spec.seed,
-        converged=progress.converged,
-        episodes=progress.n_episodes,
-        learning_time_s=round(progress.learning_time, 1),
-        interventions=progress.interventions,
-        trace_steps=sum(len(e) for e in book.episodes) if book else 0,
-        trace_words=book.words(learner_config.command_steps) if book else 0,
-        durations_s=durations,
-        delay_learned=arbiter.delay_learned(TEACHER),
-        delay_window_s=(round(window.lo, 3), round(window.hi, 3)),
-        counters=counters,
-        outcomes=outcomes,
-        states=len(learner.features),
-        spec=asdict(spec),
-    )
+        session.sim.close()
+    return session.result(spec, progress, book, setting)
+
+
+class _Session:
+    """The cores of one run, stepped together on one clock (the module's docstring)."""
+
+    def __init__(self, spec: RunSpec, m: Map, config: LearnerConfig, reference: bool) -> None:
+        setting = SETTINGS[spec.setting]
+        vocabulary = load_vocabulary()
+        profile = replaced(spec.profile, list(spec.teacher), "--teacher")
+        profile = replace(
+            profile,
+            noise=setting.noise if spec.noise is None else spec.noise,
+            delay=profile.delay if spec.delay is None else spec.delay,
+        )
+        self.learner = Learner(config, seed=spec.seed)
+        self.teacher = (
+            SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
+        )
+        self.arbiter = Arbiter(
+            ArbiterConfig(learning=replace(DelayLearning(), enabled=spec.delay_learning)),
+            vocabulary,
+        )
+        self.asker = Asker(self.learner, m.timeout) if setting.ask else None
+        self.heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance)
+        reach = None if reference else self.learner.features.reach
+        sim_config = SimConfig(sensor_reach=reach, fast=not reference)
+        self.sim = Simulation(m, (ROBOT,), sim_config, seed=spec.seed)
+        self.now, self.order = START, 0
+        self.durations: list[float] = []
+        self.outcomes: list[str] = []
+        self.answers = 0  # the teacher's answers to questions
+
+    def episode(self) -> EpisodeResult:
+        """One episode, to its end; the words about it are delivered in the pause after."""
+        sim, learner, period = self.sim, self.learner, self.sim.config.control_period
+        interventions = 0
+        reading = sim.reset(ROBOT)
+        for _ in range(sim.max_episode_steps + 1):
+            self.arbiter.on_observation(observation(reading, self.now, scans=False), self.now)
+            if self.teacher is not None:
+                for speech in self.teacher.watch(look(reading, self.now)):
+                    self._hear(speech)
+            interventions += self._deliver()
+            decision = learner.step(reading)
+            if decision is None:
+                break
+            if self.asker is not None:
+                self._ask(reading)
+            reading = sim.step({ROBOT: (decision.v, decision.omega)})[ROBOT]
+            self.now += period
+        self.now += PAUSE
+        interventions += self._deliver()
+        seconds = reading.episode_step * period
+        self.durations.append(seconds)
+        self.outcomes.append(reading.outcome)
+        return EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
+
+    def _ask(self, reading: Reading) -> None:
+        """The learner may ask which way (the arbiter hears it); the teacher may answer."""
+        question = self.asker.after_step(reading, reading.episode)
+        if question is None:
+            return
+        pose = reading.pose
+        request = HelpRequest(
+            robot=ROBOT,
+            episode=question.episode,
+            step=question.step,
+            reason=question.reason,
+            detail=question.detail,
+            x=pose.x,
+            y=pose.y,
+        )
+        self.arbiter.on_help(request, self.now)
+        speech = self.teacher.answer(look(reading, self.now)) if self.teacher else None
+        if speech is not None:
+            self._hear(speech)
+            self.answers += 1
+
+    def _hear(self, speech: Speech) -> None:
+        heapq.heappush(self.heard, (speech.heard_at, self.order, utterance(speech)))
+        self.order += 1
+
+    def _deliver(self) -> int:
+        """The utterances heard by now to the arbiter, its feedback to the learner; returns
+        how many the arbiter understood (interventions)."""
+        understood = 0
+        while self.heard and self.heard[0][0] <= self.now:
+            at, _, said = heapq.heappop(self.heard)
+            for message in self.arbiter.on_utterance(said, at):
+                if isinstance(message, CreditedFeedback):
+                    (self.asker or self.learner).take(message)
+                elif isinstance(message, TeacherNotice) and message.kind == "understood":
+                    understood += 1
+        return understood
+
+    def result(
+        self, spec: RunSpec, progress: Convergence, book: TraceBook | None, setting: Setting
+    ) -> RunResult:
+        learner, arbiter = self.learner, self.arbiter
+        window = arbiter.delay_window(TEACHER)
+        counters = {f"arbiter.{k}": v for k, v in arbiter.counters.items()}
+        counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
+        if self.asker is not None:
+            counters["learner.questions"] = sum(self.asker.reasons.values())
+            counters.update({f"learner.asked.{k}": v for k, v in self.asker.reasons.items()})
+            counters["teacher.answers"] = self.answers
+        return RunResult(
+            task=spec.task,
+            setting=spec.setting,
+            seed=spec.seed,
+            converged=progress.converged,
+            episodes=progress.n_episodes,
+            learning_time_s=round(progress.learning_time, 1),
+            interventions=progress.interventions,
+            trace_steps=sum(len(e) for e in book.episodes) if book else 0,
+            trace_words=book.words(learner.config.command_steps) if book else 0,
+            durations_s=self.durations,
+            delay_learned=arbiter.delay_learned(TEACHER),
+            delay_window_s=(round(window.lo, 3), round(window.hi, 3)),
+            counters=counters,
+            outcomes=self.outcomes,
+            states=len(learner.features),
+            spec=asdict(spec),
+        )
 
 
 def initial_traces(spec: RunSpec, m: Map | None = None) -> TraceBook | None:
     """The episodes the teacher dictates before learning in the run's setting (None: none)."""
     traces = SETTINGS[spec.setting].traces if spec.traces is None else spec.traces
     return dictate(m or load_map(spec.task), traces, seed=10_000 + spec.seed) if traces else None
-
-
-def deliver(
-    heard: list[tuple[float, int, Utterance]], now: float, arbiter: Arbiter, learner: Learner
-) -> int:
-    """Hands the utterances heard by `now` to the arbiter, and its feedback to the learner;
-    returns how many the arbiter understood (interventions)."""
-    understood = 0
-    while heard and heard[0][0] <= now:
-        at, _, said = heapq.heappop(heard)
-        for message in arbiter.on_utterance(said, at):
-            if isinstance(message, CreditedFeedback):
-                learner.take(message)
-            elif isinstance(message, TeacherNotice) and message.kind == "understood":
-                understood += 1
-    return understood
 
 
 def look(reading: Reading, now: float) -> Look:

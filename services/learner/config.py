@@ -15,6 +15,22 @@ KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
 
 
 @dataclass(frozen=True)
+class AskConfig:
+    """When the robot asks "which way?" (asking.py)."""
+
+    per_robot_minute: float = 0.5  # questions a robot minute at most; 0: never asks
+    stuck_s: float = 10.0  # robot seconds without progress (or bumping) before asking
+    bumps: int = 3  # this many bumps within stuck_s is stuck too
+    late_share: float = 0.5  # of the episode's timeout
+    flat: float = 1e-6  # Q(s) spread below this, and no advice: unsure
+    open_s: float = 8.0  # robot seconds a question waits for its answer
+
+    def __post_init__(self) -> None:
+        if self.per_robot_minute < 0 or self.stuck_s <= 0 or self.open_s <= 0:
+            raise ValueError("need per_robot_minute >= 0, stuck_s > 0 and open_s > 0")
+
+
+@dataclass(frozen=True)
 class LearnerConfig:
     """The learner's settings; docs/learner.md explains them and docs/decisions.md records
     the measurements behind the defaults."""
@@ -107,6 +123,9 @@ class LearnerConfig:
     # Replay the teacher's traces again every this many episodes; 0: once, before learning
     # (replayed again, their advice adds up where the key aliases places: decisions.md).
     replay_every: int = 0
+
+    # -- asking (asking.py): on where the learner runs with a live teacher --------------------
+    ask: AskConfig = field(default_factory=AskConfig)
 
     def __post_init__(self) -> None:
         if self.representation not in ("tiles", "keys", "pearson"):

@@ -82,6 +82,7 @@ class Learner:
         self.a: Decision | None = None  # ... and the action taken in it
         self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
         self.commands: deque[int] = deque()  # teacher's actions still to take
+        self.command_chooser = "teacher"
         self.counters: Counter[str] = Counter()
         self.td_error = 0.0
         self.G, self.discount, self.held = 0.0, 1.0, 0  # the action in progress
@@ -161,7 +162,7 @@ class Learner:
         """a' from s': a pending command, else epsilon-greedy (or the blend) over Q, plus
         beta H with the action bias, never the turn that undoes the policy's own turn."""
         if self.commands:
-            return self.actions.one_hot(self.commands.popleft(), "teacher")
+            return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
         q = self.q(s)
         if self.config.shaping == "action_bias":
             q = q + self.config.bias_weight * self.advice(s)
@@ -244,12 +245,35 @@ class Learner:
             c.step for c in feedback.credits if not self.credit(c.step, c.weight, feedback.reward)
         ]
 
-    def command(self, action: str) -> None:
-        """A teacher's command: the next `command_steps` actions are this one."""
+    def command(self, action: str, chooser: str = "teacher") -> None:
+        """A teacher's command: the next `command_steps` actions are this one (`chooser`:
+        "teacher" earns h's bonus, "steer" does not)."""
         index = ACTION_NAMES.index(action)
+        self.command_chooser = chooser
         self.commands.clear()
         self.commands.extend([index] * self.config.command_steps)
         self.counters["commands"] += 1
+
+    def answer(self, step: int, action: str) -> bool:
+        """The teacher's answer to "which way?" asked at observation `step`: the action is
+        advised in the state asked in (as h advises a command), and taken now if the robot
+        still sees what it saw there (without h: it was advised). False if the step left the
+        window."""
+        k = self._decision_at(step)
+        if k is None:
+            return False
+        c, asked = self.config, self.recent[k].state
+        bonus = float(np.clip(c.command_reward, -c.feedback_bound, c.feedback_bound))
+        weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
+        change = (c.alpha * bonus * weights)[None, :]
+        if c.shaping == "action_bias":
+            self.taught.advise([asked], change)
+        else:
+            add_rows(self.Q, [asked.q], change)
+        if self.s is not None and self.s.view == asked.view:
+            self.command(action, "steer")
+        self.counters["answers"] += 1
+        return True
 
     # -- the values, linear over the state's features ---------------------------------------
     def q(self, s: State) -> np.ndarray:

@@ -114,6 +114,7 @@ class TeacherProfile:
     # turning or regressing, turning away after progress, being stuck; not at every look.
     salient: bool = True
     near_goal: float = 1.5
+    answers: bool = True  # answers the robot's "which way?" (within the word budget)
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -375,3 +376,11 @@ class SimulatedTeacher:
     def command(self, x: float, y: float, theta: float) -> str:
         """The command the teacher dictates at this pose (initial traces)."""
         return path_command(self.map, x, y, theta)
+
+    def answer(self, look: Look) -> Speech | None:
+        """The answer to "which way?" asked at this look: the command along the shortest
+        path, after its reaction delay, within the word budget (None: it stays silent)."""
+        if not self.profile.answers or not self._afford(look.time):
+            return None
+        meaning = self.command(look.x, look.y, look.heading)
+        return self._say(meaning, look.time + self._reaction())
