@@ -257,7 +257,7 @@ def test_online_feedback_is_taken_once_even_when_delivered_again():
 
     from services.learner.online import OnlineLearner
 
-    online = OnlineLearner(Learner(EXACT, seed=0), checkpoint.Bookmark(), None, Counter())
+    online = OnlineLearner(Learner(EXACT, seed=0), checkpoint.Bookmark(), None, Counter(), 300.0)
     online.learner.step(P(WALL_LEFT, step=0))
     feedback = CreditedFeedback(
         robot="r1", kind="reward", reward=10.0, command=None,
@@ -647,3 +647,41 @@ def test_goal_sectors_tell_the_sides_of_the_goal_apart():
     sided = StateSpace(LearnerConfig(goal_sectors=8))
     assert sided.classify(west)[0] != sided.classify(east)[0]
     assert sided.goal_bins(west)[2] == 4 and sided.goal_bins(east)[2] == 0  # goal -> robot
+
+
+# -- asking which way ---------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Seen(P):
+    """A percept with the robot's episode clock and bumps, as the Asker reads it."""
+
+    episode_step: int = 0
+    collided: bool = False
+
+
+def test_a_stuck_robot_asks_once_within_its_budget_and_learns_from_the_answer():
+    from services.learner.asking import Asker
+
+    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
+    asker = Asker(learner, timeout_s=300.0)
+    asked = []
+    for k in range(1500):  # 2.5 robot minutes in one place: nothing gets better
+        p = Seen(WALL_LEFT, step=k, episode_step=k)
+        learner.step(p)
+        if (question := asker.after_step(p, episode=0)) is not None:
+            asked.append(question)
+            if len(asked) == 1:  # answered at once: "left"
+                answer = CreditedFeedback(
+                    robot="r1", kind="command", reward=None, command="left",
+                    credits=(Credit(step=question.step, weight=1.0),), sources=("u1",),
+                    teachers=("ana",),
+                )  # fmt: skip
+                assert asker.take(answer) == []
+                assert learner.advice(learner.s)[LEFT] > 0  # advised where it asked
+                assert learner.commands[0] == LEFT and learner.command_chooser == "steer"
+    first = asked[0]
+    assert first.reason in ("unsure", "stuck") and first.step < 20
+    # 0.5 a robot minute: one at once, the next 2 robot minutes later
+    assert len(asked) == 2 and asked[1].step >= first.step + 1200
+    assert asker.reasons.total() == 2

@@ -10,12 +10,19 @@ from dataclasses import replace
 
 import pytest
 
-from protocol import Observation, TeacherNotice, load_vocabulary, robot_key, teacher_key
+from protocol import (
+    HelpRequest,
+    Observation,
+    TeacherNotice,
+    load_vocabulary,
+    robot_key,
+    teacher_key,
+)
 from services.arbiter.scripted import observation
 from services.runtime import Input, Node, Presence
 from services.teacher.simulated.display import DisplayClock, DisplayTeacher
 from services.teacher.simulated.synthesis import synthesize
-from services.teacher.simulated.teacher import TIRELESS, SimulatedTeacher
+from services.teacher.simulated.teacher import TIRELESS, SimulatedTeacher, path_command
 from services.world.maps import load_map
 from tests.conftest import VOXSHAPE, bus_args
 
@@ -61,6 +68,29 @@ def test_words_are_sent_once_said_with_onset_and_end_at_the_display_times():
         # speaking takes 0.4 robot s: 4 steps of 4 ms
         assert spoken.end - spoken.onset == pytest.approx(0.016, abs=1e-9)
     assert bus.counters["said.judgement"] == len(sent)
+
+
+def test_it_answers_the_robots_question_with_the_way_after_its_reaction():
+    core = teacher(delay=0.5, jitter=0.0, words_per_robot_minute=4.0)
+    bus = DisplayTeacher(core, max_words_per_robot_s=100.0)
+    bus.on_observation(obs(0, TASK.start.x, episode_step=0), 2000.0)
+    question = HelpRequest(
+        robot="r1", episode=0, step=0, reason="stuck", detail="stuck", x=TASK.start.x, y=0.0
+    )
+    bus.on_question(question)
+    said = [s for k in range(1, 20) for s in bus.on_observation(obs(k, TASK.start.x), 2000.0 + k)]
+    answers = [s for s in said if s.kind == "answer"]
+    assert [s.text for s in answers] == [path_command(TASK, TASK.start.x, TASK.start.y, 0.0)]
+    assert answers[0].onset == 2005.0  # 0.5 robot s after the question's step was shown
+    silent = DisplayTeacher(teacher(answers=False), max_words_per_robot_s=100.0)
+    silent.on_observation(obs(0, TASK.start.x, episode_step=0), 2000.0)
+    silent.on_question(question)
+    assert not [
+        s
+        for k in range(1, 20)
+        for s in silent.on_observation(obs(k, TASK.start.x), 2000.0 + k)
+        if s.kind == "answer"
+    ]
 
 
 def test_it_never_says_more_than_its_most_words_a_robot_second():

@@ -73,18 +73,18 @@ class Asker:
         self.reasons[reason] += 1
         return question
 
-    def take(self, feedback: CreditedFeedback) -> None:
+    def take(self, feedback: CreditedFeedback) -> list[int]:
         """The arbiter's feedback: the answer to the open question (a command credited to its
-        step), or any other feedback for the learner."""
+        step), or any other feedback for the learner; returns the steps that had left the
+        learner's window (Learner.take)."""
         question = self.open[0] if self.open else None
         answers = question is not None and feedback.credits[0].step == question.step
         if feedback.kind != "command" or not answers:
-            self.learner.take(feedback)
-            return
-        self.learner.answer(question.step, feedback.command)
+            return self.learner.take(feedback)
         self.open = None
         if self.learner.s is not None:
             self._asked_views.discard(self.learner.s.view)
+        return [] if self.learner.answer(question.step, feedback.command) else [question.step]
 
     def _reason(self, t: float, episode_t: float, spread: float, advised: bool) -> Reason | None:
         c = self.config

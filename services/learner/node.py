@@ -4,6 +4,7 @@ Inputs:  voxshape/<session>/robot/<robot>/obs        the simulator's observation
          voxshape/<session>/robot/<robot>/feedback   credited rewards and commands (arbiter)
 Outputs: voxshape/<session>/robot/<robot>/action     one per observation that is not terminal
          voxshape/<session>/robot/<robot>/learning   a summary per step (for the logger)
+         voxshape/<session>/robot/<robot>/help       "which way?" when it is lost (asking.py)
 for each robot it drives (`--robot`, once per robot, or VOXSHAPE_ROBOTS, as the simulator).
 Each robot has its own SARSA(lambda) learner and checkpoint, saved every
 `--checkpoint-every` seconds and on shutdown, restored on start.
@@ -38,6 +39,7 @@ from services.runtime import (
     fields,
 )
 from services.runtime.logs import worth_logging
+from services.world.maps import add_task_argument, load_map
 
 MAX_PENDING = 100_000  # messages looked through for feedback when stopping
 ROBOT_FIELD = "{robot}"  # in --checkpoint: the robot's id
@@ -64,6 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--seed", type=int, default=None, help="random seed (the n-th robot's learner: seed + n)"
     )
+    add_task_argument(parser, "for its episodes' timeout (when the robot asks for help)")
     add_settings_argument(parser)
 
 
@@ -99,6 +102,7 @@ class Driven:
     online: OnlineLearner
     act: Output
     summary: Output
+    ask: Output
 
     def save(self) -> None:
         checkpoint.save(self.learner, self.path, self.bookmark)
@@ -125,16 +129,19 @@ def run(args: argparse.Namespace) -> int:
         for i, r in enumerate(robots)
     }
     with Node("learner", bus) as node:
-        driven = {r: drive(node, r, paths[r], *restored[r], args.traces) for r in robots}
+        timeout_s = load_map(args.task).timeout
+        driven = {r: drive(node, r, paths[r], *restored[r], args.traces, timeout_s) for r in robots}
         last_save = time.monotonic()
         for event in node.events(tick=1.0):
             match event:
                 case Input(message=Observation() as obs, key=key):
                     one = driven[parse_key(key).owner]
-                    action, learnt = one.online.observe(obs)
+                    action, learnt, question = one.online.observe(obs)
                     if action is not None:
                         one.act.put(action)
                     one.summary.put(learnt)
+                    if question is not None:
+                        one.ask.put(question)
                 case Input(message=CreditedFeedback() as feedback, key=key):
                     one = driven[parse_key(key).owner]
                     _log_dropped(node, feedback, one.online.take(feedback))
@@ -164,6 +171,7 @@ def drive(
     learner: Learner,
     bookmark: checkpoint.Bookmark,
     traces: Path | None,
+    timeout_s: float,
 ) -> Driven:
     """Puts one robot's learner on the bus: its initial traces learnt, its inputs and
     outputs declared."""
@@ -189,14 +197,15 @@ def drive(
     if initial:
         replayed = initial.replay(learner)
         node.log.info("learnt from initial traces", extra=fields(robot=robot, steps=replayed))
-    online = OnlineLearner(learner, bookmark, initial, node.counters)
+    online = OnlineLearner(learner, bookmark, initial, node.counters, timeout_s)
     node.input("obs", robot_key(node.session_id, robot, "obs"))
     node.input("feedback", robot_key(node.session_id, robot, "feedback"))
     act = node.output("action", robot_key(node.session_id, robot, "action"))
     summary = node.output(
         "learning", robot_key(node.session_id, robot, "learning"), must_arrive=False
     )
-    return Driven(robot, path, learner, bookmark, online, act, summary)
+    ask = node.output("help", robot_key(node.session_id, robot, "help"))
+    return Driven(robot, path, learner, bookmark, online, act, summary, ask)
 
 
 def _log_dropped(node: Node, feedback: CreditedFeedback, dropped: list[int]) -> None:

@@ -1,12 +1,14 @@
-"""The learner of one robot on a live session, without the bus: observations in, actions and
-learning summaries out, credited feedback taken exactly once (a copy delivered again after a
-restart is skipped by id), initial traces replayed when due. `node.py` puts it on the bus."""
+"""The learner of one robot on a live session, without the bus: observations in, actions,
+learning summaries and questions out, credited feedback taken exactly once (a copy delivered
+again after a restart is skipped by id), initial traces replayed when due. `node.py` puts it
+on the bus."""
 
 from __future__ import annotations
 
 from collections import Counter
 
-from protocol import Action, CreditedFeedback, LearningSummary, Observation
+from protocol import Action, CreditedFeedback, HelpRequest, LearningSummary, Observation
+from services.learner.asking import Asker
 from services.learner.checkpoint import Bookmark
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
@@ -19,13 +21,18 @@ class OnlineLearner:
         bookmark: Bookmark,
         initial: TraceBook | None,
         counters: Counter[str],
+        timeout_s: float,
     ) -> None:
         self.learner, self.bookmark, self.initial = learner, bookmark, initial
         self.counters = counters
+        self.asker = Asker(learner, timeout_s)
         self.book = TraceBook()  # episodes a teacher steered, saved as initial traces
 
-    def observe(self, obs: Observation) -> tuple[Action | None, LearningSummary]:
-        """Learns from the step and decides the next action (None after a terminal step)."""
+    def observe(
+        self, obs: Observation
+    ) -> tuple[Action | None, LearningSummary, HelpRequest | None]:
+        """Learns from the step and decides the next action (None after a terminal step);
+        the robot may ask which way."""
         learner = self.learner
         if obs.episode_step == 0 and learner.s is not None:
             learner.interrupt()  # missed the end of the last episode
@@ -45,14 +52,27 @@ class OnlineLearner:
                 omega=decision.omega,
                 chooser=decision.chooser,
             )
-        return action, self.summary(obs)
+        question = self.asker.after_step(obs, obs.episode) if decision is not None else None
+        request = None
+        if question is not None:
+            self.counters[f"learner.asked.{question.reason}"] += 1
+            request = HelpRequest(
+                robot=obs.robot,
+                episode=question.episode,
+                step=question.step,
+                reason=question.reason,
+                detail=question.detail,
+                x=obs.x,
+                y=obs.y,
+            )
+        return action, self.summary(obs), request
 
     def take(self, feedback: CreditedFeedback) -> list[int]:
         """Takes feedback once; returns the steps it credits that had left the window."""
         if not self.bookmark.take(feedback.id):
             self.counters["learner.feedback_taken_before"] += 1
             return []
-        dropped = self.learner.take(feedback)
+        dropped = self.asker.take(feedback)
         if dropped:
             self.counters["learner.feedback_partly_dropped"] += 1
         return dropped

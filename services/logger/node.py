@@ -50,6 +50,7 @@ from services.runtime import (
     bus_config,
     fields,
 )
+from services.world.maps import add_task_argument
 
 # Samples zenoh may hold for this process before it makes the router wait (~20 s of a session)
 RECEIVE_QUEUE = 50_000
@@ -105,11 +106,7 @@ class Receiver:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     env = os.environ.get
-    parser.add_argument(
-        "--task",
-        default=env("VOXSHAPE_TASK", "1"),
-        help="the simulator's task number or map file, to draw the map (VOXSHAPE_TASK)",
-    )
+    add_task_argument(parser, "to draw")
     parser.add_argument(
         "--flush-every",
         type=float,

@@ -25,7 +25,7 @@ from services.runtime import (
 from services.runtime.settings import SettingsError, add_settings_argument, replaced
 from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
-from services.world.maps import TASKS, load_map
+from services.world.maps import add_task_argument, load_map
 
 LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
 # Observations kept per robot for an arbiter that restarts, in wall seconds of paced steps
@@ -38,11 +38,7 @@ MAX_OBS_KEPT = 12_000
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     env = os.environ.get
-    parser.add_argument(
-        "--task",
-        default=env("VOXSHAPE_TASK", "1"),
-        help=f"task number ({', '.join(TASKS)}) or map file (VOXSHAPE_TASK)",
-    )
+    add_task_argument(parser, "to run")
     parser.add_argument(
         "--robot",
         action="append",

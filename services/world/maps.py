@@ -10,9 +10,11 @@ build on the same `Map`.
 
 from __future__ import annotations
 
+import argparse
 import functools
 import heapq
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from functools import cached_property
@@ -386,3 +388,13 @@ def _check_layout(m: Map) -> None:
             f"{m.source} [goal]: unreachable from the start for a robot that needs passages "
             f"{2 * PASSAGE_RADIUS:.2f} m wide (is it walled in, or inside an obstacle?)"
         )
+
+
+def add_task_argument(parser: argparse.ArgumentParser, why: str) -> None:
+    """`--task`: the session's map, as the simulator runs it (VOXSHAPE_TASK, default 1)."""
+    parser.add_argument(
+        "--task",
+        default=os.environ.get("VOXSHAPE_TASK", "1"),
+        help=f"the simulator's map: task number ({', '.join(TASKS)}) or map file, {why} "
+        "(VOXSHAPE_TASK)",
+    )

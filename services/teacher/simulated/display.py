@@ -11,9 +11,9 @@ from bisect import bisect_left
 from collections import Counter, deque
 from dataclasses import dataclass
 
-from protocol import Observation
+from protocol import HelpRequest, Observation
 from services.runtime.limits import TokenBucket
-from services.teacher.simulated.teacher import Look, SimulatedTeacher, path_command
+from services.teacher.simulated.teacher import Look, SimulatedTeacher, Speech, path_command
 from services.world.robot import CONTROL_PERIOD_S
 
 COMMAND_EVERY_S = 0.5  # robot seconds between dictated commands (a command steers 5 steps)
@@ -27,7 +27,7 @@ class Spoken:
     text: str
     onset: float
     end: float
-    kind: str  # "judgement" or "command"
+    kind: str  # "judgement", "command" or "answer"
 
 
 class DisplayClock:
@@ -71,7 +71,10 @@ class DisplayTeacher:
         self.display = DisplayClock()
         self.max_words_per_robot_s = max_words_per_robot_s
         self._bucket: TokenBucket | None = None
-        self._pending: list[tuple[float, int, str, float]] = []  # (end, order, text, onset)
+        self._pending: list[
+            tuple[float, int, str, float, str]
+        ] = []  # (end, order, text, onset, kind)
+        self._look: Look | None = None  # the latest step judged
         self._order = 0
         self._started = 0  # episodes seen from their start
         self._episode: int | None = None  # the simulator's episode being watched
@@ -95,14 +98,26 @@ class DisplayTeacher:
                 out.append(Spoken(text, now, now, "command"))
         else:
             episode = max(0, self._started - self.traces - 1)  # of the episodes it judges
-            look = Look(t, episode, obs.x, obs.y, obs.collided, obs.outcome, obs.theta)
-            for speech in self.teacher.watch(look):
-                heapq.heappush(self._pending, (speech.end, self._order, speech.said, speech.onset))
-                self._order += 1
+            self._look = Look(t, episode, obs.x, obs.y, obs.collided, obs.outcome, obs.theta)
+            for speech in self.teacher.watch(self._look):
+                self._pend(speech, "judgement")
         while self._pending and self._pending[0][0] <= t + 1e-9:
-            end, _, text, onset = heapq.heappop(self._pending)
-            out.append(Spoken(text, self.display.at(onset), self.display.at(end), "judgement"))
+            end, _, text, onset, kind = heapq.heappop(self._pending)
+            out.append(Spoken(text, self.display.at(onset), self.display.at(end), kind))
         return [s for s in out if self._may_say(s, t)]
+
+    def on_question(self, question: HelpRequest) -> None:
+        """The robot asks which way: the answer (if the budget allows) is said like the
+        judgements, after its reaction, from what the teacher sees now."""
+        if self._look is None or self._dictating or question.episode != self._episode:
+            return
+        if (speech := self.teacher.answer(self._look)) is not None:
+            self._pend(speech, "answer")
+
+    def _pend(self, speech: Speech, kind: str) -> None:
+        """Said once the step at the end of the speech is displayed."""
+        heapq.heappush(self._pending, (speech.end, self._order, speech.said, speech.onset, kind))
+        self._order += 1
 
     def _may_say(self, spoken: Spoken, t: float) -> bool:
         if self._bucket is None or t < self._bucket.updated:  # none yet, or a new simulator

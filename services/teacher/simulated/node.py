@@ -1,6 +1,7 @@
 """`voxshape sim-teacher`: the simulated teacher on the bus, speaking through the normal path.
 
 Inputs:  voxshape/<session>/robot/<robot>/obs              what it watches
+         voxshape/<session>/robot/<robot>/help             the robot's questions (it answers)
          voxshape/<session>/teacher/<teacher>/notice       what the arbiter made of it (counted)
          voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
 Outputs: voxshape/<session>/teacher/<teacher>/said     its words, for the mock speech engine
@@ -33,6 +34,7 @@ from contextlib import ExitStack
 from dataclasses import replace
 
 from protocol import (
+    HelpRequest,
     Message,
     Observation,
     Said,
@@ -62,7 +64,7 @@ from services.teacher.simulated.teacher import (
     TeacherProfile,
 )
 from services.teacher.sources import wav_stream
-from services.world.maps import TASKS, load_map
+from services.world.maps import add_task_argument, load_map
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,12 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--teacher", default=env("VOXSHAPE_TEACHER", "simteacher"), help="(VOXSHAPE_TEACHER)"
     )
-    parser.add_argument(
-        "--task",
-        default=env("VOXSHAPE_TASK", "1"),
-        help=f"the simulator's map, for the true distance to the goal: task number "
-        f"({', '.join(TASKS)}) or map file (VOXSHAPE_TASK)",
-    )
+    add_task_argument(parser, "for the true distance to the goal")
     parser.add_argument(
         "--noise",
         type=float,
@@ -175,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
             core, args.traces, args.max_words_per_robot_s, counters=node.counters
         )
         node.input("obs", robot_key(node.session_id, robot, "obs"))
+        if profile.answers:
+            node.input("help", robot_key(node.session_id, robot, "help"))
         topic = "audio" if voice else "said"
         (out,) = join_as_teacher(
             node,
@@ -211,6 +210,8 @@ def run(args: argparse.Namespace) -> int:
                             else said_messages(spoken, teacher_id, robot)
                         ):
                             out.put(said)
+                case Input(message=HelpRequest() as question):
+                    teacher.on_question(question)
                 case Input(message=TeacherNotice() as notice):
                     node.counters[f"notice.{notice.kind}"] += 1
     return 0
