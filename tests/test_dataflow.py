@@ -19,7 +19,7 @@ from services.cli import main
 from services.deploy.access import ROLES, User, access_control
 from services.runtime import Node
 from services.tools import unfed_inputs
-from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
+from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port, wait_present
 
 ARCHITECTURE = ROOT / "docs" / "architecture.md"
 BEGIN = "<!-- dataflow:begin"
@@ -175,8 +175,8 @@ def test_the_real_services_declare_exactly_their_rows(
     spawn, router, session_id, tmp_path, client_config
 ):
     """Every service of a session a process, taught by a simulated teacher until the learner
-    has credited feedback, a person's client (voxshape teach) beside it; then each says, as it
-    leaves, what it declared: exactly its row."""
+    has credited feedback, a person's client (voxshape teach) and the web page's gateway beside
+    it; then each says, as it leaves, what it declared: exactly its row."""
     env = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 
     def start(role: str, *argv: str, **kwargs: object) -> subprocess.Popen:
@@ -203,6 +203,7 @@ def test_the_real_services_declare_exactly_their_rows(
             env={**env, "VOXSHAPE_LOG_LEVEL": "debug"},
             stdin=subprocess.PIPE,
         ),
+        "web": start("web", "web", "--port", str(free_port())),
     }
     with Node("test", client_config("observer")) as node:
         node.watch_presence()

@@ -214,6 +214,40 @@ def test_a_teacher_cannot_listen_to_another_teachers_notices(router, secrets):
             closing.close()
 
 
+def test_only_the_robots_learner_asks_only_the_arbiter_answers_and_teachers_hear_both(
+    router, secrets
+):
+    """robot/<r>/help is its learner's (a teacher cannot make the robot ask, nor answer for
+    the arbiter): the router drops a teacher's, and the admin sees nothing of it."""
+    admin = Receiver(as_user(router, secrets, "logger"), session_keys(SESSION))
+    ana_hears = Receiver(
+        as_user(router, secrets, "ana"),
+        robot_key(SESSION, "*", "help"),
+        robot_key(SESSION, "*", "answer"),
+    )
+    ana = open_session(as_user(router, secrets, "ana"))
+    learner = open_session(as_user(router, secrets, "learner"))
+    arbiter = open_session(as_user(router, secrets, "arbiter"))
+    asks, answers = robot_key(SESSION, "r1", "help"), robot_key(SESSION, "r1", "answer")
+    try:
+        put_until_received(ana, teacher_key(SESSION, "ana", "utterance"), admin)
+        forbidden = [asks, answers, robot_key(SESSION, "r2", "help")]
+        for key in forbidden:
+            ana.put(key, b"x")
+        learner.put(robot_key(SESSION, "r2", "help"), b"x")  # not its robot
+        ana.put(teacher_key(SESSION, "ana", "clock"), b"x")
+        got = admin.wait_for(teacher_key(SESSION, "ana", "clock"))
+        assert not set(got) & set(forbidden), got
+        put_until_received(learner, asks, admin)  # the learner may
+        assert asks in admin.keys and asks in ana_hears.wait_for(asks)  # teachers hear it...
+        put_until_received(arbiter, answers, ana_hears)  # ... and who answered it
+        assert answers in ana_hears.keys
+        assert robot_key(SESSION, "r2", "help") not in admin.keys
+    finally:
+        for closing in (ana, learner, arbiter, ana_hears, admin):
+            closing.close()
+
+
 def test_a_robots_services_use_only_their_own_robots_topics(router, secrets):
     admin = Receiver(as_user(router, secrets, "logger"), session_keys(SESSION))
     sim = open_session(as_user(router, secrets, "sim"))

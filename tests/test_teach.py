@@ -1,6 +1,6 @@
 """`voxshape teach`: typed words reach the utterance topic, recordings are chunked on the
-teacher's clock, the robot's status and what was understood are shown, and inputs that cannot
-work (no microphone, a WAV in the wrong format) are clear errors."""
+teacher's clock, the robot's status, what was understood and the robot's questions are shown,
+and inputs that cannot work (no microphone, a WAV in the wrong format) are clear errors."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import json
 import subprocess
 import time
 import wave
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -17,10 +18,13 @@ from protocol import (
     Credit,
     CreditedFeedback,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     Said,
     TeacherNotice,
     Utterance,
     load_vocabulary,
+    robot_key,
     teacher_key,
 )
 from protocol.examples import example_messages
@@ -28,8 +32,11 @@ from protocol.messages import SAMPLE_RATE
 from services.runtime import Node, Presence
 from services.speech.transcriber import not_recognized
 from services.teacher.board import Board
+from services.teacher.screen import ask_hint
 from services.teacher.sources import default_teacher_id, typed, typed_lines, wav_stream
-from tests.conftest import VOXSHAPE, bus_args, collect
+from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
+from tests.test_launcher import read_until
+from tests.test_web import Robot
 
 VOCABULARY = load_vocabulary()
 
@@ -243,3 +250,72 @@ def test_the_teacher_syncs_its_clock_and_shows_what_the_arbiter_made_of_its_word
     assert (notice["robot"], notice["kind"]) == ("r9", "unknown_robot"), notice
     arbiter.terminate()
     assert arbiter.wait(20) == 0
+
+
+def test_a_question_gets_its_line_with_a_hint_in_the_teachers_words_and_the_answer_who_gave_it():
+    question = HelpRequest(
+        robot="r1", episode=3, step=405, reason="stuck", detail="stuck for 10 s", x=1.2, y=-0.4
+    )
+    board = Board(ask_hint=ask_hint(VOCABULARY, "en"))
+    (line,) = board.question(question)
+    assert line.text == "r1 asks: which way? stuck for 10 s — say left, right or forward"
+    assert (line.event, line.data["question"], line.data["step"]) == ("question", question.id, 405)
+    assert ask_hint(VOCABULARY, "es") == "say izquierda, derecha or avanzar"
+    answer = HelpAnswer(
+        robot="r1",
+        question=question.id,
+        step=405,
+        teacher="ana",
+        meaning="left",
+        utterance="0" * 32,
+    )
+    (line,) = board.answer(answer)
+    assert line.text == "answered by ana: left" and line.data["teacher"] == "ana"
+    # what the bus says is printed without its control characters (escape sequences)
+    (odd,) = Board().question(replace(question, detail="\x1b[31mred"))
+    assert odd.text == "r1 asks: which way? ?[31mred"
+
+
+def test_the_teacher_hears_the_robots_question_with_the_bell_and_who_answered(
+    spawn, router, session_id, client_config, tmp_path
+):
+    """A real arbiter and `voxshape teach`; the test is the robot: it publishes observations
+    and asks. Bob sees the question, types "left", and sees that he answered it; the robot
+    gets the command credited to the question's step."""
+    spawn([VOXSHAPE, "arbiter", *bus_args(router, session_id, "arbiter")], cwd=tmp_path)
+    with Node("test", client_config("robot")) as node:
+        node.watch_presence()
+        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        help_ = node.output("help", robot_key(session_id, "r1", "help"))
+        wait_present(node, "arbiter")
+        robot = Robot(node, session_id, hz=10.0)
+        robot.start()
+        teach = spawn(
+            [
+                *(VOXSHAPE, "teach", *bus_args(router, session_id, "teach")),
+                *("--teacher", "bob", "--robot", "r1", "--linger", "1"),
+            ],
+            stdin=subprocess.PIPE,
+            text=True,
+            cwd=tmp_path,
+        )
+        try:
+            wait_present(node, "teach")
+            question = HelpRequest(
+                robot="r1", episode=0, step=7, reason="stuck", detail="stuck for 10 s", x=1, y=1
+            )
+            help_.put(question)
+            asked = read_until(teach, "asks: which way", timeout=10)[-1]
+            assert asked == "\a" + "r1 asks: which way? stuck for 10 s — say left, right or forward"
+            teach.stdin.write("left\n")
+            teach.stdin.flush()
+            (feedback,) = collect(node, 1, CreditedFeedback, timeout=10)
+            answered = read_until(teach, "answered by", timeout=10)[-1]
+        finally:
+            robot.stopping.set()
+            robot.join(5)
+        teach.stdin.close()
+        assert teach.wait(20) == 0
+    assert answered == "answered by bob: left"
+    assert (feedback.kind, feedback.command, feedback.teachers) == ("command", "left", ("bob",))
+    assert [(c.step, c.weight) for c in feedback.credits] == [(7, 1.0)]

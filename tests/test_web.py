@@ -24,6 +24,8 @@ import pytest
 from protocol import (
     AudioChunk,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     TeacherNotice,
     TeachingStats,
     Utterance,
@@ -43,8 +45,10 @@ from services.teacher.web.admission import (
 )
 from services.teacher.web.gateway import (
     AUDIO_HEADER,
+    QUESTION_OPEN_S,
     BrowserError,
     Robots,
+    SessionView,
     Teaching,
     map_json,
     parse_frame,
@@ -108,6 +112,60 @@ def test_the_curve_gets_an_episode_once_its_interventions_are_final():
         2,
     )
     assert list(robots.curve) == [point]
+
+
+def ask(robot: str = "r1", step: int = 405, detail: str = "stuck for 10 s") -> HelpRequest:
+    return HelpRequest(
+        robot=robot, episode=3, step=step, reason="stuck", detail=detail, x=1.23456, y=0.5
+    )
+
+
+def answered(question: HelpRequest, teacher: str = "ana") -> HelpAnswer:
+    return HelpAnswer(
+        robot=question.robot,
+        question=question.id,
+        step=question.step,
+        teacher=teacher,
+        meaning="left",
+        utterance="0" * 32,
+    )
+
+
+def test_a_question_and_its_answer_go_to_every_page_bounded_and_open_ones_to_late_pages():
+    robots = Robots()
+    question = ask()
+    (item,) = robots.question(question, 100.0, key_robot="r1")
+    assert item == {
+        "type": "question",
+        "robot": "r1",
+        "question": question.id,
+        "episode": 3,
+        "step": 405,
+        "reason": "stuck",
+        "detail": "stuck for 10 s",
+        "x": 1.2346,
+        "y": 0.5,
+        "text": "r1 asks: which way? stuck for 10 s",
+        "stamp": 100_000.0,
+    }
+    # a page that joins meanwhile is shown it; once answered, or QUESTION_OPEN_S on, not
+    view = SessionView("s1", False, "en", {}, None, None)
+    assert robots.welcome(view, "ben", 104.0)["questions"] == [item]
+    assert robots.open_questions(100.0 + QUESTION_OPEN_S) == []
+    (answer,) = robots.answer(answered(question), 101.0)
+    assert answer["text"] == "answered by ana: left" and answer["question"] == question.id
+    assert (answer["type"], answer["teacher"], answer["step"]) == ("answer", "ana", 405)
+    assert robots.open_questions(101.5) == []
+    # rare, and bounded anyway: one a robot a second; none on another robot's key
+    assert robots.question(ask(step=406), 100.5) == []
+    assert robots.question(ask("r2"), 101.0, key_robot="r1") == []
+    assert robots.question(ask("r2"), 101.0, key_robot="r2") != []
+    flood = [m for k in range(100) for m in robots.question(ask(f"x{k}"), 102.0)]
+    assert len(flood) <= 10  # every robot's together: a burst of 10, then 5 a second
+    assert len(robots.open_questions(102.0)) <= 64
+    # bus text is text: control characters never reach a terminal (the page uses textContent)
+    (odd,) = robots.question(ask("r3", detail="\x1b[2Jgone\a"), 200.0)
+    assert odd["text"] == "r3 asks: which way? ?[2Jgone?"
 
 
 def test_a_login_names_its_teacher_and_a_secured_one_needs_its_password():

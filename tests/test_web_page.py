@@ -2,7 +2,8 @@
 real local session: router, simulator, learner, arbiter, pocketsphinx speech and `voxshape
 web`, each its own process. The page draws the map and a moving robot; holding the talk button
 with Chromium's fake microphone playing "turn left" makes the learner take the command; a
-click on "good" reaches the learner as a credited reward; two pages are two teachers; a wrong
+click on "good" reaches the learner as a credited reward; two pages are two teachers; the
+robot's question shows on every page, a click answers it and every page says who did; a wrong
 password on a secured session is refused with a clear message.
 
 The page's state is read from `window.voxshape`, never from pixels. Screenshots go to
@@ -25,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol import CreditedFeedback, TeachingStats, robot_key
+from protocol import CreditedFeedback, HelpRequest, TeachingStats, robot_key
 from services.runtime import Input, Node, bus_config
 from services.runtime.audio import read_wav
 from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port, wait_present
@@ -131,7 +132,8 @@ def session(tmp_path_factory) -> Iterator[Session]:
             node.watch_presence()
             procs.start([VOXSHAPE, "arbiter", *bus_args(router, sid, "arbiter")], cwd)
             procs.start([VOXSHAPE, "speech", *bus_args(router, sid, "speech")], cwd)
-            learner = ["--robot", "r1", "--seed", "1"]
+            # it asks no questions of its own: the test's robot asks (one open a robot)
+            learner = ["--robot", "r1", "--seed", "1", "--set", "ask.per_robot_minute=0"]
             procs.start([VOXSHAPE, "learner", *bus_args(router, sid, "learner"), *learner], cwd)
             session.url = start_web(procs, cwd, bus_args(router, sid, "web"))
             wait_present(node, {"arbiter", "speech", "learner", "web"}, timeout=60)
@@ -327,6 +329,79 @@ def test_two_pages_are_two_teachers(session, open_page):
     assert {"ana", "ben"} <= heard, heard
     for page in pages:
         page.wait_for_function("window.voxshape.stats.r1?.teachers >= 2", timeout=WAIT_MS)
+        assert page.errors == []
+
+
+def asked(page, question: str) -> None:
+    page.wait_for_function(
+        f"window.voxshape.questions.open.r1?.question?.question === {question!r}", timeout=WAIT_MS
+    )
+
+
+def answered_then_cleared(pages: list, teacher: str, meaning: str) -> None:
+    """Every page says who answered, then clears the question a few seconds on."""
+    for page in pages:
+        page.wait_for_function(
+            f"window.voxshape.questions.open.r1?.answer?.teacher === {teacher!r}", timeout=WAIT_MS
+        )
+        assert f"answered by {teacher}: {meaning}" in page.inner_text("#question")
+    for page in pages:
+        page.wait_for_function("window.voxshape.questions.open.r1 === undefined", timeout=8000)
+        assert page.inner_text("#question").strip() == ""
+
+
+def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
+    session, open_page, tmp_path
+):
+    """The test is r1's learner asking; the arbiter takes the first command said within 6 s
+    as the answer. One page reads questions aloud (chosen, and remembered), the other answers
+    with a click; both say who answered, and clear the question after a few seconds, or
+    after ~10 s without an answer."""
+    with Node("learner", session.node_config("asker")) as node:
+        node.input("feedback", robot_key(session.id, "r1", "feedback"))
+        help_ = node.output("help", robot_key(session.id, "r1", "help"))
+        pages = [open_page(session.url, teacher=t) for t in ("listener", "answerer")]
+        for page in pages:
+            teaching(page)
+            page.wait_for_function("window.voxshape.obs.r1 !== undefined", timeout=30_000)
+        listener, answerer = pages
+        assert not listener.is_checked("#speak-questions")  # off by default
+        listener.check("#speak-questions")
+        assert state(listener, "localStorage.getItem('voxshape.speakQuestions')") == "1"
+        obs = state(listener, "s.obs.r1")
+        question = HelpRequest(
+            robot="r1",
+            episode=obs["episode"],
+            step=obs["step"],
+            reason="stuck",
+            detail="stuck for 10 s",
+            x=obs["x"],
+            y=obs["y"],
+        )
+        help_.put(question)
+        for page in pages:
+            asked(page, question.id)
+            assert "r1 asks: which way? stuck for 10 s" in page.inner_text("#question")
+            assert page.get_attribute("#question", "aria-live") == "assertive"
+        # a chime each (the click on Join lets a page play sound), read aloud where chosen
+        chimed = "[s.questions.chimes, s.questions.played, s.questions.spoken]"
+        assert state(listener, chimed) == [1, 1, 1]
+        assert state(answerer, chimed) == [1, 1, 0]
+        screenshot(answerer, "question.png", tmp_path)
+        answerer.click("[data-meaning=left]")
+        feedback = wait_feedback(node, "answerer")
+        assert (feedback.kind, feedback.command) == ("command", "left")
+        assert [(c.step, c.weight) for c in feedback.credits] == [(question.step, 1.0)]
+        answered_then_cleared(pages, "answerer", "left")
+        assert "question" in wait_notice(answerer, "understood", "left")["text"]
+        # a question nobody answers clears too (~10 s; shortened here)
+        state(listener, "s.questions.unanswered_ms = 1000")
+        again = replace(question, id=uuid.uuid4().hex, step=obs["step"] + 1)
+        help_.put(again)
+        asked(listener, again.id)
+        listener.wait_for_function("window.voxshape.questions.open.r1 === undefined", timeout=5000)
+        assert state(listener, "s.questions.answers.length") == 1
+    for page in pages:
         assert page.errors == []
 
 

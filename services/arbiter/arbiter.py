@@ -196,21 +196,8 @@ class Arbiter:
         teacher_id, robot_id = utterance.teacher, utterance.robot
         self._started_at = min(self._started_at, received_at)
         robot = self._robots.get(robot_id)
-        said_before_start = self.clocks.to_arbiter(teacher_id, utterance.onset) < self._started_at
         said_at = self.clocks.to_arbiter(teacher_id, utterance.end)
-        if said_before_start and said_at < received_at - RATE_LOOKBACK_S:
-            # recovered from long before this arbiter started (speech keeps 256 a teacher):
-            # answered by the one before, its steps forgotten; no token of the rate taken
-            self.counters["rejected.stale"] += 1
-            return []
-        if (
-            said_before_start
-            and received_at - self._started_at < STARTING_S
-            and len(self._held) < MAX_HELD
-        ):
-            # recovered by an arbiter just (re)started: the robot's recovered observations
-            # may come after it, and after its live ones
-            self._held.append((utterance, teacher, received_at))
+        if self._set_aside(utterance, teacher, received_at, said_at):
             return []
         if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
             robot = None  # its simulator went quiet: nothing to credit
@@ -233,10 +220,7 @@ class Arbiter:
         if isinstance(understood, NotUnderstood):
             return self._ignore(understood.reason, utterance, tally, received_at, understood.detail)
         meaning = understood.meaning
-        onset = self.clocks.to_arbiter(teacher_id, utterance.onset)
-        question = (
-            self.questions.answered_by(robot_id, onset, scale) if understood.is_command else None
-        )
+        question = self._question_answered(utterance, understood.is_command, scale)
         if question is not None:
             out, episode = self._answer(utterance, meaning.action or "stop", question)
             said = f"the answer to {robot_id}'s question: {meaning.name}"
@@ -251,13 +235,33 @@ class Arbiter:
             out, episode = judged
             said = f"{meaning.name} ({meaning.reward:+g})"
         tally.understood += 1
+        self._intervened(robot, episode, teacher_id)
+        text = f"understood {utterance.text!r}: {said}"
+        return [*out, self._notice(utterance, "understood", text, meaning.name)]
+
+    def _intervened(self, robot: _Robot, episode: int, teacher: str) -> None:
+        """An understood word, counted in the interventions of the episode it is about."""
         record = robot.episodes.get(episode)
         if record is None or record.final:  # its final statistics are out: too late for them
             self.counters["intervention_after_final"] += 1
         else:
-            record.interventions[teacher_id] += 1
-        text = f"understood {utterance.text!r}: {said}"
-        return [*out, self._notice(utterance, "understood", text, meaning.name)]
+            record.interventions[teacher] += 1
+
+    def _set_aside(
+        self, utterance: Utterance, teacher: _Teacher, received_at: float, said_at: float
+    ) -> bool:
+        """Whether a word said before this arbiter started is dropped (too old: the one
+        before answered it, its steps are forgotten; no token of the rate taken) or held
+        until the start is over (the robot's recovered observations may come after it)."""
+        if self.clocks.to_arbiter(utterance.teacher, utterance.onset) >= self._started_at:
+            return False
+        if said_at < received_at - RATE_LOOKBACK_S:
+            self.counters["rejected.stale"] += 1
+            return True
+        if received_at - self._started_at < STARTING_S and len(self._held) < MAX_HELD:
+            self._held.append((utterance, teacher, received_at))
+            return True
+        return False
 
     def _release(self, now: float) -> list[Message]:
         """The held utterances, in order, once the start is over (the robot's recovered
@@ -362,6 +366,15 @@ class Arbiter:
             teachers=(utterance.teacher,),
         )
         return [feedback], episode
+
+    def _question_answered(
+        self, utterance: Utterance, is_command: bool, scale: float
+    ) -> Question | None:
+        """The robot's open question a command answers (said within a few seconds of it)."""
+        if not is_command:
+            return None
+        onset = self.clocks.to_arbiter(utterance.teacher, utterance.onset)
+        return self.questions.answered_by(utterance.robot, onset, scale)
 
     def _answer(
         self, utterance: Utterance, action: str, question: Question

@@ -42,24 +42,12 @@ def measure_latency(utterances: int = 1000, warmup_s: float = 1.2) -> dict:
     voxshape = str(Path(sys.executable).parent / "voxshape")
     common = ["--session", session, "--connect", router]
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    unlimited = ["--set", "utterances_per_s=1e6", "--set", "utterances_at_once=1e6"]
     children = [
         subprocess.Popen([voxshape, "router", "--session", session, "--listen", router], **quiet)
     ]
     try:
-        children.append(
-            subprocess.Popen(
-                [
-                    voxshape,
-                    "arbiter",
-                    *common,
-                    "--set",
-                    "utterances_per_s=1e6",
-                    "--set",
-                    "utterances_at_once=1e6",
-                ],
-                **quiet,
-            )
-        )
+        children.append(subprocess.Popen([voxshape, "arbiter", *common, *unlimited], **quiet))
         config = replace(bus_config("bench"), session=session, connect=(router,))
         with Node("bench", config, quiet=True) as node:
             node.input("feedback", robot_key(session, ROBOT, "feedback"))
@@ -83,13 +71,7 @@ def measure_latency(utterances: int = 1000, warmup_s: float = 1.2) -> dict:
                 else:
                     lost += 1
     finally:
-        for child in reversed(children):
-            child.terminate()
-            try:
-                child.wait(10)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                child.wait(5)
+        _stop(children)
     if not latencies:
         raise RuntimeError("no credited feedback came back from the arbiter")
     return {
@@ -101,6 +83,17 @@ def measure_latency(utterances: int = 1000, warmup_s: float = 1.2) -> dict:
         "latency_max_ms": round(max(latencies), 3),
         "observations_per_s": round(1 / OBS_EVERY),
     }
+
+
+def _stop(children: list[subprocess.Popen]) -> None:
+    """Ends the processes this benchmark started, the last first."""
+    for child in reversed(children):
+        child.terminate()
+        try:
+            child.wait(10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait(5)
 
 
 class _ObservationStream:

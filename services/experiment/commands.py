@@ -121,6 +121,13 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="experiment", required=True, metavar="EXPERIMENT")
+    _add_paper(sub)
+    _add_sweep(sub)
+    _add_pool(sub)
+    _add_distributed(sub)
+
+
+def _add_paper(sub: argparse._SubParsersAction) -> None:
     paper = sub.add_parser(
         "paper",
         help="the paper's Tables 2 and 3 and Figure 2: 4 tasks x 4 settings x seeds",
@@ -134,6 +141,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=list(PAPER_SETTINGS),
         help=f"comma-separated from {', '.join(SETTINGS)}",
     )
+
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
     sweeping = sub.add_parser(
         "sweep",
         help="speedup of feedback against noise, reaction delay (with and without the "
@@ -158,6 +168,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "and rl+t+f (0: the tireless teacher), e.g. 0,1,2,4,8,16",
     )
 
+
+def _add_pool(sub: argparse._SubParsersAction) -> None:
     pooling = sub.add_parser(
         "pool",
         help="the runs of several `paper` outputs as one experiment (e.g. seeds 0-9 and "
@@ -169,6 +181,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     pooling.add_argument("dirs", type=Path, nargs="+", metavar="DIR", help="`paper` outputs")
     pooling.add_argument("--out", type=Path, default=Path("runs/experiment-pool"))
 
+
+def _add_distributed(sub: argparse._SubParsersAction) -> None:
     distributed = sub.add_parser(
         "distributed",
         help="one task and setting in-process and with every service its own process over "

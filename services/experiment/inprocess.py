@@ -97,6 +97,7 @@ class RunResult:
     trace_words: int = 0  # the commands a person says to dictate the traces (TraceBook.words)
     outcomes: list[str] = field(default_factory=list)  # of every episode run
     states: int = 0  # the learner's states (features) at the end
+    timeout_s: float = 0.0  # of the map's episodes (0: not recorded)
     spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     def to_json(self) -> dict:
@@ -176,10 +177,10 @@ class _Session:
                     self._hear(speech)
             interventions += self._deliver()
             decision = learner.step(reading)
-            if decision is None:
-                break
             if self.asker is not None:
                 self._ask(reading)
+            if decision is None:
+                break
             reading = sim.step({ROBOT: (decision.v, decision.omega)})[ROBOT]
             self.now += period
         self.now += PAUSE
@@ -254,6 +255,7 @@ class _Session:
             counters=counters,
             outcomes=self.outcomes,
             states=len(learner.features),
+            timeout_s=self.sim.map.timeout,
             spec=asdict(spec),
         )
 

@@ -23,6 +23,7 @@ A run that does not converge within max_episodes is censored: it counts with its
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -42,9 +43,17 @@ from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence
 from services.teacher.simulated.teacher import PROFILES
+from services.world.maps import MapError, load_map
 
 TASKS = ("1", "2", "3", "4")
-LABELS = {"rl": "RL", "rl+f": "RL + F", "rl+t+f": "RL + T + F", "rl+t+f-perfect": "RL + T + F (PF)"}
+LABELS = {
+    "rl": "RL",
+    "rl+f": "RL + F",
+    "rl+t+f": "RL + T + F",
+    "rl+t+f-perfect": "RL + T + F (PF)",
+    "rl+f+ask": "RL + F + ask",
+    "rl+t+f+ask": "RL + T + F + ask",
+}
 # The paper's Tables 2 and 3 (3 repeats per cell). Times in minutes.
 PAPER_EPISODES = {
     "rl": {"1": 13, "2": 6, "3": 12, "4": 7},
@@ -257,18 +266,7 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
     """results.json's content: the runs, the means per task and setting, speedups."""
     tasks = sorted({r.task for r in results})
     settings = [s for s in SETTINGS if any(r.setting == s for r in results)]
-    cells: dict[str, dict[str, dict]] = {}
-    for task in tasks:
-        cells[task] = {}
-        for setting in settings:
-            runs = [r for r in results if r.task == task and r.setting == setting]
-            if not runs:
-                continue
-            cell = {"runs": len(runs)}
-            for key in ("episodes", "learning_time_s", "interventions", "trace_words"):
-                cell[key], cell[f"{key}_ci95"] = mean_ci(getattr(r, key) for r in runs)
-            cell["converged_fraction"] = sum(r.converged for r in runs) / len(runs)
-            cells[task][setting] = cell
+    cells = _cells(results, tasks, settings)
     means = {
         s: statistics.fmean(cells[t][s]["learning_time_s"] for t in tasks if s in cells[t])
         for s in settings
@@ -301,8 +299,60 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
         ),
         "interventions": interventions,
         "trace_words": trace_words,
+        "timeout_share": {
+            s: timeout_share([r for r in results if r.setting == s]) for s in settings
+        },
+        "questions": {
+            s: {
+                key: statistics.fmean(r.counters.get(counter, 0) for r in runs)
+                for key, counter in (
+                    ("asked", "learner.questions"),
+                    ("answered", "teacher.answers"),
+                )
+            }
+            for s in settings
+            if SETTINGS[s].ask and (runs := [r for r in results if r.setting == s])
+        },
         "runs": [r.to_json() for r in results],
     }
+
+
+def _cells(results: list[RunResult], tasks: list[str], settings: list[str]) -> dict:
+    """Per task and setting: the mean and 95% interval of each figure, and the share that
+    converged."""
+    cells: dict[str, dict[str, dict]] = {}
+    for task in tasks:
+        cells[task] = {}
+        for setting in settings:
+            runs = [r for r in results if r.task == task and r.setting == setting]
+            if not runs:
+                continue
+            cell = {"runs": len(runs)}
+            for key in ("episodes", "learning_time_s", "interventions", "trace_words"):
+                cell[key], cell[f"{key}_ci95"] = mean_ci(getattr(r, key) for r in runs)
+            cell["converged_fraction"] = sum(r.converged for r in runs) / len(runs)
+            cells[task][setting] = cell
+    return cells
+
+
+@functools.cache
+def _timeout_of(task: str) -> float:
+    """The episodes' timeout of a task run before results recorded it (0: its map is gone)."""
+    try:
+        return load_map(task).timeout
+    except MapError:
+        return 0.0
+
+
+def timeout_share(runs: list[RunResult]) -> float:
+    """The share of the robot's time until convergence spent in episodes that timed out."""
+    total = lost = 0.0
+    for r in runs:
+        timeout = r.timeout_s or _timeout_of(r.task)
+        episodes = r.durations_s[: r.episodes]
+        total += sum(episodes)
+        lost += sum(d for d in episodes if timeout and d >= timeout - 1e-6)
+    return lost / total if total else 0.0
 
 
 def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) -> str:
@@ -423,6 +473,7 @@ def report(summary: dict, command: str, wall_seconds: float) -> str:
     lines += _speedups(summary, scope)
     lines += _table3(summary, scope, feedback)
     lines += _teacher_words(summary, feedback)
+    lines += _asking(summary, settings)
     lines += _noisy_against_perfect(summary)
     lines += _FIGURE2_SECTION
     return "\n".join(lines)
@@ -585,6 +636,41 @@ def _teacher_words(summary: dict, feedback: list[str]) -> list[str]:
     return lines
 
 
+def _asking(summary: dict, settings: list[str]) -> list[str]:
+    """The robot that asks which way against the same learner that does not (when both ran)."""
+    pairs = [(s, s.removesuffix("+ask")) for s in settings if SETTINGS[s].ask]
+    pairs = [(ask, plain) for ask, plain in pairs if plain in settings]
+    if not pairs:
+        return []
+    lines = [
+        "",
+        "## Asking which way",
+        "",
+        'The robot asks "which way?" when it is stuck, late in an episode or unsure '
+        "(services/learner/asking.py); the person answers within its word budget. Learning "
+        "time is the mean over the tasks; the speedup is the same learner's time without asking "
+        "over its time with; the timeout share is the robot's time until convergence spent "
+        "in episodes that timed out.",
+        "",
+        "| setting | learning time min | speedup from asking | timeout share | questions "
+        "| answers | words while learning |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    means, share = summary["mean_learning_time_s"], summary["timeout_share"]
+    for ask, plain in pairs:
+        asked = summary["questions"][ask]
+        lines.append(
+            f"| {LABELS[plain]} | {means[plain] / 60:.1f} | - | {share[plain]:.2f} | - | - | "
+            f"{summary['interventions'][plain]:.1f} |"
+        )
+        lines.append(
+            f"| {LABELS[ask]} | {means[ask] / 60:.1f} | {means[plain] / means[ask]:.2f} | "
+            f"{share[ask]:.2f} | {asked['asked']:.1f} | {asked['answered']:.1f} | "
+            f"{summary['interventions'][ask]:.1f} |"
+        )
+    return lines
+
+
 def _noisy_against_perfect(summary: dict) -> list[str]:
     """Task 2 with traces, noisy against perfect feedback, as the paper compares them (when
     both were run)."""
@@ -630,6 +716,7 @@ def figure2(results: list[RunResult], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     markers = {"rl": "s", "rl+f": "D", "rl+t+f": "^", "rl+t+f-perfect": "v"}
+    markers.update({"rl+f+ask": "o", "rl+t+f+ask": "P"})
     fig, ax = plt.subplots(figsize=(7, 4))
     for setting in SETTINGS:
         runs = [r.durations_s[: r.episodes] for r in results if r.setting == setting]

@@ -2,7 +2,8 @@
 
 It asks when it is stuck (its own value estimate max_a Q(s, a) has not risen, or it keeps
 bumping, for `stuck_s` robot seconds), when an episode has run `late_share` of its timeout,
-or where its values are flat and no teacher has advised it. At most `per_robot_minute`
+or where its values are flat and no teacher has advised it; once it has reached the goal, only
+in episodes `beyond_fastest` times longer than its fastest. At most `per_robot_minute`
 questions a robot minute (a token bucket of its own), never while one is open, and not again
 where it already asked until an answer has been tried there. The answer (a command credited
 to the question's step) is advised in the state asked in, and taken if the robot is still
@@ -46,13 +47,16 @@ class Asker:
         self._best = (-math.inf, 0.0)  # (best max_a Q this episode, when)
         self._bumps: list[float] = []
         self.reasons: Counter[str] = Counter()  # questions asked, by reason
+        self._fastest = math.inf  # robot seconds of its fastest episode to the goal
 
     def after_step(self, p: LearnerPercept, episode: int) -> Question | None:
         """The robot after the learner's step to `p`: a question, or None."""
-        s = self.learner.s
-        if s is None:
-            return None
         t, episode_t = p.step * CONTROL_PERIOD_S, p.episode_step * CONTROL_PERIOD_S
+        if p.outcome == "goal":
+            self._fastest = min(self._fastest, episode_t)
+        s = self.learner.s
+        if s is None or episode_t <= self.config.beyond_fastest * self._fastest < math.inf:
+            return None
         if p.episode_step == 0:
             self._new_episode(t)
         q = self.learner.q(s)

@@ -24,6 +24,9 @@ class AskConfig:
     late_share: float = 0.5  # of the episode's timeout
     flat: float = 1e-6  # Q(s) spread below this, and no advice: unsure
     open_s: float = 8.0  # robot seconds a question waits for its answer
+    # Once it has reached the goal, it asks only in episodes this many times longer than its
+    # fastest (0: wherever).
+    beyond_fastest: float = 2.0
 
     def __post_init__(self) -> None:
         if self.per_robot_minute < 0 or self.stuck_s <= 0 or self.open_s <= 0:

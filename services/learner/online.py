@@ -50,9 +50,9 @@ class OnlineLearner:
                 discrete=decision.discrete,
                 v=decision.v,
                 omega=decision.omega,
-                chooser=decision.chooser,
+                chooser="policy" if decision.chooser == "policy" else "teacher",
             )
-        question = self.asker.after_step(obs, obs.episode) if decision is not None else None
+        question = self.asker.after_step(obs, obs.episode)
         request = None
         if question is not None:
             self.counters[f"learner.asked.{question.reason}"] += 1

@@ -7,7 +7,15 @@ from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Literal
 
-from protocol import CreditedFeedback, EpisodeEvent, Observation, TeacherNotice, Utterance
+from protocol import (
+    CreditedFeedback,
+    EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
+    Observation,
+    TeacherNotice,
+    Utterance,
+)
 
 
 @dataclass(frozen=True)
@@ -30,11 +38,14 @@ class Board:
         no_answer_hint: str = "no arbiter heard it",
         robot_missing: str = "",
         started_at: float = 0.0,
+        ask_hint: str = "",
     ) -> None:
         """`no_answer_hint`: what to tell the teacher when an utterance gets no answer;
         `robot_missing`: when no observation of the robot came within `answer_within_s` of
-        `started_at` (empty: not watched)."""
+        `started_at` (empty: not watched); `ask_hint`: what to say to a robot's question
+        (e.g. "say left, right or forward")."""
         self.status_every_s = status_every_s
+        self.ask_hint = ask_hint
         self.robot_missing = robot_missing
         self._started_at = started_at
         self._robot_seen = self._robot_missing_told = False
@@ -104,6 +115,38 @@ class Board:
             "steps": steps,
         }
         return [Shown("feedback", text, data)]
+
+    # -- the robot asks "which way?", and who answered ---------------------------------------
+    def question(self, q: HelpRequest) -> list[Shown]:
+        """A robot's question: "r1 asks: which way? stuck for 10 s", and the hint."""
+        asked = f"{q.robot} asks: which way? {printable(q.detail, MAX_DETAIL)}".rstrip()
+        text = f"{asked} — {self.ask_hint}" if self.ask_hint else asked
+        data = {
+            "robot": q.robot,
+            "question": q.id,
+            "episode": q.episode,
+            "step": q.step,
+            "reason": q.reason,
+            "detail": q.detail,
+            "x": round(q.x, 4),
+            "y": round(q.y, 4),
+            "message": asked,
+        }
+        return [Shown("question", text, data)]
+
+    def answer(self, a: HelpAnswer) -> list[Shown]:
+        """Who answered a robot's question, with what: "answered by ana: left"."""
+        text = f"answered by {a.teacher}: {printable(a.meaning, MAX_DETAIL)}"
+        data = {
+            "robot": a.robot,
+            "question": a.question,
+            "step": a.step,
+            "teacher": a.teacher,
+            "meaning": a.meaning,
+            "utterance": a.utterance,
+            "message": text,
+        }
+        return [Shown("answer", text, data)]
 
     # -- what became of each utterance: one line each, once the arbiter (or speech) says ------
     @property
@@ -178,6 +221,16 @@ class _Pending:
 
 MAX_REMEMBERED = 256  # utterances told "no answer", kept to show a late answer
 RATE_LIMIT_MEMORY_S = 2.0  # a rate-limited notice explains silences this long after it
+
+
+MAX_DETAIL = 120  # characters of a question's detail (or an answer's meaning) shown
+
+
+def printable(text: str, limit: int) -> str:
+    """Bus text as a terminal may print it: no control characters (escape sequences), at most
+    `limit` characters."""
+    shown = "".join(c if c.isprintable() else "?" for c in text)
+    return shown if len(shown) <= limit else shown[: limit - 1] + "…"
 
 
 def _how(u: Utterance) -> str:

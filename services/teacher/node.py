@@ -8,6 +8,8 @@ Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
          voxshape/<session>/teacher/<teacher>/notice     what the arbiter made of it
          voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
          voxshape/<session>/robot/<robot>/obs, episode, feedback   the robot's status
+         voxshape/<session>/robot/<robot>/help, answer   its questions ("which way?", with
+                                                         the bell) and who answered them
 
     voxshape teach                              type words (a prompt, or a script on stdin)
     voxshape teach --wav good.wav --wav left.wav   stream recordings in real time (--fast)
@@ -35,7 +37,7 @@ from protocol import Utterance, Vocabulary, check_id, load_vocabulary, robot_key
 from services.runtime import ConfigError, Node, Output, add_bus_arguments, bus_config
 from services.runtime.audio import AudioError
 from services.teacher.board import Board, SpeechUse, SpeechWatch
-from services.teacher.screen import Screen, show_event, terminal_board
+from services.teacher.screen import Screen, ask_hint, show_event, terminal_board
 from services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
 from services.teacher.session import join_as_teacher
 from services.teacher.sources import (
@@ -102,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     vocabulary = _check_arguments(args)
     screen = Screen(args.json)
-    board = terminal_board(bus, teacher, robot, args.status_every, screen)
+    hint = ask_hint(vocabulary, args.language)
+    board = terminal_board(bus, teacher, robot, args.status_every, screen, hint)
     mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
     try:
         recordings = read_recordings(args.wav or [])
@@ -118,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                 raise ConfigError(str(e)) from None
         node = stack.enter_context(Node("teacher", bus, quiet=True))
         outputs = _join(node, stack, teacher, args, screen)
-        for topic in ("obs", "episode", "feedback"):
+        for topic in ("obs", "episode", "feedback", "help", "answer"):
             node.input(topic, robot_key(node.session_id, robot, topic))
         speech = SpeechWatch(_speech_use(args))
         node.watch_presence(role="speech")

@@ -6,11 +6,21 @@ from __future__ import annotations
 import json
 import time
 
-from protocol import CreditedFeedback, EpisodeEvent, Observation, TeacherNotice, Utterance
+from protocol import (
+    CreditedFeedback,
+    EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
+    Observation,
+    TeacherNotice,
+    Utterance,
+    Vocabulary,
+)
 from services.runtime import BusConfig, Input, Presence
 from services.teacher.board import Board, Shown, SpeechWatch
 
 ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
+BELL = "\a"  # rung with a robot's question (text mode only: --json stays clean)
 
 
 class Screen:
@@ -19,16 +29,36 @@ class Screen:
 
     def show(self, items: list[Shown]) -> None:
         for item in items:
-            line = json.dumps(item.as_json()) if self.as_json else item.text
+            if self.as_json:
+                line = json.dumps(item.as_json())
+            else:
+                line = (BELL if item.event == "question" else "") + item.text
             print(line, flush=True)
 
     def note(self, event: str, message: str, **data: object) -> None:
         self.show([Shown(event, message, {"message": message, **data})])
 
 
-def terminal_board(bus: BusConfig, teacher: str, robot: str, every: float, screen: Screen) -> Board:
-    """The status board, with what it says when nothing answers; warns at once of a --teacher
-    that a secured router would silence."""
+def ask_hint(vocabulary: Vocabulary, language: str) -> str:
+    """What to answer a robot's question with, in the teacher's words: "say left, right or
+    forward" (its language's first phrase of each; English, else the action, without)."""
+
+    def phrase(action: str) -> str:
+        for meaning in vocabulary.meanings.values():
+            if meaning.kind == "command" and meaning.action == action:
+                phrases = meaning.phrases.get(language) or meaning.phrases.get("en")
+                return phrases[0] if phrases else action
+        return action
+
+    left, right, forward = (phrase(a) for a in ("left", "right", "forward"))
+    return f"say {left}, {right} or {forward}"
+
+
+def terminal_board(
+    bus: BusConfig, teacher: str, robot: str, every: float, screen: Screen, ask: str = ""
+) -> Board:
+    """The status board, with what it says when nothing answers (and to a robot's question:
+    `ask`); warns at once of a --teacher that a secured router would silence."""
     session = bus.session
     hint = f"no arbiter in session {session!r} heard it (`voxshape status --session {session}`)"
     if bus.user is not None and bus.user != teacher:
@@ -45,6 +75,7 @@ def terminal_board(bus: BusConfig, teacher: str, robot: str, every: float, scree
         robot_missing=f"robot {robot!r} is not running in session {session!r}: nothing seen of "
         f"it within {ANSWER_WITHIN_S:g} s (`voxshape status --session {session}` lists robots)",
         started_at=time.monotonic(),
+        ask_hint=ask,
     )
 
 
@@ -64,4 +95,8 @@ def show_event(event: object, speech: SpeechWatch, board: Board, screen: Screen)
             screen.show(board.feedback(feedback))
         case Input(message=TeacherNotice() as notice):
             screen.show(board.notice(notice, now))
+        case Input(message=HelpRequest() as question):
+            screen.show(board.question(question))
+        case Input(message=HelpAnswer() as answer):
+            screen.show(board.answer(answer))
     screen.show(board.tick(now))

@@ -30,6 +30,7 @@ import argparse
 import os
 import random
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from dataclasses import replace
 
@@ -47,6 +48,7 @@ from services.runtime import (
     ConfigError,
     Input,
     Node,
+    Output,
     add_bus_arguments,
     bus_config,
     fields,
@@ -149,6 +151,33 @@ def audio_messages(spoken: Spoken, teacher: str, robot: str, voice: Voice) -> li
     return [c.message for c in chunks]
 
 
+def _voice(name: str) -> Voice:
+    """The espeak-ng voice, every phrase it may say made before joining (no delay later)."""
+    voice = Voice(name)
+    for meaning in ("goal", "excellent", "good", "bad", "terrible", "forward", "left", "right"):
+        voice(load_vocabulary().meanings[meaning].phrases["en"][0])
+    return voice
+
+
+def _join(
+    node: Node, stack: ExitStack, teacher: str, topic: str, clock: Callable[[], float]
+) -> Output:
+    """Joins as a teacher that speaks on `topic`; its clock synced as a person's client's."""
+    (out,) = join_as_teacher(
+        node,
+        stack,
+        teacher,
+        (topic,),
+        synced=lambda e: node.log.info(
+            "clock synced", extra=fields(offset=f"{e.offset:+.4f}", rtt=f"{e.rtt:.4f}")
+        ),
+        problem=lambda text: node.log.warning(text, extra=fields(teacher=teacher)),
+        clock=clock,
+        echo=False,
+    ).values()
+    return out
+
+
 def run(args: argparse.Namespace) -> int:
     robot = check_id(args.robot, "robot")
     teacher_id = check_id(args.teacher, "teacher")
@@ -157,10 +186,7 @@ def run(args: argparse.Namespace) -> int:
     profile = profile_from(args)
     m = load_map(args.task)
     seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
-    voice = Voice(args.voice) if args.audio else None
-    if voice is not None:  # every phrase it may say, before joining: no delay later
-        for meaning in ("goal", "excellent", "good", "bad", "terrible", "forward", "left", "right"):
-            voice(load_vocabulary().meanings[meaning].phrases["en"][0])
+    voice = _voice(args.voice) if args.audio else None
     skew = args.clock_skew
 
     def clock() -> float:
@@ -175,18 +201,7 @@ def run(args: argparse.Namespace) -> int:
         if profile.answers:
             node.input("help", robot_key(node.session_id, robot, "help"))
         topic = "audio" if voice else "said"
-        (out,) = join_as_teacher(
-            node,
-            stack,
-            teacher_id,
-            (topic,),
-            synced=lambda e: node.log.info(
-                "clock synced", extra=fields(offset=f"{e.offset:+.4f}", rtt=f"{e.rtt:.4f}")
-            ),
-            problem=lambda text: node.log.warning(text, extra=fields(teacher=teacher_id)),
-            clock=clock,
-            echo=False,
-        ).values()
+        out = _join(node, stack, teacher_id, topic, clock)
         node.log.info(
             "teaching",
             extra=fields(

@@ -5,7 +5,8 @@ The WebSocket protocol is docs/web.md's. In short: a browser logs in, probes the
 clock, types words ("say") and talks (push-to-talk: "talk" start, binary audio frames, "talk"
 stop); it is sent a welcome (map, vocabulary, robots), the robots' observations (at most
 `OBS_HZ` a second per robot, the latest winning), episodes, feedback, its teaching statistics,
-the learning curve and one notice line per utterance, the very line `voxshape teach` shows.
+the learning curve, one notice line per utterance (the very line `voxshape teach` shows), and
+the robots' questions ("which way?") with who answered them.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ from protocol import (
     AudioChunk,
     CreditedFeedback,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     Message,
     Observation,
     ProtocolError,
@@ -35,7 +38,7 @@ from protocol import (
 )
 from protocol.messages import MAX_CHUNK_BYTES, SAMPLE_RATE
 from protocol.vocabulary import LANGUAGES
-from services.runtime.limits import TokenBucket
+from services.runtime.limits import Throttle, TokenBucket
 from services.teacher.board import Board, Shown
 from services.teacher.sources import new_stream_id, typed
 from services.world.maps import Box, Map
@@ -50,6 +53,11 @@ ONSET_TRUST_S = 10.0  # a browser time converted further than this from now is n
 TRUSTED_RTT_MS = 1000.0  # a reported clock offset may sit this far below the one-way bound
 AUDIO_BURST_S = 3.0  # audio seconds a teacher may send ahead of real time
 LASER_FOV = math.pi  # the simulated robot's laser spans this, centred ahead (services/sim)
+QUESTION_EVERY_S = 1.0  # a robot's questions (and answers) forwarded at most this often
+QUESTIONS_PER_S = 5.0  # ... and all robots' together (a burst of QUESTIONS_BURST)
+QUESTIONS_BURST = 10.0
+QUESTION_OPEN_S = 10.0  # a page that joins this soon after an unanswered question is shown it
+MAX_OPEN_QUESTIONS = 64  # open questions remembered for pages that join (the oldest forgotten)
 
 
 class BrowserError(ValueError):
@@ -176,6 +184,20 @@ def feedback_json(feedback: CreditedFeedback) -> dict[str, Any]:
     return {"type": "feedback", **_BOARD.feedback(feedback)[0].data}
 
 
+def question_json(question: HelpRequest, at_s: float) -> dict[str, Any]:
+    """A robot's question; `text` is the terminal's line without its hint."""
+    data = _BOARD.question(question)[0].data
+    text = data.pop("message")
+    return {"type": "question", **data, "text": text, "stamp": now_ms(at_s)}
+
+
+def answer_json(answer: HelpAnswer) -> dict[str, Any]:
+    """Who answered a robot's question, with what: `text` "answered by ana: left"."""
+    data = _BOARD.answer(answer)[0].data
+    text = data.pop("message")
+    return {"type": "answer", **data, "text": text}
+
+
 def stats_json(stats: TeachingStats, teacher: str) -> dict[str, Any]:
     """A robot's teaching statistics as one teacher sees them: its own and the count."""
     own = next((asdict(t) for t in stats.teachers if t.teacher == teacher), None)
@@ -202,6 +224,9 @@ class Robots:
         self._pending: dict[str, Observation] = {}
         self._ended: dict[tuple[str, int], EpisodeEvent] = {}
         self.curve: deque[dict[str, Any]] = deque(maxlen=CURVE_KEPT)
+        self._asked: dict[str, tuple[dict[str, Any], float]] = {}  # robot -> open question
+        self._per_robot = Throttle(QUESTION_EVERY_S)
+        self._all = TokenBucket(QUESTIONS_PER_S, QUESTIONS_BURST)
 
     def _see(self, robot: str) -> None:
         if robot not in self.seen:
@@ -248,7 +273,42 @@ class Robots:
         self.curve.append(point)
         return [point]
 
-    def welcome(self, view: SessionView, teacher: str) -> dict[str, Any]:
+    def _bounded(self, kind: str, robot: str, now: float) -> bool:
+        """Whether a question (or answer) goes out: one a robot per QUESTION_EVERY_S, and
+        QUESTIONS_PER_S of all robots; the excess is dropped."""
+        return self._per_robot.due((kind, robot), now) and self._all.take(now)
+
+    def question(
+        self, question: HelpRequest, now: float, key_robot: str | None = None
+    ) -> list[dict[str, Any]]:
+        """A robot's question for every page (none claiming another robot than its key's,
+        `key_robot`); remembered for pages that join while it is open."""
+        if key_robot not in (None, question.robot):
+            return []
+        if not self._bounded("question", question.robot, now):
+            return []
+        item = question_json(question, now)
+        self._asked.pop(question.robot, None)
+        self._asked[question.robot] = (item, now)
+        for robot, (_, at) in list(self._asked.items()):
+            if now - at >= QUESTION_OPEN_S or len(self._asked) > MAX_OPEN_QUESTIONS:
+                del self._asked[robot]  # oldest first
+        return [item]
+
+    def answer(self, answer: HelpAnswer, now: float) -> list[dict[str, Any]]:
+        """Who answered a robot's question: for every page; the question is no longer open."""
+        if not self._bounded("answer", answer.robot, now):
+            return []
+        asked = self._asked.get(answer.robot)
+        if asked is not None and asked[0]["question"] == answer.question:
+            del self._asked[answer.robot]
+        return [answer_json(answer)]
+
+    def open_questions(self, now: float) -> list[dict[str, Any]]:
+        """Questions asked within QUESTION_OPEN_S that nobody answered, oldest first."""
+        return [item for item, at in self._asked.values() if 0 <= now - at < QUESTION_OPEN_S]
+
+    def welcome(self, view: SessionView, teacher: str, now: float) -> dict[str, Any]:
         return {
             "type": "welcome",
             "session": view.session,
@@ -260,6 +320,7 @@ class Robots:
             "map": view.map,
             "viewer": view.viewer,
             "curve": list(self.curve),
+            "questions": self.open_questions(now),
         }
 
 

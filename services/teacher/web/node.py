@@ -4,10 +4,11 @@
     GET /ws      the WebSocket of docs/web.md: login, then JSON and audio frames
 
 Inputs (its own node, role "web"): voxshape/<session>/robot/*/obs, episode, feedback,
-teaching. Each logged-in browser gets a teacher node of its own (role "teacher", the browser's
-user and password on a secured session, so the router's access control applies to it as to
-`voxshape teach`): outputs teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio,
-inputs its notices and utterances, and the clock exchange with the arbiter. The server is
+teaching, help (a robot's question) and answer (who answered it). Each logged-in browser gets
+a teacher node of its own (role "teacher", the browser's user and password on a secured
+session, so the router's access control applies to it as to `voxshape teach`): outputs
+teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its notices and
+utterances, and the clock exchange with the arbiter. The server is
 services/teacher/web/server.py.
 """
 

@@ -28,11 +28,14 @@ from aiohttp import WSMsgType, web
 from protocol import (
     CreditedFeedback,
     EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
     Message,
     Observation,
     TeacherNotice,
     TeachingStats,
     Utterance,
+    parse_key,
     robot_key,
 )
 from services.runtime import (
@@ -207,7 +210,7 @@ class Gateway:
         """Joins the bus (the gateway's own node) and starts forwarding the robots."""
         self.loop = asyncio.get_running_loop()
         self.node = await asyncio.to_thread(Node, "web", self.bus)
-        for topic in ("obs", "episode", "feedback", "teaching"):
+        for topic in ("obs", "episode", "feedback", "teaching", "help", "answer"):
             self.node.input(topic, robot_key(self.node.session_id, "*", topic))
         self._pump = _Pump(self.node, self.loop, self._on_robots)
         self._ticker = asyncio.create_task(self._tick())
@@ -299,6 +302,11 @@ class Gateway:
                 if browser.teaching is not None:
                     browser.send(browser.teaching.stats(message))
             self._broadcast(self.robots.teaching(message))
+        elif isinstance(message, HelpRequest):
+            owner = parse_key(event.key).owner  # a question on another robot's key: dropped
+            self._broadcast(self.robots.question(message, time.time(), owner))
+        elif isinstance(message, HelpAnswer):
+            self._broadcast(self.robots.answer(message, time.time()))
 
     def _broadcast(self, items: list[dict[str, Any]]) -> None:
         for item in items:
@@ -398,7 +406,7 @@ class Gateway:
         )
         budget = self.audio.setdefault(login.teacher, TokenBucket(1.0, AUDIO_BURST_S))
         browser.teaching = Teaching(login.teacher, self.robots, board, self.view.language, budget)
-        browser.send(self.robots.welcome(self.view, login.teacher))
+        browser.send(self.robots.welcome(self.view, login.teacher, time.time()))
         self.log.info(
             "a browser logged in",
             extra=fields(teacher=login.teacher, node=browser.node.id, peer=peer),

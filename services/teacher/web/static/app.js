@@ -1,11 +1,13 @@
-// The teacher's page: login, then the map, the words, push-to-talk, what was understood and
-// the learning curve, all over one WebSocket; window.voxshape holds its state for tests.
+// The teacher's page: login, then the map, the words, push-to-talk, what was understood, the
+// robots' questions and the learning curve, all over one WebSocket; window.voxshape holds its
+// state for tests.
 
 import { Connection, browserNow, socketUrl } from "./net.js";
 import { MapView } from "./mapview.js";
 import { CurvePlot } from "./plot.js";
 import { PushToTalk, audioFrame } from "./mic.js";
 import { buildButtons, flash, meaningOfKey, phraseFor } from "./words.js";
+import { Questions } from "./questions.js";
 
 const MAX_NOTICES = 100;
 const MAX_FRAMES = 5000;
@@ -38,6 +40,10 @@ const state = {
   clock: null,
   mic: { talking: false, chunks: 0, sentMs: 0, pressMs: 0, error: null, starts: 0, stops: 0 },
   trace: { recording: false, episode: null, commands: 0, done: null },
+  // the robots' questions: open (robot -> {question, answer}), the last asked and answers,
+  // chimes (played: with sound), spoken aloud; how long a question stays (ms)
+  questions: { open: {}, asked: [], answers: [], chimes: 0, played: 0, spoken: 0, speak: false,
+    unanswered_ms: 10_000, answered_ms: 4_000 },
   errors: [],
 };
 window.voxshape = state;
@@ -45,6 +51,7 @@ window.voxshape = state;
 let connection = null;
 const mapView = new MapView($("map"));
 const curvePlot = new CurvePlot($("curve"));
+const questions = new Questions($("question"), state.questions);
 const pending = new Set(); // robots with an obs not drawn yet
 let dirty = true;
 let curveDirty = true;
@@ -71,6 +78,7 @@ async function join() {
   state.phase = "joining";
   state.refused = null;
   $("login-button").disabled = true;
+  questions.unlockSound(); // the click on Join lets the page chime
   connection = new Connection(socketUrl(), { onMessage: handle, onClose: closed });
   state.clock = connection.clock;
   try {
@@ -126,6 +134,10 @@ function handle(msg) {
       return showStats();
     case "curve":
       return curve(msg);
+    case "question":
+      return questions.ask(msg);
+    case "answer":
+      return questions.answer(msg);
     case "error":
       state.errors.push(msg.text);
       return notice({ kind: "error", text: `the gateway refused: ${msg.text}` });
@@ -152,6 +164,7 @@ function welcome(msg) {
   }
   for (const point of msg.curve ?? []) curve(point);
   for (const robot of msg.robots ?? []) addRobot(robot);
+  for (const question of msg.questions ?? []) questions.ask(question);
   mapView.setMap(msg.map ?? null);
   setLanguage(state.language);
   connection.startClockSync();
@@ -171,6 +184,7 @@ function addRobot(robot) {
 function selectRobot(robot) {
   state.robot = robot;
   mapView.selected = robot;
+  questions.watch(robot);
   $("robot").value = robot;
   connection?.sendJson({ type: "watch", robot });
   curvePlot.clear();
@@ -390,6 +404,9 @@ function initControls() {
   });
   for (const b of document.querySelectorAll(".lang button")) b.addEventListener("click", () => setLanguage(b.dataset.lang));
   $("robot").addEventListener("change", () => selectRobot($("robot").value));
+  $("speak-questions").checked = state.questions.speak; // off unless chosen (remembered)
+  $("speak-questions").addEventListener("change", () => questions.setSpeak($("speak-questions").checked));
+  for (const kind of ["pointerdown", "keydown"]) document.addEventListener(kind, () => questions.unlockSound());
   $("trace").addEventListener("change", () => {
     const on = $("trace").checked;
     state.trace = { recording: on, episode: on ? state.obs[state.robot]?.episode ?? null : null, commands: 0, done: null };
