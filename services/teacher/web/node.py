@@ -42,7 +42,7 @@ from services.teacher.web.gateway import (
     vocabulary_json,
 )
 from services.teacher.web.server import Gateway
-from services.world.maps import load_map
+from services.world.maps import add_task_argument, load_map
 
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 8080
@@ -51,6 +51,26 @@ DEFAULT_MAX_CLIENTS = 20
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
+    _serving_arguments(parser)
+    env = os.environ.get
+    add_task_argument(parser, "to draw")
+    parser.add_argument(
+        "--viewer-url",
+        default=env("VOXSHAPE_VIEWER_URL") or None,
+        help="the rerun web viewer's address, linked from the page (VOXSHAPE_VIEWER_URL)",
+    )
+    parser.add_argument(
+        "--language",
+        choices=LANGUAGES,
+        default=env("VOXSHAPE_LANGUAGE", "en"),
+        help="the page's first language (VOXSHAPE_LANGUAGE)",
+    )
+    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
+    parser.add_argument("--static", type=Path, default=STATIC, help="folder of the page")
+
+
+def _serving_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where and how the page is served, and to whom."""
     env = os.environ.get
     parser.add_argument(
         "--address",
@@ -96,24 +116,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="access file whose teachers may log in on a secured session (VOXSHAPE_ACCESS; "
         "default deploy/access.toml)",
     )
-    parser.add_argument(
-        "--task",
-        default=env("VOXSHAPE_TASK", "1"),
-        help="the simulator's task number or map file, to draw the map (VOXSHAPE_TASK)",
-    )
-    parser.add_argument(
-        "--viewer-url",
-        default=env("VOXSHAPE_VIEWER_URL") or None,
-        help="the rerun web viewer's address, linked from the page (VOXSHAPE_VIEWER_URL)",
-    )
-    parser.add_argument(
-        "--language",
-        choices=LANGUAGES,
-        default=env("VOXSHAPE_LANGUAGE", "en"),
-        help="the page's first language (VOXSHAPE_LANGUAGE)",
-    )
-    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
-    parser.add_argument("--static", type=Path, default=STATIC, help="folder of the page")
 
 
 def run(args: argparse.Namespace) -> int:
