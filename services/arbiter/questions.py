@@ -1,5 +1,5 @@
 """The robots' open questions ("which way?", HelpRequest): the first understood command said
-within ANSWER_WITHIN_S of a question answers it, and is credited to the question's step
+within QUESTION_OPEN_S of a question answers it, and is credited to the question's step
 whatever the teacher's learnt delay; other words are judged as any other."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from protocol import HelpRequest
 
-ANSWER_WITHIN_S = 6.0  # seconds after the question (the teacher's: robot time for a simulated one)
+QUESTION_OPEN_S = 6.0  # seconds after the question (the teacher's: robot time for a simulated one)
 EARLY_S = 0.5  # an onset this much before the question still answers it (clocks are not exact)
 
 
@@ -38,7 +38,7 @@ class OpenQuestions:
         question = self._open.get(robot)
         if question is None:
             return None
-        if not -EARLY_S * scale <= onset - question.asked_at <= ANSWER_WITHIN_S * scale:
+        if not -EARLY_S * scale <= onset - question.asked_at <= QUESTION_OPEN_S * scale:
             return None
         del self._open[robot]
         return question

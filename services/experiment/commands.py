@@ -249,18 +249,30 @@ def run_paper(args: argparse.Namespace) -> int:
         seeds_of(args),
         args.max_episodes,
         command,
-        workers=args.workers,
-        progress=not args.no_progress,
-        learner=tuple(args.set),
-        teacher=tuple(args.teacher),
-        profile=args.teacher_profile,
-        cluster=args.cluster,
-        resume=args.resume is not None,
+        **_running(args),
     )
-    print((args.out / "report.md").read_text())
-    print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
+    _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({summary['wall_time_s'] / 60:.1f} min)")  # fmt: skip
     return 0
+
+
+def _running(args: argparse.Namespace) -> dict:
+    """How the runs of `paper` and `sweep` are run: where, by whom taught, learning how."""
+    return {
+        "workers": args.workers,
+        "progress": not args.no_progress,
+        "learner": tuple(args.set),
+        "teacher": tuple(args.teacher),
+        "profile": args.teacher_profile,
+        "cluster": args.cluster,
+        "resume": args.resume is not None,
+    }
+
+
+def _show(out: Path, report: str, wrote: str) -> None:
+    """The report, and what was written where."""
+    print((out / report).read_text())
+    print(f"wrote {out}/{wrote}")
 
 
 def run_pool(args: argparse.Namespace) -> int:
@@ -270,8 +282,7 @@ def run_pool(args: argparse.Namespace) -> int:
     except PoolError as e:
         print(f"voxshape experiment pool: {e}", file=sys.stderr)
         return 2
-    print((args.out / "report.md").read_text())
-    print(f"wrote {args.out / 'results.json'}, report.md, figure2.png "
+    _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({len(summary['runs'])} runs of {len(args.dirs)} experiments)")  # fmt: skip
     return 0
 
@@ -292,16 +303,9 @@ def run_sweep(args: argparse.Namespace) -> int:
         args.delay,
         args.frequency,
         args.rate,
-        workers=args.workers,
-        progress=not args.no_progress,
-        learner=tuple(args.set),
-        teacher=tuple(args.teacher),
-        profile=args.teacher_profile,
-        cluster=args.cluster,
-        resume=args.resume is not None,
+        **_running(args),
     )
-    print((args.out / "sweep.md").read_text())
-    print(f"wrote {args.out / 'sweep.json'}, sweep.md, sweep.png")
+    _show(args.out, "sweep.md", "sweep.json, sweep.md, sweep.png")
     return 0
 
 

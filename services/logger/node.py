@@ -33,6 +33,7 @@ import zenoh
 from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
 from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord
 from services.logger.renderer import start_renderer, stop_renderer
+from services.logger.replay import add_thinning_arguments
 from services.logger.run import (
     RunDir,
     RunError,
@@ -133,13 +134,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--no-recording", action="store_true", help="write only the event log (no rerun)"
     )
-    parser.add_argument(
-        "--thin-after",
-        type=float,
-        default=0.5,
-        help="seconds behind the bus after which the recording draws fewer scans",
-    )
-    parser.add_argument("--keep-one-scan-in", type=int, default=10, help="when thinning")
+    add_thinning_arguments(parser)
     parser.add_argument(
         "--render-nice",
         type=int,

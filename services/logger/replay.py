@@ -191,6 +191,17 @@ def _wait_for(path: Path, timeout: float) -> None:
 # -- the command -----------------------------------------------------------------------------
 
 
+def add_thinning_arguments(parser: argparse.ArgumentParser) -> None:
+    """How a recording that follows a live session keeps up: fewer scans when behind."""
+    parser.add_argument(
+        "--thin-after",
+        type=float,
+        default=0.5,
+        help="seconds behind the bus after which the recording draws fewer scans",
+    )
+    parser.add_argument("--keep-one-scan-in", type=int, default=10, help="when thinning")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("run", type=Path, help="the run directory, e.g. runs/<session>")
     parser.add_argument(
@@ -211,13 +222,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="also serve the recording to viewers on this port (0: no; default: not serving)",
     )
     parser.add_argument("--serve-bind", default="127.0.0.1", help="address to serve on")
-    parser.add_argument(
-        "--thin-after",
-        type=float,
-        default=0.5,
-        help="with --follow: when this many seconds behind, draw fewer scans",
-    )
-    parser.add_argument("--keep-one-scan-in", type=int, default=10, help="when thinning")
+    add_thinning_arguments(parser)
     parser.add_argument("--recording-id", help=argparse.SUPPRESS)
     parser.add_argument(
         "--until-stdin-closes",

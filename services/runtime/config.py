@@ -138,6 +138,11 @@ class BusConfig:
         if self.mode == "router":
             conf["listen"]["exit_on_failure"] = True
             conf["timestamping"] = {"enabled": True}
+            # A router that also connects meshes with another site's router: it serves its
+            # own site at once and keeps trying the other in the background (every 100-500
+            # ms), also after a lost link. Gossip stays zenoh's (on, one hop): the router
+            # brokers between its peers with it (without, peers of one router hear nothing).
+            conf["connect"]["exit_on_failure"] = False
         if self.user is not None:
             conf["transport"]["auth"] = {"usrpwd": {"user": self.user, "password": self.password}}
         tls: dict = {}

@@ -17,6 +17,8 @@ from protocol import (
     Utterance,
 )
 
+ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
+
 
 @dataclass(frozen=True)
 class Shown:

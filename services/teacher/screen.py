@@ -17,9 +17,8 @@ from protocol import (
     Vocabulary,
 )
 from services.runtime import BusConfig, Input, Presence
-from services.teacher.board import Board, Shown, SpeechWatch
+from services.teacher.board import ANSWER_WITHIN_S, Board, Shown, SpeechWatch
 
-ANSWER_WITHIN_S = 1.0  # an utterance nobody answered within this is told as such
 BELL = "\a"  # rung with a robot's question (text mode only: --json stays clean)
 
 

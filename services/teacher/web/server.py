@@ -48,7 +48,7 @@ from services.runtime import (
     fields,
 )
 from services.runtime.limits import Throttle, TokenBucket
-from services.teacher.board import Board
+from services.teacher.board import ANSWER_WITHIN_S, Board
 from services.teacher.session import join_as_teacher
 from services.teacher.web import page_url
 from services.teacher.web.admission import (
@@ -76,7 +76,6 @@ HTTP_IDLE_S = 10.0  # a connection without a whole request for this long is clos
 REFUSED = "login refused: wrong user name or password, or not a teacher of this session"
 QUEUE_LIMIT = 1000  # messages waiting for one browser (observations aside): beyond, too slow
 TICK_S = 0.05  # observations' slots and the "no answer" lines are checked this often
-ANSWER_WITHIN_S = 1.0  # as `voxshape teach`
 HARD_FRAME_LIMIT = 4 * MAX_BINARY_BYTES  # aiohttp closes the socket above this (1009)
 
 
