@@ -107,15 +107,18 @@ def _pocketsphinx_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _mock_arguments(parser: argparse.ArgumentParser) -> None:
     mock = parser.add_argument_group("mock engine")
-    mock.add_argument("--error-rate", type=float, default=0.0, help="0..1 of utterances")
+    d = MockSettings()
+    mock.add_argument("--error-rate", type=float, default=d.error_rate, help="0..1 of utterances")
     mock.add_argument(
         "--confusion",
-        default="misheard=0.6,dropped=0.3,inserted=0.1",
+        default=f"misheard={d.misheard:g},dropped={d.dropped:g},inserted={d.inserted:g}",
         help="relative weights of the kinds of error",
     )
-    mock.add_argument("--latency", type=float, default=0.3, help="seconds after the speech")
-    mock.add_argument("--latency-jitter", type=float, default=0.0, help="+- seconds, uniform")
-    mock.add_argument("--seed", type=int, default=None)
+    mock.add_argument("--latency", type=float, default=d.latency_s, help="seconds after the speech")
+    mock.add_argument(
+        "--latency-jitter", type=float, default=d.latency_jitter_s, help="+- seconds, uniform"
+    )
+    mock.add_argument("--seed", type=int, default=d.seed)
 
 
 def mock_settings(args: argparse.Namespace) -> MockSettings:
