@@ -24,7 +24,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from tests.chaos_support import Probe, Session
+from benchmarks.harness import Probe, Session
 
 WARM_UP_S = 60.0  # memory "at start" is taken after a minute: imports, first episodes done
 Sample = tuple[float, dict[str, int], dict[str, int]]  # seconds, memory (kB), sizes (bytes)

@@ -1,4 +1,4 @@
-"""The chaos test: benchmarks/chaos.py's harness (tests/chaos_support.py) on a shorter session.
+"""The chaos test: benchmarks/chaos.py's harness (benchmarks/harness.py) on a shorter session.
 Two robots at 10x, a simulated teacher each, `voxshape up` restarting what dies; the learner,
 the speech service, the arbiter and the router each killed once (SIGKILL) and the simulator
 frozen once (SIGSTOP for 15 s, longer than zenoh's lease). Every word the arbiter understood
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.chaos_support import Fault, fault_table, run_chaos, verdict_table
+from benchmarks.harness import Fault, fault_table, run_chaos, verdict_table
 
 SCHEDULE = [  # seconds after the start; the learner once it has checkpointed (every 10 s)
     Fault(14.0, "kill", "learner"),

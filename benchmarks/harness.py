@@ -29,6 +29,7 @@ import sys
 import threading
 import time
 from collections import Counter, defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -403,7 +404,7 @@ class Injected:
 class Monkey:
     """Injects a schedule of faults into a running session, one at a time, in this thread."""
 
-    def __init__(self, session: Session, say=print) -> None:
+    def __init__(self, session: Session, say: Callable[[str], None] = print) -> None:
         self.session, self.say = session, say
         self.injected: list[Injected] = []
         self.before_kill = lambda service: None  # e.g. to note what a learner's kill loses
@@ -718,7 +719,7 @@ def run_chaos(
     seed: int = 0,
     settle: float = 20.0,
     convergence: bool = True,
-    say=print,
+    say: Callable[[str], None] = print,
 ) -> tuple[Monkey, Verdict, list[LearnerLoss], dict]:
     """A whole chaos session: starts it, injects `schedule`, lets the last words settle,
     stops it and judges it. Returns the monkey, the verdict, the learning lost per learner
