@@ -16,6 +16,13 @@ Open by default (the local session on loopback). Secured when given users:
 
 Security lives here, at the router: services and teachers must then be its clients
 (`--mode client`), never peers that could talk to each other around it.
+
+Two sites, one session: `--connect` makes the router also connect to another site's router
+(`voxshape router --connect tcp/lab-a.example:7447`), and the two route between their clients.
+It serves its own site at once and keeps trying the other (also after a lost link). Secured,
+both sites' routers come from one `voxshape certs` kit: the connecting router logs in over
+tls/ as --user, an admin of the other's access file, and admits the other router by its
+certificate (docs/deployment.md, "Two labs, one session").
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ from pathlib import Path
 from services.deploy.access import (
     ACCESS_FILE,
     AccessError,
+    User,
     access_control,
     check_consistent,
     find_access_file,
@@ -41,6 +49,7 @@ from services.deploy.access import (
 from services.runtime import BusConfig, ConfigError, Node, Presence, bus_config, fields
 from services.runtime.config import add_bus_arguments
 
+ROUTER_NAME = "router"  # the common name of a router's certificate (voxshape certs)
 LOOPBACK = ("tcp/127.", "tcp/localhost:", "tls/127.", "tls/localhost:", "tcp/[::1]")
 
 
@@ -94,16 +103,61 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
         raise ConfigError(str(e)) from None
     for warning in check_consistent(users, passwords):
         print(f"voxshape router: warning: {warning}", flush=True)
+    acl = access_control(bus.session, users)
+    if bus.connect:
+        acl = _admit_other_routers(bus, users, acl)
     dictionary = _private_copy(passwords)
     extra = (
         ("transport/auth/usrpwd/dictionary_file", json.dumps(str(dictionary))),
-        ("access_control", json.dumps(access_control(bus.session, users))),
+        ("access_control", json.dumps(acl)),
     )
     roles = ", ".join(f"{name} ({user.role})" for name, user in users.items())
     note = f"secured: {len(passwords)} password(s), deny by default; roles: {roles}"
     if tls:
         note += f"; TLS on {', '.join(tls)}" + (" (mutual)" if bus.mtls else "")
+    if bus.connect:
+        note += f"; logs in to {', '.join(bus.connect)} as {bus.user}"
     return replace(bus, extra=bus.extra + extra), note
+
+
+def _admit_other_routers(bus: BusConfig, users: dict[str, User], acl: dict) -> dict:
+    """A secured router that meshes with another site's: it logs in there as --user (an admin
+    of that site's access file) over TLS, and lets in whatever comes back over that link,
+    which the other router's certificate (common name `router`, from the same `voxshape
+    certs` kit) identifies. Each site's own access control has checked its own users."""
+    plain = [e for e in bus.connect if not e.startswith("tls/")]
+    if plain:
+        raise ConfigError(
+            f"a secured router meshes over tls/ only ({', '.join(plain)}): its password and "
+            "the sessions' traffic would cross between the sites in clear"
+        )
+    if bus.user is None:
+        raise ConfigError(
+            "a secured router logs in to the other site's router: give --user (an admin in "
+            "that site's access file) and its password (VOXSHAPE_PASSWORD or --password-file)"
+        )
+    if bus.tls_root_ca is None:
+        raise ConfigError("meshing over tls/ needs the CA of the other router: --tls-root-ca")
+    if bus.mtls:
+        raise ConfigError(
+            "a router meshing with another site's cannot use mutual TLS yet (it shows the "
+            "other router no client certificate): VOXSHAPE_MTLS=false at this site"
+        )
+    if ROUTER_NAME in users:
+        raise ConfigError(
+            f"the access file has a user {ROUTER_NAME!r}: its certificate would pass for the "
+            "other site's router; rename that user"
+        )
+    other = access_control(bus.session, {ROUTER_NAME: User(ROUTER_NAME, "admin")})
+    (policy,) = other["policies"]
+    shared = {r["id"] for r in acl["rules"]}
+    subject = {"id": "router:other-site", "cert_common_names": [ROUTER_NAME]}
+    return {
+        **acl,
+        "rules": acl["rules"] + [r for r in other["rules"] if r["id"] not in shared],
+        "subjects": [*acl["subjects"], subject],
+        "policies": [*acl["policies"], {**policy, "subjects": [subject["id"]]}],
+    }
 
 
 def _private_copy(passwords: dict[str, str]) -> Path:
@@ -126,6 +180,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     with Node("router", bus) as node:
         node.log.info(note)
+        if bus.connect:  # another site's router: it shows up as "node joined role=router"
+            node.log.info(f"meshing with {', '.join(bus.connect)}: tried until it answers")
         node.watch_presence()
         for event in node.events():
             if isinstance(event, Presence) and event.node != node.id:

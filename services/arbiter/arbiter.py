@@ -223,7 +223,7 @@ class Arbiter:
         question = self._question_answered(utterance, understood.is_command, scale)
         if question is not None:
             out, episode = self._answer(utterance, meaning.action or "stop", question)
-            said = f"the answer to {robot_id}'s question: {meaning.name}"
+            said = f"command {meaning.action}, the answer to {robot_id}'s question"
         elif understood.is_command:
             out, episode = self._command(utterance, meaning.action or "stop", robot)
             said = f"command {meaning.action}"

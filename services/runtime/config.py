@@ -16,7 +16,7 @@ the host. Remote teachers and robots use `--mode client --connect tcp/HOST:7447`
 | VOXSHAPE_PASSWORD(_FILE)    | --password-file   | (none; voxshape teach asks in a terminal) |
 | VOXSHAPE_TLS_ROOT_CA        | --tls-root-ca     | (none)                                  |
 | VOXSHAPE_TLS_CERT / _KEY    | --tls-cert/-key   | (none; needed for TLS listen and mTLS)  |
-| VOXSHAPE_TLS_MTLS           | --mtls            | false                                   |
+| VOXSHAPE_MTLS               | --mtls            | false                                   |
 | VOXSHAPE_SECRETS            | --secrets         | (none; from `voxshape certs DIR`)       |
 Lists are comma-separated.
 
@@ -24,7 +24,8 @@ VOXSHAPE_PASSWORD_FILE holds the password, or is a credentials file of `user:pas
 (the line of VOXSHAPE_USER is taken). VOXSHAPE_SECRETS fills in whatever was not given: the
 user is the role (`sim`, `learner`, `logger`...), its password is its line of DIR/credentials,
 the CA is DIR/ca.pem, this node's certificate DIR/<user>.pem and .key (a router's:
-DIR/router.pem and .key, and DIR/credentials is the users it accepts: see services/router.py).
+DIR/router.pem and .key, and DIR/credentials is the users it accepts, and has the password
+of the user it logs in as at another site's router: see services/router.py).
 """
 
 from __future__ import annotations
@@ -299,6 +300,10 @@ def _fill_from_secrets(role: str, settings: dict) -> None:
         )
     if role == "router":
         identity = "router"
+        if settings.get("user") is not None and "password" not in settings:
+            settings["password"] = _password(  # its login at another site's router
+                folder / "credentials", settings["user"], "VOXSHAPE_SECRETS credentials file"
+            )
     else:
         settings.setdefault("user", role)
         identity = settings["user"]
