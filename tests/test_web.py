@@ -5,7 +5,6 @@ push-to-talk audio, throttled observations, origins, limits, and a secured route
 from __future__ import annotations
 
 import asyncio
-import itertools
 import json
 import os
 import signal
@@ -66,7 +65,7 @@ from tests.test_launcher import read_until
 def test_observations_are_thinned_to_ten_a_second_per_robot_the_latest_winning():
     robots = Robots(hz=10)
     sent: list[dict] = []
-    for i in range(200):  # two robots at 100 Hz for a second each
+    for i in range(200):  # two robots at 100 Hz for two seconds
         now = 1000.0 + i * 0.01
         for robot in ("r1", "r2"):
             sent += robots.observation(observation(robot, i, now), now)
@@ -74,7 +73,10 @@ def test_observations_are_thinned_to_ten_a_second_per_robot_the_latest_winning()
     for robot in ("r1", "r2"):
         mine = [m for m in sent if m["robot"] == robot]
         stamps = [m["stamp"] for m in mine]
-        assert len(mine) <= 21 and min(b - a for a, b in itertools.pairwise(stamps)) >= 99.9
+        # 10 a second after the first 2 at once: never 3 within 100 ms
+        assert len(mine) <= 22 and all(
+            c - a >= 99.9 for a, _, c in zip(stamps, stamps[1:], stamps[2:], strict=False)
+        )
         # each forwarded one is the newest fed when it went (the other robot's may be one
         # step behind: its newest had not come yet)
         assert all(0 <= round((m["stamp"] / 1000 - 1000.0) / 0.01) - m["step"] <= 1 for m in mine)
@@ -480,13 +482,13 @@ async def browse(port: int, node: Node) -> None:
             w["phrase"] for w in welcome["vocabulary"]["en"]
         }
 
-        # Observations: at most 10 a second, 100 ms apart at least, the newest of each slot.
+        # Observations: at most 10 a second (2 at once), the newest of each slot.
         await until(ws, lambda m: m["type"] == "obs")
         t0 = time.monotonic()
         _, seen = await until(ws, lambda m: time.monotonic() - t0 > 2.0, timeout=10)
         stamps = [m["stamp"] for m in seen if m["type"] == "obs"]
         assert 12 <= len(stamps) <= 22, len(stamps)
-        assert min(b - a for a, b in itertools.pairwise(stamps)) >= 99.0
+        assert all(c - a >= 99.0 for a, _, c in zip(stamps, stamps[1:], stamps[2:], strict=False))
 
         # A typed word: the arbiter's verdict, as `voxshape teach` shows it.
         await ws.send_json({"type": "say", "robot": "r1", "text": "good"})

@@ -43,7 +43,8 @@ from services.teacher.board import Board, Shown
 from services.teacher.sources import new_stream_id, typed
 from services.world.maps import Box, Map
 
-OBS_HZ = 10.0  # observations forwarded per robot and second, at most
+OBS_HZ = 10.0  # observations forwarded per robot and second, at most ...
+OBS_AT_ONCE = 2.0  # ... and at once (a late frame and the next one)
 MAX_TEXT_BYTES = 4 * 1024  # a JSON frame from a browser
 MAX_BINARY_BYTES = 64 * 1024  # an audio frame from a browser (2 s of audio)
 MAX_MESSAGES_PER_S = 50  # frames of one socket, text and binary together
@@ -214,13 +215,14 @@ def stats_json(stats: TeachingStats, teacher: str) -> dict[str, Any]:
 
 class Robots:
     """The robots of the session as the pages see them: which exist, their observations
-    thinned to `hz` a second each (the latest wins, sent as soon as its slot comes), and the
-    learning curve (an ended episode's point once the arbiter's count of it is final)."""
+    thinned to `hz` a second each (a token bucket per robot, 2 at once: at the simulator's
+    own 10 Hz none waits; faster, the latest wins, sent when a token comes), and the learning
+    curve (an ended episode's point once the arbiter's count of it is final)."""
 
     def __init__(self, hz: float = OBS_HZ) -> None:
-        self.period = 1.0 / hz
+        self.hz = hz
         self.seen: list[str] = []
-        self._last_sent: dict[str, float] = {}
+        self._slots: dict[str, TokenBucket] = {}
         self._pending: dict[str, Observation] = {}
         self._ended: dict[tuple[str, int], EpisodeEvent] = {}
         self.curve: deque[dict[str, Any]] = deque(maxlen=CURVE_KEPT)
@@ -242,9 +244,11 @@ class Robots:
         """Waiting observations whose slot has come (call it a few times per period)."""
         out = []
         for robot, obs in list(self._pending.items()):
-            if now - self._last_sent.get(robot, -math.inf) >= self.period:
+            slots = self._slots.get(robot)
+            if slots is None:
+                slots = self._slots[robot] = TokenBucket(self.hz, OBS_AT_ONCE, now)
+            if slots.take(now):
                 del self._pending[robot]
-                self._last_sent[robot] = now
                 out.append(obs_json(obs, now))
         return out
 
