@@ -585,3 +585,15 @@ def test_a_question_about_an_unknown_robot_is_refused():
     asked = HelpRequest(robot="r9", episode=0, step=1, reason="late", detail="late", x=0, y=0)
     assert a.on_help(asked, shown(10)) == []
     assert a.counters["rejected.question_of_unknown_robot"] == 1
+
+
+def test_an_answer_has_the_id_the_same_command_would_have_so_a_learner_takes_it_once():
+    """An arbiter restarted without the question turns the recovered answer into a plain
+    command: the same feedback id, so the learner that took the answer skips it."""
+    asked = HelpRequest(robot="r1", episode=0, step=60, reason="stuck", detail="stuck", x=0, y=0)
+    said = utterance("ana", "r1", "left", shown(80))
+    a = arbiter()
+    a.on_help(asked, shown(60))
+    (answer,) = feedback(a.on_utterance(said, shown(85)))
+    (command,) = feedback(arbiter().on_utterance(said, shown(85)))
+    assert answer.id == command.id and credits(answer) == {60: 1.0} != credits(command)

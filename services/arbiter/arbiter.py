@@ -382,7 +382,7 @@ class Arbiter:
         """The answer to a question (a command), credited to its step, and who gave it."""
         self.counters["answers"] += 1
         feedback = CreditedFeedback(
-            id=feedback_id(utterance.robot, "answer", (utterance.id,)),
+            id=feedback_id(utterance.robot, "command", (utterance.id,)),  # as a command: once
             robot=utterance.robot,
             kind="command",
             reward=None,
