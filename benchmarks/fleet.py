@@ -57,6 +57,7 @@ from benchmarks.fleet_clients import browser_client
 from benchmarks.fleet_measure import measure, results
 from benchmarks.fleet_profile import equivalent_profile, find_py_spy, py_spy_profile
 from benchmarks.fleet_session import MAX_ROBOTS_PER_SIM, Fleet
+from services.speech.mock import MockSettings
 
 
 # -- the command ----------------------------------------------------------------------------------
@@ -83,6 +84,14 @@ def _parser() -> argparse.ArgumentParser:
         help=f"robots a simulator process (default {MAX_ROBOTS_PER_SIM}, all a world holds: "
         "beyond, several simulators)",
     )
+    parser.add_argument(
+        "--mock-latency",
+        type=float,
+        default=MockSettings().latency_s,
+        help="seconds the mock engine takes to hear a simulated person (0: the session's own "
+        "latency alone)",
+    )
+    parser.add_argument("--plot", type=Path, help="draw the points' figures to this PNG")
     parser.add_argument("--task", default="1")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", action="store_true", help="one JSON object per point")
@@ -128,7 +137,40 @@ def main() -> int:
             print(json.dumps(point, sort_keys=True))
     else:
         print_report(done, failed)
+    if args.plot and done:
+        plot(done, args.plot)
     return 0 if len(done) == len(todo) else 1
+
+
+def plot(points: list[dict], path: Path) -> None:
+    """The capacity curve: the slowest robot's rate, the machine's load and the word and frame
+    latencies against robots (one line per number of teachers)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = (
+        ("min_robot_rate_hz", "slowest robot, Hz"),
+        ("busy_percent", "machine busy, % of one core"),
+        ("word_to_feedback_p99_ms", "word said -> feedback p99, ms"),
+        ("frame_age_p99_ms", "page frame age p99, ms"),
+    )
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.2))
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        for m in sorted({p["teachers"] for p in points}):
+            mine = sorted(
+                (p["robots"], p["machine"][key] if key == "busy_percent" else p.get(key))
+                for p in points
+                if p["teachers"] == m
+            )
+            xs = [x for x, y in mine if y is not None]
+            ax.plot(xs, [y for _, y in mine if y is not None], marker="o", label=f"{m} teachers")
+        ax.set_xlabel("robots")
+        ax.set_title(label, fontsize=9)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
 
 
 # -- the points -----------------------------------------------------------------------------------

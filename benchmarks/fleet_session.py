@@ -120,7 +120,7 @@ class Fleet:
         commands |= {
             "learner": ["learner", *robots, "--fresh", "--seed", seed],
             "arbiter": ["arbiter"],
-            "speech": ["speech", "--engine", "mock"],
+            "speech": ["speech", "--engine", "mock", "--latency", str(self.args.mock_latency)],
             "web": ["web", "--address", "127.0.0.1", "--port", str(self.web_port)],
         }
         commands["web"] += ["--max-clients", str(len(self.browsers) + 4)]
