@@ -277,7 +277,12 @@ class LocalSession:
 
     # -- stopping -----------------------------------------------------------------------
     def stop(self) -> dict[str, int | None]:
-        """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes."""
+        """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes. The
+        launcher leaves the bus first, while its router still runs (closing a session whose
+        router is gone can wait on zenoh)."""
+        if self.bus is not None:
+            self.bus.close()
+            self.bus = None
         for name in reversed(list(self.procs)):
             proc = self.procs[name]
             if proc.poll() is None:
@@ -288,8 +293,6 @@ class LocalSession:
                     self.say(f"{name} ignored SIGTERM for {STOP_GRACE_S:g} s: killing it")
                     proc.kill()
                     proc.wait()
-        if self.bus is not None:
-            self.bus.close()
         # one awaiting its restart died during the session, not at its end
         return {
             name: None if name in self._restart_due else proc.returncode
