@@ -22,7 +22,7 @@ import heapq
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 
-from protocol import CreditedFeedback, HelpRequest, TeacherNotice, Utterance
+from protocol import CreditedFeedback, TeacherNotice, Utterance
 from protocol.vocabulary import load_vocabulary
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig, DelayLearning
@@ -195,17 +195,7 @@ class _Session:
         question = self.asker.after_step(reading, reading.episode)
         if question is None:
             return
-        pose = reading.pose
-        request = HelpRequest(
-            robot=ROBOT,
-            episode=question.episode,
-            step=question.step,
-            reason=question.reason,
-            detail=question.detail,
-            x=pose.x,
-            y=pose.y,
-        )
-        self.arbiter.on_help(request, self.now)
+        self.arbiter.on_help(question.request(ROBOT, reading.pose.x, reading.pose.y), self.now)
         speech = self.teacher.answer(look(reading, self.now)) if self.teacher else None
         if speech is not None:
             self._hear(speech)

@@ -16,7 +16,7 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Literal
 
-from protocol import CreditedFeedback
+from protocol import CreditedFeedback, HelpRequest
 from services.learner.sarsa import Learner, LearnerPercept
 from services.runtime.limits import TokenBucket
 from services.world.robot import CONTROL_PERIOD_S
@@ -32,6 +32,18 @@ class Question:
     episode: int
     reason: Reason
     detail: str  # e.g. "stuck for 10 s", for the teachers
+
+    def request(self, robot: str, x: float, y: float) -> HelpRequest:
+        """The question as the bus carries it, from where the robot is."""
+        return HelpRequest(
+            robot=robot,
+            episode=self.episode,
+            step=self.step,
+            reason=self.reason,
+            detail=self.detail,
+            x=x,
+            y=y,
+        )
 
 
 class Asker:

@@ -56,15 +56,7 @@ class OnlineLearner:
         request = None
         if question is not None:
             self.counters[f"learner.asked.{question.reason}"] += 1
-            request = HelpRequest(
-                robot=obs.robot,
-                episode=question.episode,
-                step=question.step,
-                reason=question.reason,
-                detail=question.detail,
-                x=obs.x,
-                y=obs.y,
-            )
+            request = question.request(obs.robot, obs.x, obs.y)
         return action, self.summary(obs), request
 
     def take(self, feedback: CreditedFeedback) -> list[int]:
