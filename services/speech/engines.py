@@ -21,6 +21,17 @@ def open_recognizer(
     pocketsphinx_settings: PocketsphinxSettings | None = None,
 ) -> Recognizer:
     """An audio engine ready to recognize; raises EngineError saying what is missing."""
+    if engine == "cascade":  # --model and --dictionary are pocketsphinx's
+        from services.speech.cascade import CascadeRecognizer
+        from services.speech.whisper_engine import WhisperRecognizer
+
+        first = open_recognizer(
+            "pocketsphinx", vocabulary, language, model, dictionary, pocketsphinx_settings
+        )
+        try:
+            return CascadeRecognizer(first, WhisperRecognizer(vocabulary, language))
+        except EngineError as e:
+            return CascadeRecognizer(first, None, missing=str(e))
     if engine == "pocketsphinx":
         from services.speech.pocketsphinx_engine import PocketsphinxRecognizer
 

@@ -1,6 +1,6 @@
 """`voxshape speech`: the speech service on the bus.
 
-Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (pocketsphinx, vosk, whisper)
+Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (cascade, pocketsphinx, vosk, whisper)
          voxshape/<session>/teacher/*/said       text said (mock)
          (an engine's other input is taken only to tell its senders, once, it is not heard)
 Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
@@ -41,7 +41,7 @@ from services.runtime import (
 from services.speech.engines import open_recognizer
 from services.speech.mock import MockRecognizer, MockSettings
 from services.speech.pocketsphinx_engine import PocketsphinxSettings
-from services.speech.recognizer import ENGINES, EngineError, Recognizer
+from services.speech.recognizer import DEFAULT_ENGINE, ENGINES, EngineError, Recognizer
 from services.speech.streams import AudioStreams, StreamLimits
 from services.speech.transcriber import AudioTranscriber, MockTranscriber, Recognized, Unheard
 
@@ -54,8 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--engine",
         choices=ENGINES,
-        default=env("VOXSHAPE_SPEECH_ENGINE", "pocketsphinx"),
-        help="pocketsphinx: offline English; vosk: needs --model; whisper: offline, Whisper "
+        default=env("VOXSHAPE_SPEECH_ENGINE", DEFAULT_ENGINE),
+        help="cascade (default): pocketsphinx, then Whisper on what it is not sure of; "
+        "pocketsphinx: offline English; vosk: needs --model; whisper: offline, Whisper "
         "tiny.en unless --model (pip install -e '.[whisper]'); mock: text in (said messages), "
         "text out (VOXSHAPE_SPEECH_ENGINE)",
     )
@@ -68,7 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--model",
         type=Path,
-        help="vosk: the model folder (default VOSK_MODEL_PATH); pocketsphinx: an acoustic "
+        help="vosk: the model folder (default VOSK_MODEL_PATH); pocketsphinx (and the "
+        "cascade's first stage): an acoustic "
         "model folder instead of the bundled US-English one; whisper: a CTranslate2 Whisper "
         "model folder instead of the packaged tiny.en",
     )
@@ -280,6 +282,10 @@ def _describe(recognizer: Recognizer, node: Node) -> None:
         node.log.warning(
             f"phrases left out: a word is not in the {recognizer.engine} lexicon ({fix})",
             extra=fields(phrases=",".join(missing)),
+        )
+    if getattr(recognizer, "missing", ""):
+        node.log.warning(
+            f"the cascade has no Whisper stage: pocketsphinx alone hears ({recognizer.missing})"
         )
     node.log.info(
         f"{recognizer.engine} ready",

