@@ -14,11 +14,13 @@ from importlib.util import find_spec
 import numpy as np
 import pytest
 
+from protocol import Observation, robot_key
+from services.runtime import Node
 from services.speech import bench
 from services.speech.cascade import CascadeRecognizer
 from services.speech.engines import open_recognizer
 from services.speech.recognizer import Recognition
-from tests.conftest import VOXSHAPE, bus_args
+from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
 from tests.test_faults import paced_sim, service
 from tests.test_speech import FIXTURES, VOCABULARY
 
@@ -125,10 +127,17 @@ def test_the_cascade_refuses_what_is_not_in_the_vocabulary(cascade, name):
 
 
 @needs_whisper
-def test_the_suites_good_clip_is_understood_through_teach(spawn, router, session_id, tmp_path):
+def test_the_suites_good_clip_is_understood_through_teach(
+    spawn, router, session_id, client_config, tmp_path
+):
     paced_sim(spawn, router, session_id)
     service(spawn, "arbiter", router, session_id, "arbiter", cwd=tmp_path)
     service(spawn, "speech", router, session_id, "speech", cwd=tmp_path)  # the default engine
+    with Node("test", client_config("observer")) as node:  # every service up, the robot seen
+        node.watch_presence()
+        node.input("obs", robot_key(session_id, "r1", "obs"))
+        wait_present(node, {"sim", "arbiter", "speech"}, timeout=60)
+        collect(node, 1, Observation, timeout=30)
     wav = FIXTURES / "en-voc-good-en-us.wav"
     args = ["--teacher", "ana", "--robot", "r1", "--wav", str(wav), "--json", "--linger", "5"]
     result = subprocess.run(
