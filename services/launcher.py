@@ -43,6 +43,7 @@ from services.topology import ServiceSpec, find_compose_file, load_topology, loc
 from services.world.maps import load_map
 
 STOP_GRACE_S = 10.0
+SLOW_STOP_S = 2.0  # a service slower than this to stop is named (most take 0.1-0.5 s)
 INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"  # where `voxshape teach` and the tools connect by default
 WEB_PORT = 8080  # compose's port of the web page
@@ -286,6 +287,7 @@ class LocalSession:
         for name in reversed(list(self.procs)):
             proc = self.procs[name]
             if proc.poll() is None:
+                asked = time.monotonic()
                 proc.send_signal(signal.SIGTERM)
                 try:
                     proc.wait(STOP_GRACE_S)
@@ -293,6 +295,8 @@ class LocalSession:
                     self.say(f"{name} ignored SIGTERM for {STOP_GRACE_S:g} s: killing it")
                     proc.kill()
                     proc.wait()
+                if (took := time.monotonic() - asked) > SLOW_STOP_S:
+                    self.say(f"{name} took {took:.1f} s to stop")
         # one awaiting its restart died during the session, not at its end
         return {
             name: None if name in self._restart_due else proc.returncode

@@ -53,7 +53,10 @@ def run_as_written(command: str, cwd: Path, env: dict[str, str], timeout: float)
 def stop(child: pexpect.spawn, timeout: float = 30.0) -> str:
     """Ctrl-C, as a user does; what it printed until it ended."""
     child.sendintr()
-    child.expect(pexpect.EOF, timeout=timeout)
+    try:
+        child.expect(pexpect.EOF, timeout=timeout)
+    except pexpect.TIMEOUT:
+        pytest.fail(f"not stopped {timeout:g} s after Ctrl-C; its output:\n{child.before[-4000:]}")
     child.close()
     return child.before
 
