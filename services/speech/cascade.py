@@ -21,12 +21,14 @@ from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
+from services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 from services.speech.recognizer import Recognition, Recognizer
 
 if TYPE_CHECKING:
     from services.speech.whisper_engine import WhisperRecognizer
 
 T = TypeVar("T")
+SURE = PRECISION_BY_POSTERIOR[0][1]  # pocketsphinx's top calibrated confidence, 0.96
 
 
 @dataclass
@@ -43,7 +45,7 @@ class CascadeRecognizer:
         self,
         first: Recognizer,
         second: WhisperRecognizer | None,
-        trust: float = 0.96,
+        trust: float = SURE,
         missing: str = "",
     ) -> None:
         self.language = first.language

@@ -139,8 +139,7 @@ class WhisperRecognizer:
         }
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        """The likeliest phrase, or None when Whisper's own transcript, which is none, is
-        likelier."""
+        """The likeliest phrase, or None when something else Whisper would write is likelier."""
         phrase, something_else = self.likeliest(samples)
         return None if something_else else phrase
 
@@ -185,13 +184,12 @@ class WhisperRecognizer:
             max_length=len(self._start) + 2 * FREE_TOKENS,  # steps: see _score
             return_logits_vocab=True,
         )[0]
-        tokens, logits = result.sequences_ids[0], np.asarray(result.logits[0])
-        log_p = logits - _logsumexp(logits)[:, None]
+        tokens, log_p = result.sequences_ids[0], _log_softmax(result.logits[0])
         said, other = 0.0, -np.inf
         for k in range(1, min(len(tokens), len(log_p) - 1) + 1):
             said += log_p[k - 1, tokens[k - 1]]
             if first_unit(self._tokenizer.decode(tokens[:k])) not in self._phrases:
-                other = max(other, said + np.logaddexp.reduce(log_p[k, self._ends]))
+                other = max(other, said + self._log_p_end(log_p[k]))
         return log_p[0], float(other) + OTHER_LOG_PRIOR
 
     def _score(self, encoded: StorageView, sequences: list[list[int]]) -> np.ndarray:
@@ -210,17 +208,21 @@ class WhisperRecognizer:
         )
         scores = []
         for sequence, result in zip(sequences, results, strict=True):
-            logits = np.asarray(result.logits[0])[: len(sequence) + 1]  # one row per step
-            log_z = _logsumexp(logits)
-            said = sum(logits[i, token] - log_z[i] for i, token in enumerate(sequence))
-            end = np.exp(logits[len(sequence), self._ends] - log_z[len(sequence)]).sum()
-            scores.append(float(said + np.log(end)))
+            log_p = _log_softmax(result.logits[0][: len(sequence) + 1])  # one row per step
+            said = sum(log_p[i, token] for i, token in enumerate(sequence))
+            scores.append(float(said + self._log_p_end(log_p[len(sequence)])))
         return np.array(scores)
 
+    def _log_p_end(self, log_p: np.ndarray) -> float:
+        """log P(the utterance ends here), from one step's log-probabilities."""
+        return float(np.logaddexp.reduce(log_p[self._ends]))
 
-def _logsumexp(rows: np.ndarray) -> np.ndarray:
-    top = rows.max(axis=1)
-    return top + np.log(np.exp(rows - top[:, None]).sum(axis=1))
+
+def _log_softmax(logits: object) -> np.ndarray:
+    """Log-probabilities of each row of a step-by-vocabulary array of logits."""
+    rows = np.asarray(logits)
+    top = rows.max(axis=1, keepdims=True)
+    return rows - top - np.log(np.exp(rows - top).sum(axis=1, keepdims=True))
 
 
 def _storage(array: np.ndarray) -> StorageView:
