@@ -48,6 +48,7 @@ from protocol import (
 from services.arbiter.arbiter import feedback_id
 from services.runtime import Input, Node, bus_config, free_loopback_port
 from services.runtime.processes import end_process
+from services.speech.transcriber import heard_id
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -538,9 +539,16 @@ def verify(
         for _, m in probe.seen.utterances.values():
             utterances.setdefault(m.id, m)
 
-    # A word is what a teacher said once: its utterances share teacher, onset and end (a
-    # speech service that hears it again after a restart makes another utterance of it).
+    # A word is what a teacher said once. The mock engine's utterances derive their ids from
+    # the said message (heard_id): a restarted speech service hears it again with those ids.
+    # Other utterances share teacher, onset and end (an engine that hears the audio again
+    # makes another utterance of it); distinct said messages may share those (two words
+    # whose steps fell in one gap of the teacher's display).
+    heard_in = {heard_id(s, i): (s, i) for ids in said_ids.values() for s in ids for i in (0, 1)}
+
     def word(utterance_id: str) -> tuple:
+        if utterance_id in heard_in:
+            return heard_in[utterance_id]
         u = utterances.get(utterance_id)
         return (utterance_id,) if u is None else (u.teacher, u.onset, u.end)
 

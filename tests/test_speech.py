@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol import AudioChunk, Said, load_vocabulary
+from protocol import AudioChunk, Said, Utterance, load_vocabulary
 from protocol.messages import SAMPLE_RATE
 from services.runtime.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
 from services.speech import bench
@@ -472,13 +472,31 @@ def test_mock_results_come_out_when_their_latency_is_due():
     assert core.counters["said.wrong_teacher"] == 1
 
 
-def test_a_said_text_heard_again_keeps_its_utterance_id():
-    """A restarted speech service hears again what the teacher's kept output recovers: the
-    same ids, so the arbiter drops the copies instead of crediting the words twice."""
-    said = Said(teacher="ana", robot="r1", text="good", language="en", onset=10.0, end=10.4)
-    other = Said(teacher="ana", robot="r1", text="good", language="en", onset=11.0, end=11.4)
-    heard = []
-    for seed in (0, 1):  # the service before its crash, and after
-        core = MockTranscriber(MockRecognizer(VOCABULARY, MockSettings(latency_s=0.0, seed=seed)))
-        heard.append([u.id for s in (said, other) for u in core.on_said("ana", s, now=100.0)])
-    assert heard[0] == heard[1] and len(set(heard[0])) == 2
+def test_a_said_text_heard_again_is_heard_the_same():
+    """A restarted speech service hears again what the teacher's kept output recovers, after
+    other words or none: the same utterances (ids, texts), so the arbiter drops the copies
+    instead of crediting a word twice, even when the mock mishears or inserts a word."""
+    settings = MockSettings(latency_s=0.0, error_rate=0.5, misheard=1, dropped=1, inserted=2)
+    said = [
+        Said(teacher="ana", robot="r1", text="good", language="en", onset=t, end=t + 0.4)
+        for t in range(40)
+    ]
+
+    def heard(messages: list[Said]) -> dict[str, list[tuple[str, str]]]:
+        core = MockTranscriber(MockRecognizer(VOCABULARY, settings))
+        return {
+            s.id: [
+                (u.id, u.text)
+                for u in core.on_said("ana", s, now=100.0) + core.close(100.0)
+                if isinstance(u, Utterance)
+            ]
+            for s in messages
+        }
+
+    before = heard(said)  # the service before its crash
+    after = heard(said[25:])  # after: only the recovered ones
+    assert all(after[s.id] == before[s.id] for s in said[25:])
+    kinds = {len(u) for u in before.values()}
+    assert kinds == {0, 1, 2}  # dropped, heard (or misheard), and a word inserted
+    ids = [i for u in before.values() for i, _ in u]
+    assert len(ids) == len(set(ids))

@@ -67,9 +67,12 @@ class MockRecognizer:
         self._written = {lang: written_phrases(vocabulary, lang) for lang in vocabulary.languages}
         self._rng = random.Random(self.settings.seed)
 
-    def hear(self, text: str, language: str) -> list[Heard]:
-        """What the mock recognizes of `text` said in `language`: zero, one or two phrases."""
-        s, rng = self.settings, self._rng
+    def hear(self, text: str, language: str, key: str | None = None) -> list[Heard]:
+        """What the mock recognizes of `text` said in `language`: zero, one or two phrases.
+        With a `key` (the said message's id) the draw depends on it alone, as an engine hears
+        the same audio the same way: a restarted service hears a recovered message as before."""
+        s = self.settings
+        rng = self._rng if key is None else random.Random(f"{s.seed}|{key}")
         written = self._written.get(language, {})
         phrase = written.get(normalize(text))
         if phrase is None:
@@ -77,7 +80,7 @@ class MockRecognizer:
             return []
         if rng.random() >= s.error_rate:
             self.counters["mock.correct"] += 1
-            return [Heard(phrase, rng.uniform(0.75, 1.0), self._delay())]
+            return [Heard(phrase, rng.uniform(0.75, 1.0), self._delay(rng))]
         kind = rng.choices(ERROR_KINDS, weights=(s.misheard, s.dropped, s.inserted))[0]
         self.counters[f"mock.{kind}"] += 1
         others = [p for key, p in written.items() if key != normalize(text)]
@@ -85,11 +88,11 @@ class MockRecognizer:
             return []
         wrong = rng.choice(others)
         if kind == "misheard":
-            return [Heard(wrong, rng.uniform(0.4, 0.9), self._delay(), "misheard")]
-        first = Heard(phrase, rng.uniform(0.75, 1.0), self._delay())
+            return [Heard(wrong, rng.uniform(0.4, 0.9), self._delay(rng), "misheard")]
+        first = Heard(phrase, rng.uniform(0.75, 1.0), self._delay(rng))
         extra = Heard(wrong, rng.uniform(0.3, 0.8), first.delay_s + 0.2, "inserted")
         return [first, extra]
 
-    def _delay(self) -> float:
+    def _delay(self, rng: random.Random) -> float:
         s = self.settings
-        return max(0.0, s.latency_s + self._rng.uniform(-s.latency_jitter_s, s.latency_jitter_s))
+        return max(0.0, s.latency_s + rng.uniform(-s.latency_jitter_s, s.latency_jitter_s))

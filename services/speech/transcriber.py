@@ -143,7 +143,7 @@ class MockTranscriber:
         if said.teacher != teacher:
             self.counters["said.wrong_teacher"] += 1
             return []
-        heard_all = self.mock.hear(said.text, said.language)
+        heard_all = self.mock.hear(said.text, said.language, key=said.id)
         if not heard_all:  # dropped, or not in the vocabulary: rejected after the latency
             notice = not_recognized(said.teacher, said.robot, self.mock.engine)
             due = now + self.mock.settings.latency_s
