@@ -12,6 +12,7 @@ docs/web/ when VOXSHAPE_SCREENSHOTS=1 (else to the test's temporary folder)."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -338,6 +339,12 @@ def asked(page, question: str) -> None:
     )
 
 
+def marked(page, questions: list[str]) -> None:
+    """The map marks these questions (ids) where they were asked, and no other."""
+    ids = "JSON.stringify(window.voxshape.marked.map(m => m.question))"
+    page.wait_for_function(f"{ids} === '{json.dumps(questions)}'", timeout=WAIT_MS)
+
+
 def answered_then_cleared(pages: list, teacher: str, meaning: str) -> None:
     """Every page says who answered, then clears the question a few seconds on."""
     for page in pages:
@@ -383,6 +390,9 @@ def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
             asked(page, question.id)
             assert "r1 asks: which way? stuck for 10 s" in page.inner_text("#question")
             assert page.get_attribute("#question", "aria-live") == "assertive"
+            marked(page, [question.id])  # and the map marks where it was asked
+            (mark,) = state(page, "s.marked")
+            assert (mark["x"], mark["y"]) == pytest.approx((question.x, question.y), abs=1e-4)
         # a chime each (the click on Join lets a page play sound), read aloud where chosen
         chimed = "[s.questions.chimes, s.questions.played, s.questions.spoken]"
         assert state(listener, chimed) == [1, 1, 1]
@@ -393,6 +403,7 @@ def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
         assert (feedback.kind, feedback.command) == ("command", "left")
         assert [(c.step, c.weight) for c in feedback.credits] == [(question.step, 1.0)]
         answered_then_cleared(pages, "answerer", "left")
+        marked(answerer, [])
         assert "question" in wait_notice(answerer, "understood", "left")["text"]
         # a question nobody answers clears too (~10 s; shortened here)
         state(listener, "s.questions.unanswered_ms = 1000")

@@ -37,6 +37,7 @@ const state = {
   frames: [], // {robot, step, stamp, wall_time, received, drawn}: received and drawn are
   // performance.now() ms, stamp (forwarded) gateway ms, wall_time (published) simulator ms
   drawn: {}, // robot -> pose last drawn {x, y, theta, step}
+  marked: [], // questions marked on the map at the last draw: {robot, question, x, y}
   clock: null,
   mic: { talking: false, chunks: 0, sentMs: 0, pressMs: 0, error: null, starts: 0, stops: 0 },
   trace: { recording: false, episode: null, commands: 0, done: null },
@@ -51,7 +52,8 @@ window.voxshape = state;
 let connection = null;
 const mapView = new MapView($("map"));
 const curvePlot = new CurvePlot($("curve"));
-const questions = new Questions($("question"), state.questions);
+const questions = new Questions($("question"), state.questions, () => (dirty = true));
+mapView.questions = state.questions.open;
 const pending = new Set(); // robots with an obs not drawn yet
 let dirty = true;
 let curveDirty = true;
@@ -291,6 +293,7 @@ function frame() {
   if (dirty) {
     dirty = false;
     state.drawn = mapView.draw();
+    state.marked = mapView.marked;
     const now = performance.now();
     state.framesDrawn++;
     for (const robot of pending) {

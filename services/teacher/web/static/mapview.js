@@ -1,5 +1,5 @@
 // The map seen from above: walls, obstacles, goal and start, then each robot's footprint,
-// heading, laser points and recent trail.
+// heading, laser points and recent trail, and where a robot asked a question not yet answered.
 
 const ROBOT_LENGTH = 0.45; // metres, along the heading (the simulator's Pioneer footprint)
 const ROBOT_WIDTH = 0.38;
@@ -15,6 +15,8 @@ export class MapView {
     this.map = null;
     this.robots = new Map(); // robot -> {obs, trail: [[x, y]...], colour}
     this.selected = null;
+    this.questions = {}; // robot -> {question, answer} (Questions' open state)
+    this.marked = []; // the questions marked at the last draw: [{robot, question, x, y}]
   }
 
   setMap(map) {
@@ -64,6 +66,12 @@ export class MapView {
       ctx.rect(t.toX(0), t.toY(this.map.height), this.map.width * t.scale, this.map.height * t.scale);
       ctx.clip();
     }
+    this.marked = [];
+    for (const [name, { question, answer }] of Object.entries(this.questions)) {
+      if (!question || answer || !Number.isFinite(question.x) || !Number.isFinite(question.y)) continue;
+      this._questionMark(t, question, this.robots.get(name)?.colour ?? COLOURS[0]);
+      this.marked.push({ robot: name, question: question.question, x: question.x, y: question.y });
+    }
     const drawn = {};
     for (const [name, robot] of this.robots) {
       if (!robot.obs) continue;
@@ -72,6 +80,26 @@ export class MapView {
     }
     ctx.restore();
     return drawn;
+  }
+
+  // A dashed ring with "?" where the robot asked, under the robots.
+  _questionMark(t, q, colour) {
+    const { ctx } = this;
+    ctx.beginPath();
+    ctx.arc(t.toX(q.x), t.toY(q.y), 0.4 * t.scale, 0, 2 * Math.PI);
+    ctx.fillStyle = "rgba(250, 204, 21, 0.35)";
+    ctx.fill();
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = colour;
+    ctx.setLineDash([4, 3]);
+    ctx.stroke();
+    ctx.setLineDash([]);
+    ctx.fillStyle = colour;
+    ctx.font = `bold ${20 * (window.devicePixelRatio || 1)}px system-ui, sans-serif`;
+    ctx.textAlign = "center";
+    ctx.textBaseline = "middle";
+    ctx.fillText("?", t.toX(q.x + 0.4), t.toY(q.y + 0.4)); // beside the robot, often still there
+    ctx.textBaseline = "alphabetic";
   }
 
   _drawMap(t) {

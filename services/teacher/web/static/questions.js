@@ -7,9 +7,11 @@ const SPEAK_KEY = "voxshape.speakQuestions";
 export class Questions {
   // box: the aria-live element; state: {open: {robot -> entry}, asked, answers, chimes,
   // spoken, speak, unanswered_ms, answered_ms} (window.voxshape.questions, for tests).
-  constructor(box, state) {
+  // changed: called when the open questions change (the map marks where they were asked).
+  constructor(box, state, changed = () => {}) {
     this.box = box;
     this.state = state;
+    this.changed = changed;
     this.watched = null;
     this.audio = null;
     state.speak = localStorage.getItem(SPEAK_KEY) === "1";
@@ -92,6 +94,7 @@ export class Questions {
       lines.push(p);
     }
     this.box.replaceChildren(...lines);
+    this.changed();
   }
 
   chime() {
