@@ -3,6 +3,8 @@ processes that are always ended (by pid) when the test is over."""
 
 from __future__ import annotations
 
+import os
+import re
 import subprocess
 import sys
 import time
@@ -22,6 +24,32 @@ from services.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
+
+
+def read_until(
+    proc: subprocess.Popen,
+    pattern: str,
+    timeout: float = 30.0,
+    stream: str = "stdout",
+    seen: list[str] | None = None,
+) -> list[str]:
+    """Lines of `proc`'s `stream` (a text pipe) up to the first matching `pattern`, appended
+    to `seen` if given (fails after `timeout`, or when the process ends first)."""
+    lines = [] if seen is None else seen
+    pipe = getattr(proc, stream)
+    os.set_blocking(pipe.fileno(), False)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        line = pipe.readline()
+        if line:
+            lines.append(line.rstrip())
+            if re.search(pattern, line):
+                return lines
+        elif proc.poll() is not None:
+            break
+        else:
+            time.sleep(0.05)
+    pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
 
 
 @pytest.fixture

@@ -18,8 +18,7 @@ import yaml
 from services.deploy.access import find_access_file, load_access
 from services.deploy.certs import make_all, make_certificate
 from services.topology import load_topology, local_variables
-from tests.conftest import ROOT, VOXSHAPE, free_port
-from tests.test_launcher import read_until
+from tests.conftest import ROOT, VOXSHAPE, free_port, read_until
 
 COMPOSE = ROOT / "compose.yaml"
 PROFILES = ("simteacher", "viewer")

@@ -17,27 +17,9 @@ from services.cli import parser
 from services.launcher import LocalSession, prepare_run, session_variables
 from services.runtime import BusConfig, Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
-from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
+from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
 
 COMPOSE = ROOT / "compose.yaml"
-
-
-def read_until(proc: subprocess.Popen, pattern: str, timeout: float = 30.0) -> list[str]:
-    """Lines of `proc`'s output up to the first matching `pattern` (fails after `timeout`)."""
-    lines: list[str] = []
-    deadline = time.monotonic() + timeout
-    os.set_blocking(proc.stdout.fileno(), False)
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if line:
-            lines.append(line.rstrip())
-            if re.search(pattern, line):
-                return lines
-        elif proc.poll() is not None:
-            break
-        else:
-            time.sleep(0.05)
-    pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
 
 
 def start_up(spawn, session_id: str, cwd: Path, *extra: str) -> tuple[subprocess.Popen, int]:

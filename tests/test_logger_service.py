@@ -7,12 +7,9 @@ from __future__ import annotations
 import os
 import re
 import signal
-import subprocess
 import threading
 import time
 from pathlib import Path
-
-import pytest
 
 from protocol import EpisodeEvent, LearningSummary, Observation, decode, robot_key
 from services.logger.decoding import Known, decode_record
@@ -21,25 +18,8 @@ from services.logger.recording import Recorder
 from services.logger.replay import close_stream, open_stream, render
 from services.logger.run import RunDir, session_map
 from services.runtime import Input, Node
-from tests.conftest import VOXSHAPE, bus_args
+from tests.conftest import VOXSHAPE, bus_args, read_until
 from tests.logger_support import no_analytics, rows, scripted_session
-
-
-def wait_for_line(proc: subprocess.Popen, pattern: str, seen: list[str], timeout: float = 30.0):
-    """Reads `proc`'s stderr until a line matches; returns the match (fails after timeout)."""
-    os.set_blocking(proc.stderr.fileno(), False)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        line = proc.stderr.readline()
-        if line:
-            seen.append(line.rstrip())
-            if m := re.search(pattern, line):
-                return m
-        elif proc.poll() is not None:
-            break
-        else:
-            time.sleep(0.05)
-    pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(seen))
 
 
 def start_logger(spawn, router, session_id, cwd: Path, *extra: str):
@@ -60,8 +40,9 @@ def start_logger(spawn, router, session_id, cwd: Path, *extra: str):
         text=True,
     )
     seen: list[str] = []
-    renderer = int(wait_for_line(proc, r"renderer_pid=(\d+)", seen).group(1))
-    wait_for_line(proc, r"voxshape.logger: rendering ", seen)
+    line = read_until(proc, r"renderer_pid=\d+", stream="stderr", seen=seen)[-1]
+    renderer = int(re.search(r"renderer_pid=(\d+)", line).group(1))
+    read_until(proc, r"voxshape.logger: rendering ", stream="stderr", seen=seen)
     return proc, renderer, seen
 
 

@@ -21,8 +21,7 @@ import pytest
 
 from services.deploy.access import find_access_file, load_access
 from services.deploy.certs import make_all
-from tests.conftest import ROOT, VOXSHAPE
-from tests.test_launcher import read_until
+from tests.conftest import ROOT, VOXSHAPE, read_until
 
 ROUTER_TO_SERVICES, SERVICES = "10.77.1.1", "10.77.1.2"
 ROUTER_TO_TEACHER, TEACHER = "10.77.2.1", "10.77.2.2"

@@ -39,8 +39,7 @@ from services.router import secured
 from services.runtime import ConfigError, bus_config
 from services.runtime.processes import end_process
 from services.topology import load_topology, local_variables
-from tests.conftest import ROOT, VOXSHAPE, free_port, wait_for_port
-from tests.test_launcher import read_until
+from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
 from tests.test_multihost import ip, namespaces_unavailable
 
 SITE_A, SITE_B = "10.231.7.1", "10.231.7.2"

@@ -34,8 +34,7 @@ from services.speech.transcriber import not_recognized
 from services.teacher.board import Board
 from services.teacher.screen import ask_hint
 from services.teacher.sources import default_teacher_id, typed, typed_lines, wav_stream
-from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
-from tests.test_launcher import read_until
+from tests.conftest import VOXSHAPE, bus_args, collect, read_until, wait_present
 from tests.test_web import Robot
 
 VOCABULARY = load_vocabulary()

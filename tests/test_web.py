@@ -56,8 +56,15 @@ from services.teacher.web.gateway import (
 )
 from services.teacher.web.server import REFUSED
 from services.world.maps import load_map
-from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
-from tests.test_launcher import read_until
+from tests.conftest import (
+    VOXSHAPE,
+    bus_args,
+    collect,
+    free_port,
+    read_until,
+    wait_for_port,
+    wait_present,
+)
 
 # -- the pure core -----------------------------------------------------------------------------
 
