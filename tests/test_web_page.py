@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol import CreditedFeedback, HelpRequest, TeachingStats, robot_key
+from protocol import CreditedFeedback, HelpRequest, TeachingStats, load_vocabulary, robot_key
 from services.runtime import Input, Node, bus_config
 from services.runtime.audio import read_wav
 from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port, wait_present
@@ -398,6 +398,16 @@ def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
         assert state(listener, chimed) == [1, 1, 1]
         assert state(answerer, chimed) == [1, 1, 0]
         screenshot(answerer, "question.png", tmp_path)
+        # the hint names the answers in the words of the page's language
+        answerer.click(".lang button[data-lang=es]")
+        left, right, forward = (
+            load_vocabulary().meanings[m].phrases["es"][0] for m in ("left", "right", "forward")
+        )
+        hint = f"say or click {left}, {right} or {forward}"
+        answerer.wait_for_function(
+            f"document.querySelector('#question').innerText.includes({hint!r})", timeout=WAIT_MS
+        )
+        answerer.click(".lang button[data-lang=en]")
         answerer.click("[data-meaning=left]")
         feedback = wait_feedback(node, "answerer")
         assert (feedback.kind, feedback.command) == ("command", "left")

@@ -52,7 +52,10 @@ window.voxshape = state;
 let connection = null;
 const mapView = new MapView($("map"));
 const curvePlot = new CurvePlot($("curve"));
-const questions = new Questions($("question"), state.questions, () => (dirty = true));
+const questions = new Questions($("question"), state.questions, {
+  changed: () => (dirty = true),
+  phrase: (meaning) => phraseFor(state.welcome?.vocabulary, state.language, meaning),
+});
 mapView.questions = state.questions.open;
 const pending = new Set(); // robots with an obs not drawn yet
 let dirty = true;
@@ -316,6 +319,7 @@ function setLanguage(language) {
   state.language = language;
   for (const b of document.querySelectorAll(".lang button")) b.classList.toggle("on", b.dataset.lang === language);
   buildButtons($("qualifiers"), $("commands"), state.welcome?.vocabulary, language, say);
+  questions.render(); // its hint names the words in this language
 }
 
 function say(meaning) {

@@ -7,11 +7,13 @@ const SPEAK_KEY = "voxshape.speakQuestions";
 export class Questions {
   // box: the aria-live element; state: {open: {robot -> entry}, asked, answers, chimes,
   // spoken, speak, unanswered_ms, answered_ms} (window.voxshape.questions, for tests).
-  // changed: called when the open questions change (the map marks where they were asked).
-  constructor(box, state, changed = () => {}) {
+  // changed: called when the open questions change (the map marks where they were asked);
+  // phrase(meaning): the page's phrase for a meaning, in the language it is set to.
+  constructor(box, state, { changed = () => {}, phrase = (meaning) => meaning } = {}) {
     this.box = box;
     this.state = state;
     this.changed = changed;
+    this.phrase = phrase;
     this.watched = null;
     this.audio = null;
     state.speak = localStorage.getItem(SPEAK_KEY) === "1";
@@ -87,8 +89,9 @@ export class Questions {
         p.textContent = question.text;
         const hint = document.createElement("span");
         hint.className = "hint";
+        const [left, right, forward] = ["left", "right", "forward"].map(this.phrase);
         hint.textContent =
-          robot === this.watched ? "say or click left, right or forward" : `choose ${robot} above to answer`;
+          robot === this.watched ? `say or click ${left}, ${right} or ${forward}` : `choose ${robot} above to answer`;
         p.append(" ", hint);
       }
       lines.push(p);
