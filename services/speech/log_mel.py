@@ -4,6 +4,8 @@ log10 of the power clipped 8 decades below its peak, then scaled to about [-1, 1
 
 from __future__ import annotations
 
+from functools import cache
+
 import numpy as np
 
 from protocol.messages import SAMPLE_RATE
@@ -25,6 +27,7 @@ def log_mel(audio: np.ndarray, n_mels: int = 80) -> np.ndarray:
     return (log_spec + 4.0) / 4.0
 
 
+@cache  # the same few filters for every utterance
 def mel_filters(n_mels: int) -> np.ndarray:
     """(n_mels, N_FFT // 2 + 1) triangular filters on the Slaney Mel scale (linear below
     1 kHz, logarithmic above), each normalized to constant energy, as librosa's `mel`."""

@@ -32,7 +32,7 @@ import numpy as np
 
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize
-from services.speech.log_mel import log_mel
+from services.speech.log_mel import HOP, log_mel
 from services.speech.recognizer import EngineError, Recognition, written_phrases
 
 if TYPE_CHECKING:
@@ -173,8 +173,9 @@ class WhisperRecognizer:
     def _encode(self, samples: np.ndarray) -> StorageView:
         """The encoder's output for the audio, with silence after it."""
         seconds = max(MIN_S, len(samples) / SAMPLE_RATE + PAD_S)
-        frames = min(int(np.ceil(seconds * 50)) * 2, 3000)  # even, at most Whisper's 30 s
-        audio = np.zeros(frames * 160, np.float32)
+        per_s = SAMPLE_RATE // HOP  # frames a second
+        frames = min(int(np.ceil(seconds * per_s / 2)) * 2, 30 * per_s)  # even, Whisper's 30 s
+        audio = np.zeros(frames * HOP, np.float32)
         kept = np.asarray(samples[: len(audio)], dtype=np.float32) / 32768.0
         audio[: len(kept)] = kept
         mel = log_mel(audio, self._model.n_mels)[:, :frames]
