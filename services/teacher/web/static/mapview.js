@@ -94,12 +94,7 @@ export class MapView {
     ctx.setLineDash([4, 3]);
     ctx.stroke();
     ctx.setLineDash([]);
-    ctx.fillStyle = colour;
-    ctx.font = `bold ${20 * (window.devicePixelRatio || 1)}px system-ui, sans-serif`;
-    ctx.textAlign = "center";
-    ctx.textBaseline = "middle";
-    ctx.fillText("?", t.toX(q.x + 0.4), t.toY(q.y + 0.4)); // beside the robot, often still there
-    ctx.textBaseline = "alphabetic";
+    this._label(t, "?", q.x + 0.4, q.y + 0.3, colour, 20, "bold"); // beside the robot, often still there
   }
 
   _drawMap(t) {
@@ -220,10 +215,11 @@ export class MapView {
     ctx.stroke();
   }
 
-  _label(t, text, x, y, colour) {
+  // size: CSS pixels; weight: a CSS font weight
+  _label(t, text, x, y, colour, size = 12, weight = "normal") {
     const { ctx } = this;
     ctx.fillStyle = colour;
-    ctx.font = `${12 * (window.devicePixelRatio || 1)}px system-ui, sans-serif`;
+    ctx.font = `${weight} ${size * (window.devicePixelRatio || 1)}px system-ui, sans-serif`;
     ctx.textAlign = "center";
     ctx.fillText(text, t.toX(x), t.toY(y));
   }
