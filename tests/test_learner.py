@@ -41,6 +41,7 @@ class P:
     step: int = 0
     x: float = 0.0
     y: float = 0.0
+    collided: bool = False
 
 
 WALL_LEFT = tuple([0.5] * 90 + [3.0] * 90)  # (beam 0 is on the right)
@@ -685,3 +686,47 @@ def test_a_stuck_robot_asks_once_within_its_budget_and_learns_from_the_answer():
     # 0.5 a robot minute: one at once, the next 2 robot minutes later
     assert len(asked) == 2 and asked[1].step >= first.step + 1200
     assert asker.reasons.total() == 2
+
+
+def _answer(step: int, command: str = "left") -> CreditedFeedback:
+    return CreditedFeedback(
+        robot="r1", kind="command", reward=None, command=command,
+        credits=(Credit(step=step, weight=1.0),), sources=(f"u{step}",), teachers=("ana",),
+    )  # fmt: skip
+
+
+def test_an_asker_that_reached_the_goal_asks_again_where_it_asked_before():
+    """After the first goal, each episode starts afresh: the views asked in, the bumps and
+    the best value of the last episode are forgotten (they were kept for good)."""
+    from services.learner.asking import Asker
+
+    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
+    asker = Asker(learner, timeout_s=300.0)
+    asked, step = [], 0
+    for episode, length in ((0, 100), (1, 2000)):
+        for k in range(length):
+            ends = episode == 0 and k == length - 1
+            p = Seen(WALL_LEFT, step=step, episode_step=k, outcome="goal" if ends else "running")
+            learner.step(p)
+            if (question := asker.after_step(p, episode=episode)) is not None:
+                asked.append(question)
+            step += 1
+    assert [q.episode for q in asked][:1] == [0]  # asked in the first episode, in this view
+    # ... and in the second (beyond twice its fastest, 10 s), in the same view again
+    assert any(q.episode == 1 for q in asked), asked
+
+
+def test_an_answer_frees_the_view_it_was_asked_in_not_the_robots_view_now():
+    from services.learner.asking import Asker
+
+    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
+    asker = Asker(learner, timeout_s=300.0)
+    learner.step(p := Seen(WALL_LEFT, step=0))
+    question = asker.after_step(p, episode=0)
+    assert question is not None
+    asked_in = learner.s.view
+    learner.step(p := Seen(WALL_RIGHT, step=1, episode_step=1))  # moved on before the answer
+    assert learner.s.view != asked_in
+    asker.after_step(p, episode=0)
+    assert asker.take(_answer(question.step)) == []
+    assert asked_in not in asker._asked_views  # it may ask there again

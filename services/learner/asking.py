@@ -54,7 +54,8 @@ class Asker:
         self.config = learner.config.ask
         self.timeout_s = timeout_s
         self.budget = TokenBucket(self.config.per_robot_minute / 60, 1.0, now=0.0)
-        self.open: tuple[Question, float] | None = None  # and when it was asked
+        # The open question, when it was asked and the view (key) it was asked in.
+        self.open: tuple[Question, float, int] | None = None
         self._asked_views: set[int] = set()  # asked there, no answer tried yet
         self._best = (-math.inf, 0.0)  # (best max_a Q this episode, when)
         self._bumps: list[float] = []
@@ -66,11 +67,11 @@ class Asker:
         t, episode_t = p.step * CONTROL_PERIOD_S, p.episode_step * CONTROL_PERIOD_S
         if p.outcome == "goal":
             self._fastest = min(self._fastest, episode_t)
+        if p.episode_step == 0:
+            self._new_episode(t)
         s = self.learner.s
         if s is None or episode_t <= self.config.beyond_fastest * self._fastest < math.inf:
             return None
-        if p.episode_step == 0:
-            self._new_episode(t)
         q = self.learner.q(s)
         if q.max() > self._best[0] + 1e-9:
             self._best = (float(q.max()), t)
@@ -84,7 +85,7 @@ class Asker:
         if self.config.per_robot_minute <= 0 or not self.budget.take(t):
             return None
         question = Question(p.step, episode, reason, self._detail(reason, t, episode_t))
-        self.open = (question, t)
+        self.open = (question, t, s.view)
         self._asked_views.add(s.view)
         self.reasons[reason] += 1
         return question
@@ -93,13 +94,13 @@ class Asker:
         """The arbiter's feedback: the answer to the open question (a command credited to its
         step), or any other feedback for the learner; returns the steps that had left the
         learner's window (Learner.take)."""
-        question = self.open[0] if self.open else None
-        answers = question is not None and feedback.credits[0].step == question.step
-        if feedback.kind != "command" or not answers:
+        if self.open is None:
+            return self.learner.take(feedback)
+        question, _, view = self.open
+        if feedback.kind != "command" or feedback.credits[0].step != question.step:
             return self.learner.take(feedback)
         self.open = None
-        if self.learner.s is not None:
-            self._asked_views.discard(self.learner.s.view)
+        self._asked_views.discard(view)  # an answer is tried there: it may ask there again
         return [] if self.learner.answer(question.step, feedback.command) else [question.step]
 
     def _reason(self, t: float, episode_t: float, spread: float, advised: bool) -> Reason | None:
