@@ -50,6 +50,18 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
         "add_arguments",
         "run",
     ),
+    "ros2": (
+        "bring a real ROS 2 robot into the session (rmw_zenoh or zenoh-bridge-ros2dds)",
+        "services.ros2.node",
+        "add_arguments",
+        "run",
+    ),
+    "placed": (
+        "say a real robot is back at its start (voxshape ros2 --reset wait waits for it)",
+        "services.ros2.placed",
+        "add_arguments",
+        "run",
+    ),
     "learner": (
         "run the learner: SARSA(lambda) with dynamic reward shaping",
         "services.learner.node",
