@@ -259,3 +259,26 @@ def test_homing_that_cannot_get_back_waits_for_a_teacher():
         t += 0.1
     assert b.state == "placing" and b.counters["homing.gave_up"] == 1
     assert any("voxshape placed --robot r1" in n for n in out.notes)
+
+
+@pytest.mark.parametrize("pose", [(5.6, 3.0, 0.0), (3.0, 5.6, math.pi / 2), (5.5, 5.5, 0.78)])
+def test_homing_gets_back_from_a_wall_it_faces_without_touching_it(pose):
+    """Task 1's room, the robot just off a wall it faces (as after a bump), the start behind
+    it: it turns, drives back and stops at the start, never nearer the wall than it was."""
+    from services.sim.sensors import Sensors
+    from services.world.maps import Pose
+
+    m = load_map("1")
+    sensors = Sensors(m, MODEL, compiled=False)
+    start, (x, y, theta), dt = (1.0, 1.0, 0.0), pose, 0.1
+    nearest = float(m.clearance(x, y))
+    for _ in range(2000):
+        laser = sensors.scan([Pose(x, y, theta)])[0][0]
+        v, w, arrived = homing_command((x, y, theta), start, laser, MODEL, 0.25)
+        if arrived:
+            break
+        theta += w * dt
+        x, y = x + v * dt * math.cos(theta), y + v * dt * math.sin(theta)
+        nearest = min(nearest, float(m.clearance(x, y)))
+    assert arrived and math.hypot(x - 1.0, y - 1.0) <= 0.15
+    assert nearest >= min(0.3, float(m.clearance(*pose[:2]))) - 0.05

@@ -57,15 +57,16 @@ def homing_command(
     ahead = _sector_min(laser, model, -math.radians(30), math.radians(30))
     if ahead < radius:
         return -0.5 * config.speed, 0.0, False  # too close: back off
-    if ahead < config.clearance and abs(error) < math.pi / 2:
+    if abs(error) > 0.5:
+        # Turn towards the start, unless what it turned away from lies that way and the way
+        # ahead is free: then on ahead (along the obstacle). It never drives into one.
+        lo, hi = sorted((0.0, math.copysign(min(abs(error), math.pi / 2), error)))
+        if ahead >= config.clearance and _sector_min(laser, model, lo, hi) < config.clearance:
+            return 0.5 * config.speed, 0.0, False
+        return 0.0, math.copysign(config.turn, error), False
+    if ahead < config.clearance:  # facing the start, something in the way: turn aside
         left = _sector_min(laser, model, 0.0, math.pi / 2)
         right = _sector_min(laser, model, -math.pi / 2, 0.0)
         return 0.0, config.turn if left >= right else -config.turn, False
-    if abs(error) > 0.5:
-        # Towards the start, unless what it turned away from lies that way: then on ahead.
-        lo, hi = sorted((0.0, math.copysign(min(abs(error), math.pi / 2), error)))
-        if _sector_min(laser, model, lo, hi) < config.clearance:
-            return 0.5 * config.speed, 0.0, False
-        return 0.0, math.copysign(config.turn, error), False
     v = min(config.speed, 0.8 * distance + 0.05)
     return v, max(-config.turn, min(config.turn, 1.5 * error)), False
