@@ -100,6 +100,7 @@ class Robot:
         self.cmd = (0.0, 0.0)
         self.lock = threading.Lock()
         self.muted = False
+        self.log = open(args.log, "a") if args.log else sys.stdout  # noqa: SIM115
         self.last_seq: dict[bytes, int] = {}  # per publisher GID, as rmw_zenoh counts
 
     def free(self, x: float, y: float) -> bool:
@@ -166,7 +167,7 @@ class Robot:
         with self.lock:
             self.cmd = (float(twist.linear.x), float(twist.angular.z))
         line = {"cmd": list(self.cmd), "t": time.monotonic(), "attachment": verdict}
-        print(json.dumps(line), flush=True)
+        print(json.dumps(line), file=self.log, flush=True)
 
     def scan(self, stamp: object) -> object:
         x, y, th = self.pose
@@ -250,6 +251,7 @@ def main() -> int:
     parser.add_argument("--radius", type=float, default=0.2)
     parser.add_argument("--cmd", choices=("twist", "twist_stamped"), default="twist")
     parser.add_argument("--attachment", choices=("33", "77"), default="33")
+    parser.add_argument("--log", help="write the cmd_vel lines to this file, not stdout")
     args = parser.parse_args()
     router = session(mode="router", listen={"endpoints": [args.listen]})  # its rmw_zenohd
     node = session(
