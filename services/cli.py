@@ -34,7 +34,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     "up": (
         "start the local session: every service of compose.yaml as its own process",
         "services.launcher",
-        "add_arguments",
+        "add_up_arguments",
         "run",
     ),
     "router": ("run the zenoh router of a session", "services.router", "add_arguments", "run"),
