@@ -3,8 +3,11 @@ reaching the robot, less the learner's own decision time, through real buses: a 
 process, as its own rmw_zenohd router, publishing /scan and /odom with rmw_zenoh's
 attachments), `voxshape ros2` (its own process), a session's router (`voxshape router`) and
 a learner (this process) that answers each observation at once. What is left is the bridge's
-work and its four hops. One scan a control period (0.1 s at --rtf 1); scan i gives step i,
-whose action carries i in its speed, so each cmd_vel is matched to its scan.
+work and its four hops. One scan a control period (0.1 s at --rtf 1); an observation is of
+the last scan sent before it arrived (the bridge steps as a scan comes, well within a
+period; a second one of the same scan is a step the bridge took without a new scan, not
+counted), and its action carries its step in its speed, so each cmd_vel is matched to its
+scan.
 
     .venv/bin/python benchmarks/ros2_bridge.py [--samples 300] [--rtf 1] [--target-ms 10]
 
@@ -61,9 +64,8 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
     keys = {t: rmw.topic_key(0, f"/{n}", ty) for t, n, ty in (
         ("scan", "scan", msgs.LASER_SCAN), ("odom", "odom", msgs.ODOMETRY),
         ("cmd", "cmd_vel", msgs.TWIST))}  # fmt: skip
-    t_scan: dict[int, float] = {}
-    t_obs: dict[int, float] = {}
-    t_act: dict[int, float] = {}
+    t_scan: list[float] = []  # each scan's send time
+    of_step: dict[int, tuple[float, float, float]] = {}  # step -> (its scan's, obs, action)
     added: list[float] = []
 
     def on_cmd(sample: zenoh.Sample) -> None:
@@ -72,10 +74,10 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
         if v <= 0:
             return
         step = round(v / UNIT) - 1
-        candidates = [s for s in t_scan if s % CYCLE == step and s in t_act]
+        candidates = [s for s in of_step if s % CYCLE == step]
         if candidates:
-            s = max(candidates)
-            added.append((now - t_scan[s]) - (t_act[s] - t_obs[s]))
+            scan, obs, act = of_step[max(candidates)]
+            added.append((now - scan) - (act - obs))
 
     cmd = robot.declare_subscriber(keys["cmd"], on_cmd)
     scan_pub, odom_pub = (
@@ -87,18 +89,22 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
         learner.input("obs", robot_key(SESSION, "r1", "obs"))
         out = learner.output("action", robot_key(SESSION, "r1", "action"))
         stop = threading.Event()
+        seen: set[int] = set()  # scans (by count) whose observation came
 
         def answer() -> None:
             while not stop.is_set():
                 event = learner.poll(0.1)
                 if isinstance(event, Input) and isinstance(event.message, Observation):
-                    obs = event.message
-                    t_obs[obs.step] = time.perf_counter()
+                    obs, arrived = event.message, time.perf_counter()
+                    if not t_scan or len(t_scan) in seen:
+                        continue  # before the first scan, or no new scan: not a scan's step
+                    seen.add(len(t_scan))
+                    scan = t_scan[-1]
                     if obs.outcome == "running":
                         v = UNIT * (obs.step % CYCLE + 1)
                         out.put(Action(robot="r1", episode=obs.episode, step=obs.step,
                                        discrete=1, v=v, omega=0.0, chooser="policy"))  # fmt: skip
-                        t_act[obs.step] = time.perf_counter()
+                        of_step[obs.step] = (scan, arrived, time.perf_counter())
 
         threading.Thread(target=answer, daemon=True).start()
         period = 0.1 / args.rtf
@@ -106,7 +112,7 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
         for i in range(args.samples + args.warmup):
             scan, odom, attachment = scan_and_odom(i + 1)
             odom_pub.put(odom, attachment=attachment)
-            t_scan[i] = time.perf_counter()
+            t_scan.append(time.perf_counter())
             scan_pub.put(scan, attachment=attachment)
             time.sleep(period)
         time.sleep(0.5)

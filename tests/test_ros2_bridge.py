@@ -282,3 +282,15 @@ def test_homing_gets_back_from_a_wall_it_faces_without_touching_it(pose):
         nearest = min(nearest, float(m.clearance(x, y)))
     assert arrived and math.hypot(x - 1.0, y - 1.0) <= 0.15
     assert nearest >= min(0.3, float(m.clearance(*pose[:2]))) - 0.05
+
+
+def test_a_late_scan_does_not_push_the_next_ones_back():
+    """Steps are due on a schedule: a scan 25 ms late is a step, and so is the next, on time,
+    75 ms after it (a rule of a period since the last step would drop it); a 40 Hz lidar
+    gives a step every fourth scan."""
+    b = bridge()
+    steps = [len(step(b, t, 1.0, 1.0).messages) for t in (0.0, 0.125, 0.2, 0.3)]
+    assert steps == [2, 1, 1, 1]
+    fast = bridge()
+    taken = [bool(step(fast, 0.025 * k, 1.0, 1.0).messages) for k in range(17)]
+    assert sum(taken) == 5 and taken[::4] == [True] * 5

@@ -2,12 +2,13 @@
 learner's actions in, velocities for the robot out. Pure: decoded ROS messages and times in,
 voxshape messages and velocities out (node.py puts it on the two buses).
 
-A step is taken on a new scan once a control period has passed since the last one (a scan
-a fifth of a period early counts), so an observation leaves as soon as its scan arrives;
-when scans come slower than the control period, a step also comes half a period late with
-the latest scan. An action is passed on as soon as it comes (safety.py decides what may
-move). Between episodes the robot stops, then drives itself back to where its first episode
-started (homing.py; `reset="drive"`) or waits until a teacher says it is placed there
+Steps are due every control period: a step is taken on the first scan at or after its due
+time (a fifth of a period early counts), so an observation leaves as soon as its scan
+arrives; a late scan does not push the next ones back (_schedule). When scans come slower
+than the control period, a step also comes half a period late with the latest scan. An
+action is passed on as soon as it comes (safety.py decides what may move). Between
+episodes the robot stops, then drives itself back to where its first episode started
+(homing.py; `reset="drive"`) or waits until a teacher says it is placed there
 (`reset="wait"`, also where homing gives up); a robot placed by hand has its odometry
 re-anchored, so that it reads the start pose there.
 """
@@ -78,7 +79,7 @@ class Bridge:
         self.scan: LaserScanMsg | None = None
         self.odom: OdometryMsg | None = None
         self.scan_at = self.odom_at = -math.inf
-        self.last_step = -math.inf
+        self.next_due = -math.inf  # when the next step is due (wall seconds)
         self.fresh_scan = False  # a scan not yet stepped on
         self.anchor = Anchor()
         self.start = config.start
@@ -98,7 +99,7 @@ class Bridge:
 
     def on_scan(self, scan: LaserScanMsg, now: float) -> Output:
         self.scan, self.scan_at, self.fresh_scan = scan, now, True
-        if now >= self.last_step + self.period * (1 - EARLY):
+        if now >= self.next_due - self.period * EARLY:
             return self._step(now)
         return Output()
 
@@ -135,7 +136,7 @@ class Bridge:
         """Each period or sooner: a step due without a scan, stops due, homing commands."""
         self.bus_ok = bus_ok
         out = Output()
-        if self.fresh_scan is False and now >= self.last_step + self.period * (1 + LATE):
+        if self.fresh_scan is False and now >= self.next_due + self.period * LATE:
             out.add(self._step(now))
         fresh = bus_ok and self.data_ok(now)
         stop = self.safety.tick(now, fresh)
@@ -172,7 +173,8 @@ class Bridge:
     def _step(self, now: float) -> Output:
         if not self.data_ok(now):
             return Output()
-        self.last_step, self.fresh_scan = now, False
+        self.fresh_scan = False
+        self._schedule(now)
         if self.state == "waiting":
             return self._begin(now)
         if self.state == "running":
@@ -181,12 +183,22 @@ class Bridge:
             return self._home(now)
         return Output()
 
+    def _schedule(self, now: float) -> None:
+        """The next step's due time: a period after this one's (a late scan does not push the
+        next ones back), re-anchored once scans lag behind it by 40% of a period (a lidar a
+        little slower than the control period must not make steps of old scans)."""
+        first = self.next_due == -math.inf
+        self.next_due = (
+            now + self.period
+            if first
+            else max(self.next_due + self.period, now + (1 - 2 * EARLY) * self.period)
+        )
+
     def _begin(self, now: float) -> Output:
         p = self.percept()
         if self.start is None:
             self.start = (p.x, p.y, p.theta)
         self.state = "running"
-        self.last_step = now
         messages = self.episodes.start(p, self.robot_time(now))
         return Output(messages=list(messages), notes=[f"episode {self.episodes.episode} starts"])
 
