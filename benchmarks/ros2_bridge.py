@@ -59,11 +59,16 @@ def scan_and_odom(seq: int) -> tuple[bytes, bytes, bytes]:
     return msgs.encode_laser_scan(scan), msgs.encode_odometry(odom), attachment
 
 
-def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[float]:
-    robot = robot_session(robot_endpoint)
-    keys = {t: rmw.topic_key(0, f"/{n}", ty) for t, n, ty in (
+def robot_keys() -> dict[str, str]:
+    """rmw_zenoh's keys of the robot's scan, odometry and cmd_vel (domain 0, no namespace)."""
+    return {t: rmw.topic_key(0, f"/{n}", ty) for t, n, ty in (
         ("scan", "scan", msgs.LASER_SCAN), ("odom", "odom", msgs.ODOMETRY),
         ("cmd", "cmd_vel", msgs.TWIST))}  # fmt: skip
+
+
+def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[float]:
+    robot = robot_session(robot_endpoint)
+    keys = robot_keys()
     t_scan: list[float] = []  # each scan's send time
     of_step: dict[int, tuple[float, float, float]] = {}  # step -> (its scan's, obs, action)
     added: list[float] = []
