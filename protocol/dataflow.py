@@ -92,6 +92,13 @@ DATAFLOW: dict[str, NodeRole] = {
         publishes=(_kept("robot", "own", "obs", OBS_KEPT), *_flows("robot", "own", "episode")),
         subscribes=_flows("robot", "own", "action"),
     ),
+    "ros2": NodeRole(
+        "simulator",
+        "a real ROS 2 robot (voxshape ros2), to the session as the simulator's: observations "
+        "and episode events out, actions in; a teacher's word that it is back at its start",
+        publishes=(_kept("robot", "own", "obs", OBS_KEPT), *_flows("robot", "own", "episode")),
+        subscribes=(*_flows("robot", "own", "action"), *_flows("teacher", ANY, "placed")),
+    ),
     "learner": NodeRole(
         "learner",
         "learns from its robot's observations and credited feedback; decides its actions",
@@ -135,7 +142,7 @@ DATAFLOW: dict[str, NodeRole] = {
             _kept("teacher", "own", "audio", AUDIO_KEPT),
             _kept("teacher", "own", "utterance", UTTERANCES_KEPT),
             _kept("teacher", "own", "said", UTTERANCES_KEPT),
-            *_flows("teacher", "own", "clock"),
+            *_flows("teacher", "own", "clock", "placed"),
         ),
         subscribes=(
             *_flows("teacher", "own", "utterance", "notice", "clock-reply"),

@@ -19,6 +19,7 @@ from protocol.messages import (
     LearningSummary,
     Message,
     Observation,
+    Placed,
     Said,
     TeacherNotice,
     TeacherStats,
@@ -227,7 +228,8 @@ def _arbiter_examples(
 def _help_examples(
     session: str, robot: str, teacher: str, said: Utterance
 ) -> list[tuple[str, Message]]:
-    """The robot asks which way (learner), and who answered (arbiter)."""
+    """The robot asks which way (learner), and who answered (arbiter); a teacher says a real
+    robot is placed at its start."""
     question = HelpRequest(
         robot=robot, episode=3, step=405, reason="stuck", detail="stuck for 10 s", x=1.2, y=-0.4
     )
@@ -244,4 +246,6 @@ def _help_examples(
                 utterance=said.id,
             ),
         ),
+        # A real robot waiting between episodes (voxshape ros2 --reset wait): it is back.
+        (teacher_key(session, teacher, "placed"), Placed(teacher=teacher, robot=robot)),
     ]

@@ -14,6 +14,7 @@ voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for th
 voxshape/<session>/teacher/<teacher>/clock        ClockProbe (NTP style)
 voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
 voxshape/<session>/teacher/<teacher>/notice       TeacherNotice (understood, or why not)
+voxshape/<session>/teacher/<teacher>/placed       Placed (a real robot is back at its start)
 voxshape/<session>/presence/<role>/<node>         liveliness token of every running node
 
 Who publishes and who subscribes to each: protocol/dataflow.py (`voxshape dataflow`).
@@ -39,6 +40,7 @@ from protocol.messages import (
     LearningSummary,
     Message,
     Observation,
+    Placed,
     Said,
     TeacherNotice,
     TeachingStats,
@@ -65,6 +67,7 @@ TEACHER_TOPICS: dict[str, type[Message]] = {
     "clock": ClockProbe,
     "clock-reply": ClockReply,
     "notice": TeacherNotice,
+    "placed": Placed,
 }
 SCOPES: dict[str, dict[str, type[Message]]] = {"robot": ROBOT_TOPICS, "teacher": TEACHER_TOPICS}
 

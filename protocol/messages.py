@@ -354,6 +354,17 @@ class HelpAnswer(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
+class Placed(Message):
+    """A teacher says a real robot stands at its start again (teacher -> voxshape ros2): the
+    robot that waits between episodes (`voxshape ros2 --reset wait`) starts the next one."""
+
+    TYPE: ClassVar[str] = "placed"
+
+    teacher: Id
+    robot: Id
+
+
+@dataclass(frozen=True, kw_only=True)
 class TeacherStats:
     """One teacher's part in a robot's teaching (within TeachingStats)."""
 
@@ -403,5 +414,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         TeachingStats,
         HelpRequest,
         HelpAnswer,
+        Placed,
     )
 }

@@ -34,7 +34,7 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     "up": (
         "start the local session: every service of compose.yaml as its own process",
         "services.launcher",
-        "add_arguments",
+        "add_up_arguments",
         "run",
     ),
     "router": ("run the zenoh router of a session", "services.router", "add_arguments", "run"),
@@ -47,6 +47,18 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     "sim": (
         "run the simulator: PyBullet world, robots, episodes",
         "services.sim.node",
+        "add_arguments",
+        "run",
+    ),
+    "ros2": (
+        "bring a real ROS 2 robot into the session (rmw_zenoh or zenoh-bridge-ros2dds)",
+        "services.ros2.node",
+        "add_arguments",
+        "run",
+    ),
+    "placed": (
+        "say a real robot is back at its start (voxshape ros2 --reset wait waits for it)",
+        "services.ros2.placed",
         "add_arguments",
         "run",
     ),

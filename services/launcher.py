@@ -359,6 +359,26 @@ def add_arguments(
     )
 
 
+def add_up_arguments(parser: argparse.ArgumentParser) -> None:
+    """`voxshape up`'s flags: the launcher's, and --no-sim for a session of real robots."""
+    add_arguments(parser)
+    parser.add_argument(
+        "--no-sim",
+        action="store_true",
+        help="every service but the simulator: the robots are real, each brought by "
+        "`voxshape ros2` (docs/robot.md)",
+    )
+
+
+def without_simulator(specs: list[ServiceSpec]) -> list[ServiceSpec]:
+    """The services but the simulator, and nothing waiting for it."""
+    return [
+        replace(s, depends_on=tuple(d for d in s.depends_on if d != "sim"))
+        for s in specs
+        if s.name != "sim"
+    ]
+
+
 def positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -407,6 +427,8 @@ def open_session(args: argparse.Namespace) -> LocalSession:
     variables = session_variables(args)
     path = args.compose or find_compose_file()
     specs = load_topology(path, variables, tuple(args.profile))
+    if getattr(args, "no_sim", False):
+        specs = without_simulator(specs)
     session = LocalSession(
         specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout, getattr(args, "restart", True)
     )

@@ -77,7 +77,7 @@ def test_a_users_router_rules_are_its_rows_keys():
         robot_key("s1", "r1", t) for t in ("action", "learning", "help")
     )
     assert set(rules["ana:publish"]["key_exprs"]) == {
-        teacher_key("s1", "ana", t) for t in ("audio", "utterance", "said", "clock")
+        teacher_key("s1", "ana", t) for t in ("audio", "utterance", "said", "clock", "placed")
     }
     assert set(rules["ana:announce"]["key_exprs"]) == {
         f"voxshape/s1/presence/{r}/*" for r in ("teacher", "simteacher", "status")
@@ -167,7 +167,8 @@ def declared(stderr: str) -> dict[str, set[str]]:
 # Flows a service declares only with other options than the ones run here.
 WITH_OTHER_OPTIONS = {
     ("simteacher", "publishes"): {"teacher/audio"},  # --audio: speech, not text for the mock
-    ("teacher", "publishes"): {"teacher/audio"},  # --wav or --mic
+    # --wav or --mic; placed: `voxshape placed` and a browser's teacher (the page's button)
+    ("teacher", "publishes"): {"teacher/audio", "teacher/placed"},
 }
 
 

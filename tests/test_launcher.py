@@ -14,7 +14,7 @@ import pytest
 
 from protocol import CreditedFeedback, LearningSummary, robot_key
 from services.cli import parser
-from services.launcher import LocalSession, prepare_run, session_variables
+from services.launcher import LocalSession, prepare_run, session_variables, without_simulator
 from services.runtime import BusConfig, Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
@@ -127,9 +127,21 @@ def test_up_rejects_a_broken_compose_file(tmp_path):
     assert "service 'a': `command` must be a list of strings" in result.stderr
 
 
+def test_no_sim_leaves_out_the_simulator_and_what_waited_for_it(monkeypatch):
+    """`voxshape up --no-sim`: a session of real robots (voxshape ros2 brings each)."""
+    monkeypatch.delenv("VOXSHAPE_ROBOTS", raising=False)
+    args = parser(only="up").parse_args(["up", "--no-sim", "--profile", "simteacher"])
+    specs = load_topology(ROOT / "compose.yaml", session_variables(args), ("simteacher",))
+    kept = without_simulator(specs)
+    assert "sim" in {s.name for s in specs} and "sim" not in {s.name for s in kept}
+    teacher = next(s for s in kept if s.name == "simteacher")
+    assert "sim" not in teacher.depends_on and "speech" in teacher.depends_on
+    assert {s.name for s in kept} == {s.name for s in specs} - {"sim"}
+
+
 def test_cli_lists_its_subcommands():
     out = subprocess.run([VOXSHAPE, "--help"], capture_output=True, text=True, timeout=30).stdout
-    for command in ("demo", "up", "router", "status", "listen", "vocabulary"):
+    for command in ("demo", "up", "router", "status", "listen", "vocabulary", "ros2", "placed"):
         assert re.search(rf"^\s+{command}\s", out, re.MULTILINE), command
 
 

@@ -316,7 +316,7 @@ def test_access_control_is_built_from_the_protocols_keys(tmp_path):
     assert acl["default_permission"] == "deny"
     rules = {r["id"]: r for r in acl["rules"]}
     assert rules["ana:publish"]["key_exprs"] == sorted(
-        teacher_key(SESSION, "ana", t) for t in ("audio", "utterance", "said", "clock")
+        teacher_key(SESSION, "ana", t) for t in ("audio", "utterance", "said", "clock", "placed")
     )
     assert rules["sim:publish"]["key_exprs"] == sorted(
         robot_key(SESSION, "r1", t) for t in ("obs", "episode")

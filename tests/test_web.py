@@ -25,6 +25,7 @@ from protocol import (
     EpisodeEvent,
     HelpAnswer,
     HelpRequest,
+    Placed,
     TeacherNotice,
     TeachingStats,
     Utterance,
@@ -279,6 +280,8 @@ def test_what_cannot_be_used_is_an_error_not_a_message():
         ({"type": "say", "text": "good", "robot": "r1", "language": "fr"}, "language"),
         ({"type": "clock", "t0": "soon"}, "t0 must be a finite number"),
         ({"type": "talk", "state": "maybe"}, "start or stop"),
+        ({"type": "placed"}, "placed: no robot is running yet"),
+        ({"type": "placed", "robot": "r 1"}, "placed: 'r 1' contains ' '"),
         ({"type": "fly"}, "unknown message type 'fly'"),
         ({"type": "login", "teacher": "ben"}, "already logged in"),
     ):
@@ -470,6 +473,7 @@ def test_a_browser_teaches_through_the_page(spawn, router, session_id, client_co
         node.watch_presence()
         node.input("utterance", teacher_key(session_id, "ana", "utterance"))
         node.input("audio", teacher_key(session_id, "ana", "audio"))
+        node.input("placed", teacher_key(session_id, "ana", "placed"))
         wait_present(node, {"arbiter", "web"})
         robot = Robot(node, session_id)
         robot.start()
@@ -504,6 +508,11 @@ async def browse(port: int, node: Node) -> None:
         assert notice["text"].endswith("(typed)")
         (u,) = await asyncio.to_thread(collect, node, 1, Utterance)
         assert (u.teacher, u.robot, u.text, u.id) == ("ana", "r1", "good", notice["utterance"])
+
+        # The button of a real robot waiting between episodes: it is placed, as ana says.
+        await ws.send_json({"type": "placed", "robot": "r1"})
+        (placed,) = await asyncio.to_thread(collect, node, 1, Placed)
+        assert (placed.teacher, placed.robot) == ("ana", "r1")
 
         # Push-to-talk with a browser clock 5 s behind the gateway's.
         skew = 5000.0

@@ -48,13 +48,14 @@ class Role:
 # What a flow's "own" owner is, for a user: its teacher id, or the robots it is given.
 _OWN = {"teacher": "self", "robot": "robots"}
 _SUMMARIES = {
-    "simulator": "its robots' observations and episodes; their actions",
+    "simulator": "its robots' observations and episodes; their actions (and, for a real "
+    "robot, teachers' word that it is placed)",
     "learner": "its robots' actions and learning summaries; their observations and feedback",
     "arbiter": "credited feedback, teaching stats, notices, clock replies; observations, "
     "utterances, clock probes",
     "speech": "utterances of every teacher; their audio and said text",
-    "teacher": "speak or type as itself; see the robots (observations, episodes, feedback) "
-    "and its notices",
+    "teacher": "speak or type as itself, say a real robot is placed; see the robots "
+    "(observations, episodes, feedback) and its notices",
     "observer": "see the robots (observations, episodes, feedback, teaching stats); publish "
     "nothing (the web page's gateway)",
     "admin": "everything in the session (logger, launcher, tools)",

@@ -191,13 +191,23 @@ def free_loopback_port() -> int:
         return s.getsockname()[1]
 
 
-def add_bus_arguments(parser: argparse.ArgumentParser) -> None:
-    """The flags every service shares; unset flags fall back to VOXSHAPE_* variables."""
+def add_bus_arguments(
+    parser: argparse.ArgumentParser, renamed: Mapping[str, str] | None = None
+) -> None:
+    """The flags every service shares; unset flags fall back to VOXSHAPE_* variables.
+    `renamed` gives `mode` and `connect` other flags, for a command whose own flags take
+    those names (`voxshape ros2 --connect ROBOT --mode ros2dds --bus ...`)."""
+    flag = {"mode": "--mode", "connect": "--connect", **(renamed or {})}
     g = parser.add_argument_group("bus (flags override VOXSHAPE_* variables)")
     g.add_argument("--session", help="session id (VOXSHAPE_SESSION; default: default)")
     g.add_argument("--node", help="this node's id (VOXSHAPE_NODE; default: role-host-pid)")
-    g.add_argument("--mode", choices=MODES, help="zenoh mode (VOXSHAPE_MODE)")
-    g.add_argument("--connect", help="comma-separated endpoints, e.g. tcp/10.0.0.2:7447")
+    g.add_argument(flag["mode"], dest="mode", choices=MODES, help="zenoh mode (VOXSHAPE_MODE)")
+    g.add_argument(
+        flag["connect"],
+        dest="connect",
+        help="comma-separated endpoints of the session's router, e.g. tcp/10.0.0.2:7447 "
+        "(VOXSHAPE_CONNECT)",
+    )
     g.add_argument("--listen", help="comma-separated endpoints to listen on")
     g.add_argument("--connect-timeout", type=float, help="seconds to wait for the router")
     g.add_argument(

@@ -248,6 +248,11 @@ class Node:
             return None
         return item
 
+    def deliver(self, event: object) -> None:
+        """Puts an event of another source into this node's loop, after what came before it
+        (a second zenoh session's samples: `voxshape ros2`'s robot); events() yields it."""
+        self._queue.put(event)
+
     def stop(self) -> None:
         self._stopping.set()
         self._queue.put(_STOP)

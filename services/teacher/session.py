@@ -9,11 +9,16 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 
-from protocol import AudioChunk, Message, Said, Utterance, teacher_key
+from protocol import AudioChunk, Message, Placed, Said, Utterance, teacher_key
 from services.runtime import Node, Output
 from services.runtime.clock import ClockEstimate, ClockSync
 
-SAYS: dict[str, type[Message]] = {"utterance": Utterance, "said": Said, "audio": AudioChunk}
+SAYS: dict[str, type[Message]] = {
+    "utterance": Utterance,
+    "said": Said,
+    "audio": AudioChunk,
+    "placed": Placed,  # a real robot is back at its start (the page's button)
+}
 
 
 def join_as_teacher(
@@ -29,7 +34,7 @@ def join_as_teacher(
     kept: dict[str, int] | None = None,
 ) -> dict[type[Message], Output]:
     """Declares a teacher's inputs (its notices; with `echo`, its utterances as the bus
-    carries them) and its outputs `says` (topics: utterance, said, audio), and starts the
+    carries them) and its outputs `says` (topics: utterance, said, audio, placed), and starts the
     clock exchange (closed with `stack`). What it says is kept as its flows in
     protocol/dataflow.py say, unless `kept` says otherwise per topic. The outputs come by the
     type of message each carries."""

@@ -28,6 +28,7 @@ from protocol import (
     HelpRequest,
     Message,
     Observation,
+    Placed,
     ProtocolError,
     TeacherNotice,
     TeachingStats,
@@ -494,9 +495,13 @@ class Teaching:
             return self._say(data, now_s, now_mono)
         if kind == "talk":
             return self._talk(data, now_s)
+        if kind == "placed":  # a real robot is back at its start (voxshape ros2 waits)
+            return Outcome(
+                messages=[_checked(Placed(teacher=self.teacher, robot=self._robot(data)))]
+            )
         if kind == "login":
             raise BrowserError("already logged in")
-        raise BrowserError(f"unknown message type {kind!r}: clock, watch, say, talk")
+        raise BrowserError(f"unknown message type {kind!r}: clock, watch, say, talk, placed")
 
     def _say(self, data: dict[str, Any], now_s: float, now_mono: float) -> Outcome:
         text = data.get("text")

@@ -431,7 +431,7 @@ class Gateway:
             node,
             browser.stack,
             teacher,
-            ("utterance", "audio"),
+            ("utterance", "audio", "placed"),
             synced=lambda e: None,
             problem=lambda text: node.log.info(f"clock exchange: {text}"),
             kept={"audio": 0},

@@ -215,6 +215,16 @@ function observation(msg) {
 function episode(msg) {
   state.episodes[msg.robot] = msg;
   if (msg.robot === state.robot && msg.kind !== "start") traceProgress(msg.episode + 1);
+  showPlaced();
+}
+
+// A real robot (voxshape ros2) waits between episodes: its teachers say when it is placed.
+// A simulated one starts its next episode at once, so the button shows only for a wait.
+function showPlaced() {
+  const e = state.episodes[state.robot];
+  clearTimeout(showPlaced.timer);
+  $("placed").hidden = true;
+  if (e && e.kind !== "start") showPlaced.timer = setTimeout(() => ($("placed").hidden = false), 1000);
 }
 
 function curve(msg) {
@@ -411,6 +421,9 @@ function initControls() {
   });
   for (const b of document.querySelectorAll(".lang button")) b.addEventListener("click", () => setLanguage(b.dataset.lang));
   $("robot").addEventListener("change", () => selectRobot($("robot").value));
+  $("placed").addEventListener("click", () => {
+    if (connection?.sendJson({ type: "placed", robot: state.robot })) $("placed").hidden = true;
+  });
   $("speak-questions").checked = state.questions.speak; // off unless chosen (remembered)
   $("speak-questions").addEventListener("change", () => questions.setSpeak($("speak-questions").checked));
   for (const kind of ["pointerdown", "keydown"]) document.addEventListener(kind, () => questions.unlockSound());

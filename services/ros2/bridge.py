@@ -1,0 +1,249 @@
+"""The bridge's core: a real robot's scans and odometry in, the simulator's messages out; the
+learner's actions in, velocities for the robot out. Pure: decoded ROS messages and times in,
+voxshape messages and velocities out (node.py puts it on the two buses).
+
+Steps are due every control period: a step is taken on the first scan at or after its due
+time (a fifth of a period early counts), so an observation leaves as soon as its scan
+arrives; a late scan does not push the next ones back (_schedule). When scans come slower
+than the control period, a step also comes half a period late with the latest scan. An
+action is passed on as soon as it comes (safety.py decides what may move). Between
+episodes the robot stops, then drives itself back to where its first episode started
+(homing.py; `reset="drive"`) or waits until a teacher says it is placed there
+(`reset="wait"`, also where homing gives up); a robot placed by hand has its odometry
+re-anchored, so that it reads the start pose there.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from protocol import Action, EpisodeEvent, Message, Placed
+from services.ros2.episodes import EpisodeRules, Episodes, Percept
+from services.ros2.homing import HomingConfig, Pose3, homing_command
+from services.ros2.msgs import LaserScanMsg, OdometryMsg
+from services.ros2.perception import (
+    Anchor,
+    ScanGeometry,
+    laser_from_scan,
+    sonar_from_scan,
+    yaw_of,
+)
+from services.ros2.safety import Limits, Safety, Velocity
+from services.world.robot import CONTROL_PERIOD_S, RobotModel
+
+Reset = Literal["drive", "wait"]
+State = Literal["waiting", "running", "homing", "placing"]
+EARLY, LATE = 0.2, 0.5  # of a control period: a scan that may step, a step without a scan
+
+
+@dataclass(frozen=True)
+class BridgeConfig:
+    rules: EpisodeRules
+    robot: str = "r1"
+    reset: Reset = "drive"
+    start: Pose3 | None = None  # where episodes start, in odometry (None: where the first did)
+    limits: Limits = field(default_factory=Limits)
+    homing: HomingConfig = field(default_factory=HomingConfig)
+    model: RobotModel = field(default_factory=RobotModel)
+    control_period: float = CONTROL_PERIOD_S  # robot seconds
+    rtf: float = 1.0  # robot seconds per wall second (a simulated robot may run faster)
+
+
+@dataclass
+class Output:
+    messages: list[Message] = field(default_factory=list)
+    velocity: Velocity | None = None  # to send to the robot now
+    notes: list[str] = field(default_factory=list)  # for the log
+
+    def add(self, other: Output) -> Output:
+        self.messages += other.messages
+        self.velocity = other.velocity if other.velocity is not None else self.velocity
+        self.notes += other.notes
+        return self
+
+
+class Bridge:
+    def __init__(self, config: BridgeConfig, now: float) -> None:
+        self.config = config
+        self.period = config.control_period / config.rtf  # wall seconds
+        self.safety = Safety(config.limits, self.period)
+        self.episodes = Episodes(config.robot, config.rules)
+        self.counters: Counter[str] = Counter()
+        self.t0 = now
+        self.state: State = "waiting"
+        self.scan: LaserScanMsg | None = None
+        self.odom: OdometryMsg | None = None
+        self.scan_at = self.odom_at = -math.inf
+        self.next_due = -math.inf  # when the next step is due (wall seconds)
+        self.fresh_scan = False  # a scan not yet stepped on
+        self.anchor = Anchor()
+        self.start = config.start
+        self.bus_ok = True
+        self.homing_since = 0.0  # robot seconds
+
+    # -- inputs -------------------------------------------------------------------------------
+    def robot_time(self, now: float) -> float:
+        return (now - self.t0) * self.config.rtf
+
+    def data_ok(self, now: float) -> bool:
+        timeout = self.config.limits.data_timeout
+        return now - self.scan_at <= timeout and now - self.odom_at <= timeout
+
+    def on_odom(self, odom: OdometryMsg, now: float) -> None:
+        self.odom, self.odom_at = odom, now
+
+    def on_scan(self, scan: LaserScanMsg, now: float) -> Output:
+        self.scan, self.scan_at, self.fresh_scan = scan, now, True
+        if now >= self.next_due - self.period * EARLY:
+            return self._step(now)
+        return Output()
+
+    def on_action(self, action: Action, now: float) -> Output:
+        why = self._refused(action)
+        if why is not None:
+            self.counters[f"actions.ignored.{why}"] += 1
+            return Output()
+        assert action.v is not None and action.omega is not None
+        self.counters["actions"] += 1
+        fresh = self.bus_ok and self.data_ok(now)
+        return Output(velocity=self.safety.go(action.v, action.omega, now, fresh))
+
+    def _refused(self, action: Action) -> str | None:
+        if action.robot != self.config.robot:
+            return "other_robot"
+        if self.state != "running" or action.episode != self.episodes.episode:
+            return "not_running"  # late: the episode it was for has ended
+        if action.v is None or action.omega is None:
+            return "no_velocity"
+        return None
+
+    def on_placed(self, placed: Placed, now: float) -> Output:
+        if placed.robot != self.config.robot or self.state not in ("homing", "placing"):
+            self.counters["placed.ignored"] += 1
+            return Output()
+        if self.odom is None or self.start is None:
+            return Output()
+        self.anchor = Anchor.placing(self._odom_pose(), self.start)
+        out = Output(notes=[f"placed by {placed.teacher}: odometry re-anchored at the start"])
+        return out.add(self._begin(now))
+
+    def tick(self, now: float, bus_ok: bool) -> Output:
+        """Each period or sooner: a step due without a scan, stops due, homing commands."""
+        self.bus_ok = bus_ok
+        out = Output()
+        if self.fresh_scan is False and now >= self.next_due + self.period * LATE:
+            out.add(self._step(now))
+        fresh = bus_ok and self.data_ok(now)
+        stop = self.safety.tick(now, fresh)
+        if stop is not None and out.velocity is None:
+            out.velocity = stop
+        return out
+
+    def shutdown(self, now: float) -> Output:
+        return Output(velocity=self.safety.halt(now, "exit"), notes=["stopped the robot: exit"])
+
+    # -- steps ------------------------------------------------------------------------------------
+    def _odom_pose(self) -> Pose3:
+        assert self.odom is not None
+        o = self.odom
+        return o.position[0], o.position[1], yaw_of(*o.orientation)
+
+    def percept(self) -> Percept:
+        assert self.scan is not None and self.odom is not None
+        scan, model = self.scan, self.config.model
+        geometry = ScanGeometry(
+            scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
+        )
+        x, y, theta = self.anchor.apply(*self._odom_pose())
+        return Percept(
+            x,
+            y,
+            theta,
+            self.odom.linear[0],
+            self.odom.angular[2],
+            laser_from_scan(scan.ranges, geometry, model),
+            sonar_from_scan(scan.ranges, geometry, model),
+        )
+
+    def _step(self, now: float) -> Output:
+        if not self.data_ok(now):
+            return Output()
+        self.fresh_scan = False
+        self._schedule(now)
+        if self.state == "waiting":
+            return self._begin(now)
+        if self.state == "running":
+            return self._run(now)
+        if self.state == "homing":
+            return self._home(now)
+        return Output()
+
+    def _schedule(self, now: float) -> None:
+        """The next step's due time: a period after this one's (a late scan does not push the
+        next ones back), re-anchored once scans lag behind it by 40% of a period (a lidar a
+        little slower than the control period must not make steps of old scans)."""
+        first = self.next_due == -math.inf
+        self.next_due = (
+            now + self.period
+            if first
+            else max(self.next_due + self.period, now + (1 - 2 * EARLY) * self.period)
+        )
+
+    def _begin(self, now: float) -> Output:
+        p = self.percept()
+        if self.start is None:
+            self.start = (p.x, p.y, p.theta)
+        self.state = "running"
+        messages = self.episodes.start(p, self.robot_time(now))
+        return Output(messages=list(messages), notes=[f"episode {self.episodes.episode} starts"])
+
+    def _run(self, now: float) -> Output:
+        messages: list[Message] = list(self.episodes.advance(self.percept(), self.robot_time(now)))
+        end = next((m for m in messages if isinstance(m, EpisodeEvent)), None)
+        if end is None:
+            return Output(messages=messages)
+        self.counters[f"episodes.{end.kind}"] += 1
+        out = Output(messages, self.safety.halt(now, "episode"))
+        if self.config.reset == "drive":
+            self.state, self.homing_since = "homing", self.robot_time(now)
+            out.notes.append(f"episode {end.episode} ended ({end.kind}): driving back to the start")
+        else:
+            self.state = "placing"
+            out.notes.append(f"episode {end.episode} ended ({end.kind}): {self.waits_for()}")
+        return out
+
+    def waits_for(self) -> str:
+        robot = self.config.robot
+        return (
+            f"waiting for a teacher to place robot {robot} at its start (the page's "
+            f"'placed' button, or `voxshape placed --robot {robot}`)"
+        )
+
+    def _home(self, now: float) -> Output:
+        assert self.start is not None
+        p = self.percept()
+        if self.robot_time(now) - self.homing_since > self.config.homing.timeout:
+            self.state = "placing"
+            self.counters["homing.gave_up"] += 1
+            return Output(
+                velocity=self.safety.halt(now, "homing"),
+                notes=[f"could not drive back to the start: {self.waits_for()}"],
+            )
+        v, omega, arrived = homing_command(
+            (p.x, p.y, p.theta),
+            self.start,
+            np.asarray(p.laser),
+            self.config.model,
+            self.config.rules.bump_radius,
+            self.config.homing,
+        )
+        if arrived:
+            self.counters["homing.arrived"] += 1
+            out = Output(velocity=self.safety.halt(now, "arrived"))
+            return out.add(self._begin(now))
+        return Output(velocity=self.safety.go(v, omega, now, self.bus_ok))

@@ -1,0 +1,296 @@
+"""The bridge's pure core: a real robot's scans and odometry as the simulator's observations,
+episodes told as the simulator tells them, what may move the robot (safety first), and the
+way back to the start between episodes."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from protocol import Action, EpisodeEvent, Observation, Placed
+from services.ros2 import msgs
+from services.ros2.bridge import Bridge, BridgeConfig
+from services.ros2.episodes import EpisodeRules, Episodes, Percept
+from services.ros2.homing import HomingConfig, homing_command
+from services.ros2.perception import (
+    Anchor,
+    ScanGeometry,
+    goal_geometry,
+    laser_from_scan,
+    sonar_from_scan,
+    yaw_of,
+)
+from services.ros2.safety import STOP, Limits, Safety
+from services.sim.task import Rewards, Simulation
+from services.world.maps import load_map
+from services.world.robot import RobotModel
+
+MODEL = RobotModel()
+FULL = ScanGeometry(0.0, 2 * math.pi / 360, 0.12, 3.5)  # a TurtleBot's 360 beams
+
+
+def test_a_full_turn_scan_reads_as_the_simulator_s_front_beams():
+    ranges = np.full(360, 3.0, np.float32)
+    ranges[0] = 1.0  # straight ahead
+    ranges[89] = 2.0  # left
+    laser = laser_from_scan(ranges, FULL, MODEL)
+    assert laser.shape == (180,)
+    assert laser[90] == pytest.approx(1.0)  # the slot [0, 1) degrees
+    assert laser[178:].min() == pytest.approx(2.0)  # 89 degrees: a slot's edge, either side
+    assert laser.max() == pytest.approx(3.0)
+
+
+def test_inf_nan_and_out_of_range_readings_mean_what_rep_117_says():
+    ranges = np.full(360, np.nan, np.float32)
+    ranges[0], ranges[1], ranges[359] = np.inf, 0.0, -np.inf  # far, no return, too close
+    ranges[10] = 9.0  # beyond range_max: nothing within it
+    laser = laser_from_scan(ranges, FULL, MODEL)
+    angles = np.degrees(MODEL.laser_angles())
+    assert laser[np.abs(angles - 10.5).argmin()] == MODEL.laser_max
+    assert laser[np.abs(angles - 0.5).argmin()] == MODEL.laser_max  # inf, and 0.0 ignored
+    assert laser[np.abs(angles + 0.5).argmin()] == MODEL.laser_min  # -inf: too close
+    assert np.all(laser[np.abs(angles) > 12] == MODEL.laser_max)  # NaN: nothing known
+    assert np.isfinite(sonar_from_scan(ranges, FULL, MODEL)).all()
+
+
+def test_a_coarse_or_narrow_scan_fills_the_simulator_s_beams():
+    coarse = ScanGeometry(-math.pi, math.tau / 90, 0.1, 10.0)  # 4 degrees a beam
+    laser = laser_from_scan(np.full(90, 2.5, np.float32), coarse, MODEL)
+    assert np.allclose(laser, 2.5)
+    narrow = ScanGeometry(-math.radians(45), math.radians(1), 0.1, 10.0)  # 90 degrees ahead
+    laser = laser_from_scan(np.full(91, 1.5, np.float32), narrow, MODEL)
+    angles = np.degrees(MODEL.laser_angles())
+    assert np.allclose(laser[np.abs(angles) < 44], 1.5)
+    assert np.all(laser[np.abs(angles) > 47] == MODEL.laser_max)
+    sonar = sonar_from_scan(np.full(91, 1.5, np.float32), narrow, MODEL)
+    assert np.all(sonar == MODEL.sonar_max)  # it does not look behind
+
+
+def test_sonars_read_the_rear_beams_from_the_body():
+    ranges = np.full(360, 3.0, np.float32)
+    ranges[175:186] = 1.0  # behind
+    sonar = sonar_from_scan(ranges, FULL, MODEL)
+    behind = [i for i, a in enumerate(MODEL.sonar_angles) if abs(abs(a) - math.radians(170)) < 1e-6]
+    body = MODEL.length / 2 / abs(math.cos(math.radians(170)))
+    assert all(sonar[i] == pytest.approx(1.0 - body, abs=1e-6) for i in behind)
+
+
+def test_the_goal_and_the_rewards_are_the_simulator_s():
+    m = load_map("1")
+    sim = Simulation(m, ("r1",), seed=3)
+    try:
+        reading = sim.reset("r1")
+    finally:
+        sim.close()
+    distance, bearing = goal_geometry(reading.x, reading.y, reading.theta, m.goal_x, m.goal_y)
+    assert (distance, bearing) == (reading.goal_distance, reading.goal_bearing)
+    rules, rewards = EpisodeRules(5, 5, 0.5, 0.2, 100), Rewards()
+    assert (rules.step_reward, rules.goal_reward, rules.bump_reward) == (
+        rewards.step,
+        rewards.goal,
+        rewards.collision,
+    )
+
+
+def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0) -> Percept:
+    return Percept(x, y, 0.0, 0.1, 0.0, np.full(180, near), np.full(8, 3.0))
+
+
+def test_episodes_end_at_the_goal_at_a_bump_and_at_the_timeout():
+    episodes = Episodes("r1", EpisodeRules(5.0, 5.0, 0.5, 0.25, max_steps=3))
+    start = episodes.start(percept(), 0.0)
+    assert [type(m) for m in start] == [EpisodeEvent, Observation]
+    assert start[0].kind == "start" and start[1].episode_step == 0 and start[1].reward == 0.0
+    (obs,) = episodes.advance(percept(), 0.1)
+    assert (obs.outcome, obs.reward, obs.step) == ("running", -1.0, 1)
+    obs, end = episodes.advance(percept(4.8, 4.9), 0.2)
+    assert (obs.outcome, obs.reward, end.kind, end.env_return) == ("goal", 99.0, "goal", 98.0)
+    episodes.start(percept(), 0.3)
+    obs, end = episodes.advance(percept(near=0.2), 0.4)
+    assert (obs.outcome, obs.collided, obs.reward, end.kind) == (
+        "collision",
+        True,
+        -101,
+        "collision",
+    )
+    first = episodes.start(percept(), 0.5)[1]
+    assert first.step == obs.step + 1 and first.episode == 2  # as the simulator counts
+    outcomes = [episodes.advance(percept(), 0.6)[0].outcome for _ in range(3)]
+    assert outcomes == ["running", "running", "timeout"]
+
+
+def test_a_command_lapses_and_stale_data_or_bus_stops_the_robot():
+    safety = Safety(Limits(max_speed=0.3, max_turn=1.0, action_timeout=0.4), period=0.1)
+    assert safety.go(0.5, -2.0, 0.0, fresh=True) == (0.3, -1.0)  # clipped
+    assert safety.counters["clipped"] == 1
+    assert safety.tick(0.39, fresh=True) is None
+    assert safety.tick(0.41, fresh=True) == STOP  # lapsed: the learner is gone
+    repeats = [safety.tick(0.41 + 0.1 * k, fresh=True) for k in range(1, 6)]
+    assert repeats == [STOP, STOP, None, None, None]  # said three times, then quiet
+    assert safety.go(0.2, 0.0, 1.0, fresh=False) == STOP  # the robot's data went stale
+    assert safety.go(0.2, 0.0, 1.05, fresh=False) is None  # already said
+    assert safety.go(0.2, 0.0, 1.1, fresh=True) == (0.2, 0.0)
+    assert safety.tick(1.2, fresh=False) == STOP  # the bus went away while it moved
+    assert safety.counters["stops.lapsed"] == 1 and safety.counters["stops.stale"] == 2
+    with pytest.raises(ValueError, match="max-speed must be > 0"):
+        Limits(max_speed=0)
+
+
+def test_homing_drives_to_the_start_turns_there_and_avoids_what_is_ahead():
+    start = (1.0, 1.0, 0.0)
+    clear = np.full(180, 5.0)
+    v, w, arrived = homing_command((3.0, 1.0, math.pi), start, clear, MODEL, 0.2)
+    assert v > 0 and abs(w) < 0.1 and not arrived  # facing it: drive
+    v, w, _ = homing_command((3.0, 1.0, 0.0), start, clear, MODEL, 0.2)
+    assert v == 0 and w != 0  # facing away: turn first
+    blocked = clear.copy()
+    blocked[80:100] = 0.3  # something just ahead
+    v, w, _ = homing_command((3.0, 1.0, math.pi), start, blocked, MODEL, 0.2)
+    assert v == 0 and w != 0
+    blocked[80:100] = 0.1  # nearer than the robot's radius: back off
+    v, _, _ = homing_command((3.0, 1.0, math.pi), start, blocked, MODEL, 0.2)
+    assert v < 0
+    v, w, arrived = homing_command((1.05, 1.0, 1.0), start, clear, MODEL, 0.2)
+    assert v == 0 and w < 0 and not arrived  # there: turn to the start heading
+    assert homing_command((1.05, 1.0, 0.05), start, clear, MODEL, 0.2)[2]
+
+
+def test_a_placed_robot_s_odometry_reads_the_start_there():
+    anchor = Anchor.placing((2.0, -1.0, 1.0), (1.0, 1.0, 0.3))
+    x, y, theta = anchor.apply(2.0, -1.0, 1.0)
+    assert (x, y, theta) == pytest.approx((1.0, 1.0, 0.3))
+    assert yaw_of(0, 0, math.sin(0.35), math.cos(0.35)) == pytest.approx(0.7)
+
+
+# -- the core on its inputs -------------------------------------------------------------------
+def scan(near: float = 3.0) -> msgs.LaserScanMsg:
+    return msgs.LaserScanMsg(
+        msgs.HeaderMsg(), 0.0, math.tau, math.tau / 360, 0, 0.1, 0.12, 3.5,
+        np.full(360, near, np.float32),
+    )  # fmt: skip
+
+
+def odom(x: float, y: float, theta: float = 0.0) -> msgs.OdometryMsg:
+    q = (0.0, 0.0, math.sin(theta / 2), math.cos(theta / 2))
+    return msgs.OdometryMsg(msgs.HeaderMsg(), "base_link", (x, y, 0.0), q)
+
+
+def act(episode: int, v: float = 0.2, robot: str = "r1") -> Action:
+    return Action(
+        robot=robot, episode=episode, step=0, discrete=1, v=v, omega=0.0, chooser="policy"
+    )
+
+
+def bridge(reset: str = "drive", max_steps: int = 1000) -> Bridge:
+    rules = EpisodeRules(5.0, 5.0, 0.5, 0.25, max_steps)
+    config = BridgeConfig(rules, "r1", reset, limits=Limits(max_speed=0.5), homing=HomingConfig())
+    return Bridge(config, now=0.0)
+
+
+def step(b: Bridge, t: float, x: float, y: float, theta: float = 0.0, near: float = 3.0):
+    b.on_odom(odom(x, y, theta), t)
+    return b.on_scan(scan(near), t)
+
+
+def test_each_scan_a_period_apart_is_a_step_and_actions_pass_at_once():
+    b = bridge()
+    first = step(b, 0.0, 1.0, 1.0)
+    assert [m.TYPE for m in first.messages] == ["episode", "observation"]
+    assert step(b, 0.05, 1.0, 1.0).messages == []  # too soon: a scan between steps
+    (obs,) = step(b, 0.1, 1.1, 1.0).messages
+    assert (obs.step, obs.x, obs.episode_step) == (1, pytest.approx(1.1), 1)
+    assert b.on_action(act(0), 0.11).velocity == (0.2, 0.0)
+    assert b.on_action(act(7), 0.12).velocity is None  # another episode's: late
+    assert b.on_action(act(0, robot="r2"), 0.12).velocity is None
+    assert b.counters["actions.ignored.not_running"] == 1
+    assert b.tick(0.6, bus_ok=True).velocity == STOP  # no new action: it lapsed
+
+
+def test_no_step_without_fresh_data_and_a_step_late_without_a_scan():
+    b = bridge()
+    step(b, 0.0, 1.0, 1.0)
+    b.on_odom(odom(1.0, 1.0), 0.1)
+    assert b.tick(0.12, True).messages == []  # a scan may still come
+    (obs,) = b.tick(0.16, True).messages  # half a period late: the last scan again
+    assert obs.step == 1
+    assert b.tick(2.0, True).messages == []  # everything is stale now: no step
+    assert b.on_action(act(0), 2.0).velocity == STOP
+
+
+def test_an_episode_end_stops_the_robot_and_it_drives_back_to_the_start():
+    b = bridge()
+    step(b, 0.0, 1.0, 1.0)
+    b.on_action(act(0), 0.01)
+    out = step(b, 0.1, 4.9, 4.9)  # at the goal
+    assert out.velocity == STOP and b.state == "homing"
+    assert any("driving back" in n for n in out.notes)
+    assert b.on_action(act(0), 0.12).velocity is None  # the ended episode's: ignored
+    out = step(b, 0.2, 4.9, 4.9, theta=math.radians(225))  # facing the start
+    assert out.velocity is not None and out.velocity[0] > 0 and out.messages == []
+    out = step(b, 0.3, 1.05, 1.0, theta=0.0)  # back there
+    assert [m.TYPE for m in out.messages] == ["episode", "observation"]
+    assert out.messages[0].kind == "start" and out.messages[1].episode == 1
+    assert b.state == "running" and b.counters["homing.arrived"] == 1
+
+
+def test_a_waiting_robot_starts_again_once_placed_with_its_odometry_re_anchored():
+    b = bridge(reset="wait")
+    step(b, 0.0, 1.0, 1.0)
+    step(b, 0.1, 1.0, 1.0, near=0.2)  # a bump
+    assert b.state == "placing"
+    assert b.on_placed(Placed(teacher="ana", robot="r2"), 0.15).messages == []
+    step(b, 0.2, 3.0, 2.0, 1.0)  # carried back: odometry did not see it
+    out = b.on_placed(Placed(teacher="ana", robot="r1"), 0.25)
+    start, obs = out.messages
+    assert start.kind == "start" and (obs.x, obs.y, obs.theta) == pytest.approx((1.0, 1.0, 0.0))
+    (obs,) = step(b, 0.35, 3.1, 2.0, 1.0).messages
+    assert obs.x == pytest.approx(1.0 + 0.1 * math.cos(-1.0), abs=1e-9)
+
+
+def test_homing_that_cannot_get_back_waits_for_a_teacher():
+    b = bridge()
+    step(b, 0.0, 1.0, 1.0)
+    step(b, 0.1, 1.0, 1.0, near=0.2)  # a bump ends it
+    t = 0.2
+    while b.state == "homing" and t < 200:
+        out = step(b, t, 3.0, 3.0, near=0.2)  # boxed in: it never gets anywhere
+        t += 0.1
+    assert b.state == "placing" and b.counters["homing.gave_up"] == 1
+    assert any("voxshape placed --robot r1" in n for n in out.notes)
+
+
+@pytest.mark.parametrize("pose", [(5.6, 3.0, 0.0), (3.0, 5.6, math.pi / 2), (5.5, 5.5, 0.78)])
+def test_homing_gets_back_from_a_wall_it_faces_without_touching_it(pose):
+    """Task 1's room, the robot just off a wall it faces (as after a bump), the start behind
+    it: it turns, drives back and stops at the start, never nearer the wall than it was."""
+    from services.sim.sensors import Sensors
+    from services.world.maps import Pose
+
+    m = load_map("1")
+    sensors = Sensors(m, MODEL, compiled=False)
+    start, (x, y, theta), dt = (1.0, 1.0, 0.0), pose, 0.1
+    nearest = float(m.clearance(x, y))
+    for _ in range(2000):
+        laser = sensors.scan([Pose(x, y, theta)])[0][0]
+        v, w, arrived = homing_command((x, y, theta), start, laser, MODEL, 0.25)
+        if arrived:
+            break
+        theta += w * dt
+        x, y = x + v * dt * math.cos(theta), y + v * dt * math.sin(theta)
+        nearest = min(nearest, float(m.clearance(x, y)))
+    assert arrived and math.hypot(x - 1.0, y - 1.0) <= 0.15
+    assert nearest >= min(0.3, float(m.clearance(*pose[:2]))) - 0.05
+
+
+def test_a_late_scan_does_not_push_the_next_ones_back():
+    """Steps are due on a schedule: a scan 25 ms late is a step, and so is the next, on time,
+    75 ms after it (a rule of a period since the last step would drop it); a 40 Hz lidar
+    gives a step every fourth scan."""
+    b = bridge()
+    steps = [len(step(b, t, 1.0, 1.0).messages) for t in (0.0, 0.125, 0.2, 0.3)]
+    assert steps == [2, 1, 1, 1]
+    fast = bridge()
+    taken = [bool(step(fast, 0.025 * k, 1.0, 1.0).messages) for k in range(17)]
+    assert sum(taken) == 5 and taken[::4] == [True] * 5
