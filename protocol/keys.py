@@ -16,6 +16,8 @@ voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
 voxshape/<session>/teacher/<teacher>/notice       TeacherNotice (understood, or why not)
 voxshape/<session>/teacher/<teacher>/placed       Placed (a real robot is back at its start)
 voxshape/<session>/presence/<role>/<node>         liveliness token of every running node
+voxshape/<session>/router/access                  a query: the access file the router enforces
+                                                  (AccessAnswer, protocol/queries.py)
 
 Who publishes and who subscribes to each: protocol/dataflow.py (`voxshape dataflow`).
 """
@@ -110,6 +112,11 @@ def presence_key(session: str, role: str = "*", node: str = "*") -> str:
     role = role if role == "*" else check_id(role, "role")
     node = node if node == "*" else check_id(node, "node")
     return f"{ROOT}/{check_id(session, 'session')}/presence/{role}/{node}"
+
+
+def router_access_key(session: str) -> str:
+    """The query any user may ask the session's router: which access file it enforces."""
+    return f"{ROOT}/{check_id(session, 'session')}/router/access"
 
 
 def session_keys(session: str) -> str:

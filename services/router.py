@@ -10,7 +10,9 @@ Open by default (the local session on loopback). Secured when given users:
 - **who**: DIR/credentials (or --credentials / VOXSHAPE_CREDENTIALS), `user:password` lines;
   a wrong password is refused when the session opens;
 - **what**: the access file (--access / VOXSHAPE_ACCESS, default deploy/access.toml) gives
-  each user a role; everything else is denied (services/deploy/access.py);
+  each user a role; everything else is denied (services/deploy/access.py). Any user may ask
+  which file it enforces (`voxshape/<session>/router/access`: its path and SHA-256;
+  protocol/queries.py): `voxshape web` compares it with its own at start;
 - **TLS**: tls/ endpoints with DIR/router.pem and .key; with --mtls only clients holding a
   certificate signed by DIR/ca.pem get in.
 
@@ -46,6 +48,7 @@ from services.deploy.access import (
     load_access,
     load_credentials,
 )
+from services.deploy.enforced import serve_access
 from services.runtime import BusConfig, ConfigError, Node, Presence, bus_config, fields
 from services.runtime.config import add_bus_arguments
 
@@ -76,10 +79,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tuple[BusConfig, str]:
     """The router's configuration with authentication and access control when users are
     given, and a line saying what is on."""
-    credentials = getattr(args, "credentials", None) or env.get("VOXSHAPE_CREDENTIALS") or None
-    if credentials is None and bus.secrets is not None:
-        credentials = bus.secrets / "credentials"
-    access = getattr(args, "access", None) or env.get("VOXSHAPE_ACCESS") or None
+    credentials, _ = _given(bus, args, env)
     if bus.mtls and bus.tls_root_ca is None:
         raise ConfigError("mutual TLS needs the CA that signs clients: --tls-root-ca (or SECRETS)")
     tls = [e for e in bus.listen if e.startswith(("tls/", "quic/"))]
@@ -89,7 +89,7 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
             "--tls-key (or --secrets DIR made by `voxshape certs DIR`)"
         )
     if credentials is None:
-        if access is not None:
+        if getattr(args, "access", None):  # VOXSHAPE_ACCESS alone (compose sets it): open
             raise ConfigError("--access needs the users' passwords: --credentials FILE")
         exposed = [e for e in bus.listen if not e.startswith(LOOPBACK)]
         note = "open: no credentials, no access control"
@@ -97,7 +97,7 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
             note += f" (WARNING: anyone reaching {', '.join(exposed)} may do anything)"
         return bus, note
     try:
-        users = load_access(Path(access) if access else find_access_file())
+        users = load_access(enforced_access(bus, args, env))
         passwords = load_credentials(Path(credentials))
     except AccessError as e:
         raise ConfigError(str(e)) from None
@@ -118,6 +118,28 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
     if bus.connect:
         note += f"; logs in to {', '.join(bus.connect)} as {bus.user}"
     return replace(bus, extra=bus.extra + extra), note
+
+
+def _given(
+    bus: BusConfig, args: argparse.Namespace, env: dict[str, str]
+) -> tuple[str | None, str | None]:
+    """The credentials and access files given (flags, variables, the secrets folder)."""
+    credentials = getattr(args, "credentials", None) or env.get("VOXSHAPE_CREDENTIALS") or None
+    if credentials is None and bus.secrets is not None:
+        credentials = bus.secrets / "credentials"
+    access = getattr(args, "access", None) or env.get("VOXSHAPE_ACCESS") or None
+    return credentials, access
+
+
+def enforced_access(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> Path | None:
+    """The access file a router of these settings enforces; None: open (no credentials)."""
+    credentials, access = _given(bus, args, env)
+    if credentials is None:
+        return None
+    try:
+        return Path(access) if access else find_access_file()
+    except AccessError as e:
+        raise ConfigError(str(e)) from None
 
 
 def _admit_other_routers(bus: BusConfig, users: dict[str, User], acl: dict) -> dict:
@@ -173,13 +195,17 @@ def _private_copy(passwords: dict[str, str]) -> Path:
 
 
 def run(args: argparse.Namespace) -> int:
-    bus, note = secured(bus_config("router", args), args, dict(os.environ))
+    given, env = bus_config("router", args), dict(os.environ)
+    bus, note = secured(given, args, env)
     if getattr(args, "print_access", False):
         acl = dict(bus.extra).get("access_control")
         print(json.dumps(json.loads(acl), indent=2) if acl else "access control is off: " + note)
         return 0
     with Node("router", bus) as node:
         node.log.info(note)
+        answering = serve_access(
+            node.zenoh, node.session_id, node.id, enforced_access(given, args, env)
+        )
         if bus.connect:  # another site's router: it shows up as "node joined role=router"
             node.log.info(f"meshing with {', '.join(bus.connect)}: tried until it answers")
         node.watch_presence()
@@ -187,4 +213,5 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(event, Presence) and event.node != node.id:
                 verb = "joined" if event.alive else "left"
                 node.log.info(f"node {verb}", extra=fields(role=event.role, node=event.node))
+        answering.undeclare()
     return 0

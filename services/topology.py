@@ -23,11 +23,13 @@ LOCAL_VARIABLES = {
     "VOXSHAPE_WEB_BIND": "127.0.0.1",  # the viewer profile's web viewer: this host only
     "VOXSHAPE_WEB_ADDRESS": "127.0.0.1",  # the teachers' web page: this host only
 }
-# Folders a container finds mounted at a fixed place; a local service gets the folder itself
-# (none by default: the local session is open, and speech needs no vosk model).
+# Folders and files a container finds mounted at a fixed place; a local service gets the host's
+# own (none by default: the local session is open, speech needs no vosk model, and the router
+# and the web page find deploy/access.toml alike).
 LOCAL_FOLDERS = {
     "VOXSHAPE_SERVICE_SECRETS": "VOXSHAPE_SECRETS",
     "VOXSHAPE_SERVICE_VOSK_MODEL": "VOXSHAPE_VOSK_MODEL",
+    "VOXSHAPE_SERVICE_ACCESS": "VOXSHAPE_ACCESS",
 }
 RESTART_POLICIES = ("no", "always", "on-failure", "unless-stopped")
 # A service labelled `voxshape.bus: "false"` announces no presence (the web viewer).

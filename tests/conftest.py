@@ -149,6 +149,7 @@ arbiter = { role = "arbiter" }
 web = { role = "observer" }
 ana = { role = "teacher" }
 ben = { role = "teacher" }
+cy = { role = "teacher" }
 """
 
 

@@ -453,6 +453,7 @@ def secured(tmp_path_factory) -> Iterator[tuple[str, dict[str, str]]]:
         )
         wait_for_port(port)
         bus = [*bus_args(router, "locked", "web"), "--user", "web", *secrets]
+        bus += ["--access", str(folder / "access.toml")]  # the router's: it checks at start
         yield start_web(procs, folder, bus), load_credentials(folder / "credentials")
     finally:
         procs.stop()

@@ -16,12 +16,14 @@ An access file:
 
 from __future__ import annotations
 
+import hashlib
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from protocol import ProtocolError, check_id, presence_key, robot_key, session_keys, teacher_key
 from protocol.dataflow import DATAFLOW, Direction
+from protocol.queries import AccessAnswer, router_access_key
 
 ANY = "*"
 ACCESS_FILE = Path("deploy") / "access.toml"
@@ -223,6 +225,9 @@ def access_control(session: str, users: dict[str, User]) -> dict:
             [everything],
             "egress",
         ),
+        # Which access file the router enforces (protocol/queries.py): `voxshape web` asks.
+        _rule("ask-router-access", ["query"], [router_access_key(session)], "ingress"),
+        _rule("hear-router-access", ["reply"], [router_access_key(session)], "egress"),
     ]
     rules, subjects, policies = list(shared), [], []
     for name, user in users.items():
@@ -315,3 +320,42 @@ def check_consistent(users: dict[str, User], credentials: dict[str, str]) -> lis
     for name in sorted(set(credentials) - set(users)):
         warnings.append(f"user {name!r} has a password but no role: it may do nothing")
     return warnings
+
+
+def access_digest(path: Path) -> str:
+    """SHA-256 of an access file's contents (what a router says it enforces)."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as e:
+        raise AccessError(f"access file {str(path)!r}: {e.strerror}") from None
+
+
+def compare_with_router(
+    path: Path, digest: str, answers: list[AccessAnswer], routers: set[str]
+) -> tuple[str | None, str | None]:
+    """(error, warning) of a node that takes users from `path` (SHA-256 `digest`) on a
+    secured session, given the answers to router_access_key and the zenoh ids of the routers
+    it is connected to: its router must enforce the very same file."""
+    fix = "pass the same --access (VOXSHAPE_ACCESS) to the router and to this service"
+    mine = [a for a in answers if a.zid in routers]
+    if not mine:
+        others = f" (only {', '.join(a.router for a in answers)} of another site did)"
+        return None, (
+            f"the router did not say which access file it enforces{others if answers else ''}:"
+            f" not a voxshape router, or an older one. Teachers are taken from {path}; if the "
+            f"router enforces another file, its teachers are refused here: {fix}"
+        )
+    for answer in mine:
+        if answer.open:
+            return (
+                f"the router (node {answer.router}) is open (no passwords, no access control): a "
+                "secured page would let anyone in as any teacher. Secure the router "
+                "(--secrets DIR) or serve the page without a user (no VOXSHAPE_SECRETS)"
+            ), None
+        if answer.sha256 != digest:
+            return (
+                f"the router (node {answer.router}) enforces the access file {answer.path} (sha256 "
+                f"{answer.sha256[:12]}...), but this service takes its teachers from {path} "
+                f"(sha256 {digest[:12]}...): {fix}"
+            ), None
+    return None, None

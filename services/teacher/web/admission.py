@@ -1,6 +1,7 @@
 """Who may open the page's socket and log in, pure (no aiohttp): the names the page is served
 under, how many sockets wait to log in and how many teachers are on, and how fast a password
-may be guessed. The limits and their defaults are listed in docs/web.md#security.
+may be guessed (the throttle's keys, so that no stranger can lock a teacher out). The limits
+and their defaults are listed in docs/web.md#security.
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 import ipaddress
 import math
 from collections import Counter, OrderedDict
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from urllib.parse import urlsplit
 
@@ -31,6 +33,18 @@ def _is_ip(name: str) -> bool:
         return True
     except ValueError:
         return False
+
+
+def address_key(peer: str) -> str:
+    """The address limits count by: an IPv4 address, or an IPv6 address's /64 (one site's
+    network: a host there may take any address of it)."""
+    try:
+        ip = ipaddress.ip_address(peer)
+    except ValueError:
+        return peer
+    if ip.version == 6 and ip.ipv4_mapped is not None:
+        return str(ip.ipv4_mapped)
+    return str(ipaddress.ip_network(f"{ip}/64", strict=False)) if ip.version == 6 else str(ip)
 
 
 def public_origin(text: str) -> str:
@@ -76,62 +90,92 @@ class Origins:
 
 @dataclass
 class Admission:
-    """Sockets that have not logged in yet wait in their own limited room (per address too),
-    so they can never keep a teacher out; the teachers' places (`max_clients`, at most
-    `per_user` pages for one user) are taken at login. Each method returns why a socket is
-    refused, or None."""
+    """Sockets that have not sent their first frame yet wait in a limited room of their own
+    (`waiting_per_address` of one address, `max_waiting` in all), so they never take a
+    teacher's place; when the room is full the socket that waited longest gives way to the
+    newcomer (a teacher's page sends its login at once: strangers' idle sockets go first).
+    The teachers' places (`max_clients`, at most `per_user` pages for one user) are taken
+    once the router has let a login in."""
 
     max_clients: int = 20
     per_user: int = 3
     max_waiting: int = 64
     waiting_per_address: int = 8
-    waiting: Counter[str] = field(default_factory=Counter)  # by address
+    waiting: OrderedDict[Hashable, str] = field(default_factory=OrderedDict)  # oldest first
+    by_address: Counter[str] = field(default_factory=Counter)
     teachers: Counter[str] = field(default_factory=Counter)  # pages by user
 
-    def open(self, address: str) -> str | None:
-        if sum(self.waiting.values()) >= self.max_waiting:
-            return f"{self.max_waiting} pages are logging in already: try again in a few seconds"
-        if self.waiting[address] >= self.waiting_per_address:
-            return f"{self.waiting_per_address} pages of this address are logging in already"
-        self.waiting[address] += 1
-        return None
+    def open(self, socket: Hashable, address: str) -> tuple[str | None, Hashable | None]:
+        """A socket enters the room: (why it is refused, None), or (None, the socket that
+        gave way to it, if the room was full)."""
+        if self.by_address[address] >= self.waiting_per_address:
+            return f"{self.waiting_per_address} pages of this address are logging in already", None
+        gone = None
+        if len(self.waiting) >= self.max_waiting:
+            gone = next(iter(self.waiting))
+            self.leave(gone)
+        self.waiting[socket] = address
+        self.by_address[address] += 1
+        return None, gone
 
-    def login(self, address: str, user: str) -> str | None:
-        """Moves a waiting socket to a teacher's place, if one is free."""
+    def leave(self, socket: Hashable) -> None:
+        """Out of the room (its first frame came, or it closed); again is harmless."""
+        address = self.waiting.pop(socket, None)
+        if address is not None:
+            self.by_address[address] -= 1
+            if self.by_address[address] <= 0:
+                del self.by_address[address]
+
+    def login(self, user: str) -> str | None:
+        """A teacher's place for a login the router let in, if one is free."""
         if self.teachers[user] >= self.per_user:
             return f"{user} has {self.per_user} pages open already: close one"
         if sum(self.teachers.values()) >= self.max_clients:
             return f"{self.max_clients} pages are open already (--max-clients)"
-        self._unwait(address)
         self.teachers[user] += 1
         return None
 
-    def close(self, address: str, user: str | None) -> None:
-        """A socket ended: logged in as `user` (its place freed), or still waiting."""
-        if user is None:
-            self._unwait(address)
-            return
+    def logout(self, user: str) -> None:
         self.teachers[user] -= 1
         if self.teachers[user] <= 0:
             del self.teachers[user]
 
-    def _unwait(self, address: str) -> None:
-        self.waiting[address] -= 1
-        if self.waiting[address] <= 0:
-            del self.waiting[address]
+
+# Failures each key of the throttle lets through before a login must wait (docs/web.md):
+FREE_FAILURES: Mapping[str, int] = {
+    "user-address": 3,  # one user from one address: a guesser at one machine
+    "device": 3,  # one browser holding the user's device cookie: the same, for that browser
+    "address": 10,  # any user from one address: one machine trying many users
+    "user": 10,  # one user from browsers without its device cookie: guessing from many
+}
+
+
+def login_keys(user: str, address: str, teacher: bool, device: str | None) -> tuple[str, ...]:
+    """The throttle's keys of a login as `user` from `address` (address_key). A browser with
+    a valid device cookie of that user (`device`: its nonce) counts under its own key only,
+    so strangers failing as the user, from anywhere, never hold it up; a name that is no
+    teacher only under the address (no key per made-up name)."""
+    if not teacher:
+        return (f"address:{address}",)
+    if device is not None:
+        return (f"device:{user}:{device}",)
+    return (f"user-address:{user}@{address}", f"address:{address}", f"user:{user}")
 
 
 class LoginThrottle:
-    """Failed logins, per address and per user: after `free` failures each next attempt must
-    wait twice as long as the last (1 s, 2 s, 4 s... at most `longest`); forgotten after
-    `forget_s` without a failure. Bounded: the oldest keys go first beyond `max_keys`."""
+    """Failed logins per key ("kind:value", kinds of FREE_FAILURES): after a key's free
+    failures, each next attempt must wait twice as long as the last (1 s, 2 s, 4 s... at
+    most `longest`, counted from the last failure); forgotten after `forget_s` without a
+    failure. An attempt is counted as failed when it is let through (`attempt`), before the
+    router is asked, so guesses sent at once are counted at once; a success clears its keys.
+    Bounded: the oldest keys go first beyond `max_keys`."""
 
     def __init__(
         self,
-        free: int = 3,
+        free: Mapping[str, int] = FREE_FAILURES,
         longest: float = 60.0,
         forget_s: float = 900.0,
-        max_keys: int = 10_000,
+        max_keys: int = 100_000,
     ) -> None:
         self.free, self.longest, self.forget_s, self.max_keys = free, longest, forget_s, max_keys
         self._failures: OrderedDict[str, tuple[int, float]] = OrderedDict()  # count, last
@@ -142,20 +186,31 @@ class LoginThrottle:
 
     def _wait(self, key: str, now: float) -> float:
         count, last = self._failures.get(key, (0, -math.inf))
-        if now - last >= self.forget_s:
+        free = self.free[key.split(":", 1)[0]]
+        if now - last >= self.forget_s or count < free:
             return 0.0
-        if count < self.free:
-            return 0.0
-        delay = min(self.longest, 2.0 ** (count - self.free))
+        delay = min(self.longest, 2.0 ** (count - free))
         return max(0.0, last + delay - now)
 
-    def failed(self, keys: tuple[str, ...], now: float) -> None:
+    def attempt(self, keys: tuple[str, ...], now: float) -> float:
+        """0 and the attempt counted as a failure until it succeeds, or the seconds to wait
+        (nothing counted: waiting costs the keys nothing more)."""
+        wait = self.wait(keys, now)
+        if wait > 0:
+            return wait
         for key in keys:
             count, last = self._failures.pop(key, (0, -math.inf))
             count = 0 if now - last >= self.forget_s else count
             self._failures[key] = (count + 1, now)
         while len(self._failures) > self.max_keys:
             self._failures.popitem(last=False)
+        return 0.0
+
+    def failed(self, keys: tuple[str, ...], now: float) -> None:
+        """An attempt refused (already counted): the wait runs from now, its refusal."""
+        for key in keys:
+            if key in self._failures:
+                self._failures[key] = (self._failures[key][0], now)
 
     def succeeded(self, keys: tuple[str, ...]) -> None:
         for key in keys:

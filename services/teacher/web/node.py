@@ -10,6 +10,10 @@ session, so the router's access control applies to it as to `voxshape teach`): o
 teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its notices and
 utterances, and the clock exchange with the arbiter. The server is
 services/teacher/web/server.py.
+
+On a secured session its teachers come from the access file (--access, VOXSHAPE_ACCESS), which
+must be the router's: at start it asks the router which file it enforces
+(`voxshape/<session>/router/access`) and stops with an error naming both when they differ.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ from protocol import (
     load_vocabulary,
 )
 from protocol.vocabulary import LANGUAGES
-from services.deploy.access import AccessError, find_access_file, load_access
+from services.deploy.access import AccessError, access_digest, find_access_file, load_access
 from services.runtime import (
     ConfigError,
     add_bus_arguments,
@@ -114,7 +118,7 @@ def _serving_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=env("VOXSHAPE_ACCESS") or None,
         help="access file whose teachers may log in on a secured session (VOXSHAPE_ACCESS; "
-        "default deploy/access.toml)",
+        "default deploy/access.toml): the router's own, which it checks at start",
     )
 
 
@@ -150,16 +154,20 @@ def run(args: argparse.Namespace) -> int:
             public_origin(args.public_origin) if args.public_origin else None,
             frozenset(n.lower() for n in (socket.gethostname(), socket.getfqdn()) if n),
         )
-        teachers = _teachers(args.access) if view.secured else None
+        access = (args.access or find_access_file()) if view.secured else None
+        teachers = _teachers(access) if access is not None else None
+        digest = access_digest(access) if access is not None else None
     except (AdmissionError, AccessError) as e:
         raise ConfigError(str(e)) from None
     gateway = Gateway(bus, view, args.static, args.address, tls, args.max_clients, origins)
     gateway.teachers = teachers
+    if access is not None and digest is not None:
+        gateway.access = (access, digest)
     asyncio.run(gateway.serve(args.port))
     return 0
 
 
-def _teachers(path: Path | None) -> frozenset[str]:
+def _teachers(path: Path) -> frozenset[str]:
     """The users of the teacher role: the only ones a browser may log in as."""
-    users = load_access(path or find_access_file())
+    users = load_access(path)
     return frozenset(name for name, user in users.items() if user.role == "teacher")

@@ -2,7 +2,7 @@
 // robots' questions and the learning curve, all over one WebSocket; window.voxshape holds its
 // state for tests.
 
-import { Connection, browserNow, socketUrl } from "./net.js";
+import { Connection, browserNow, keepDevice, socketUrl } from "./net.js";
 import { MapView } from "./mapview.js";
 import { CurvePlot } from "./plot.js";
 import { PushToTalk, audioFrame } from "./mic.js";
@@ -22,6 +22,7 @@ const state = {
   teacher: null,
   secured: null,
   welcome: null,
+  device: null, // a secured session's device cookie: "kept" once the gateway set it, or why not
   robots: [],
   robot: null, // the robot this page teaches
   language: "en",
@@ -173,6 +174,7 @@ function welcome(msg) {
   mapView.setMap(msg.map ?? null);
   setLanguage(state.language);
   connection.startClockSync();
+  if (msg.device) keepDevice(msg.device).then((outcome) => (state.device = outcome));
   dirty = curveDirty = true;
 }
 

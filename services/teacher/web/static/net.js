@@ -102,3 +102,20 @@ export function socketUrl(path = "/ws") {
   const scheme = location.protocol === "https:" ? "wss:" : "ws:";
   return `${scheme}//${location.host}${path}`;
 }
+
+// A secured session's welcome carries a device token: the gateway turns it into this browser's
+// HttpOnly cookie, sent with the next logins' handshakes, so strangers failing as this teacher
+// never hold her up here (docs/web.md#security). Resolves "kept", or why not.
+export async function keepDevice(token) {
+  try {
+    const answer = await fetch("/ws/device", {
+      method: "POST",
+      body: token,
+      credentials: "same-origin",
+      headers: { "Content-Type": "text/plain" },
+    });
+    return answer.ok ? "kept" : `refused (${answer.status})`;
+  } catch (err) {
+    return `failed (${err.message})`;
+  }
+}
