@@ -316,13 +316,13 @@ class LocalSession:
         time.sleep(wait)
 
     # -- stopping -----------------------------------------------------------------------
-    def end(self, name: str) -> int | None:
-        """Ends one service by pid, for good (it is no longer the session's); its exit code,
-        None if it had to be killed."""
+    def end(self, name: str, grace: float = STOP_GRACE_S) -> int | None:
+        """Ends one service by pid, for good (it is no longer the session's): SIGTERM, SIGKILL
+        after `grace` seconds; its exit code, None if it had to be killed."""
         proc = self.procs.pop(name)
         self.specs = [s for s in self.specs if s.name != name]
         self._restart_due.pop(name, None)
-        return end_process(proc, STOP_GRACE_S)
+        return end_process(proc, grace)
 
     def stop(self) -> dict[str, int | None]:
         """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes. The
