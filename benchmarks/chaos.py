@@ -4,7 +4,7 @@ robots, a simulated teacher each) paced at 10x for `--minutes`, while a seeded m
 router included. Then it checks, from the event log, the learners' checkpoints and the
 services' counters, that every word the arbiter understood reached its learner exactly once,
 that every learner converged, that the event log reads to its end and that a replay shows what
-the live recording shows; and prints the tables (benchmarks/harness.py is the harness).
+the live recording shows; and prints the tables (benchmarks/harness is the harness).
 
     .venv/bin/python benchmarks/chaos.py [--minutes 10] [--seed 1] [--out chaos.md]
 """

@@ -3,8 +3,8 @@ without it, what a slow subscriber would do instead, and the size of what it wri
 
     .venv/bin/python benchmarks/logger.py [--steps 3000] [--task 1]
 
-Runs real processes on loopback in a temporary directory (router, simulator in lockstep,
-learner, logger) and prints:
+Runs real processes on loopback in a temporary directory (LoopbackSessions: the router,
+simulator in lockstep, learner, logger of compose.yaml) and prints:
 - event log: records/s the logger's bus callback appends (a flood of observations over the
   router), and the append cost in-process;
 - recording: records/s and steps/s the renderer draws without thinning (a replay of the
@@ -20,83 +20,31 @@ import argparse
 import json
 import os
 import re
-import signal
 import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import zenoh
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks.common import checkout_environment
 from protocol import EpisodeEvent, encode, robot_key
 from protocol.examples import example_messages
+from services.launcher import LoopbackSession
 from services.logger.eventlog import EventLogWriter, EventRecord, read_events
 from services.logger.recording import Recorder
 from services.logger.replay import close_stream, open_stream, render
 from services.logger.run import RunDir, session_map
-from services.runtime import Input, Node, bus_config, free_loopback_port
-
-VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
-
-
-class Processes:
-    """Child processes of one measurement, ended by pid."""
-
-    def __init__(self, cwd: Path) -> None:
-        self.cwd, self.procs = cwd, []
-
-    def start(self, *argv: str, **kwargs: object) -> subprocess.Popen:
-        kwargs.setdefault("stdout", subprocess.DEVNULL)
-        kwargs.setdefault("stderr", subprocess.DEVNULL)
-        proc = subprocess.Popen([VOXSHAPE, *argv], cwd=self.cwd, **kwargs)
-        self.procs.append(proc)
-        return proc
-
-    def stop(self, proc: subprocess.Popen, timeout: float = 60) -> None:
-        if proc.poll() is None:
-            os.kill(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.kill(proc.pid, signal.SIGKILL)
-                proc.wait(5)
-
-    def stop_all(self) -> None:
-        for proc in reversed(self.procs):
-            self.stop(proc)
+from services.runtime import Input, Node
+from services.topology import ServiceSpec
 
 
-def client(session: str, router: str, name: str) -> Node:
-    config = replace(
-        bus_config("bench", env={}), session=session, node=name, mode="client", connect=(router,)
-    )
-    return Node("bench", config, quiet=True)
-
-
-def wait_for_presence(node: Node, names: set[str], timeout: float = 60) -> None:
-    node.watch_presence()
-    present: set[str] = set()
-    deadline = time.monotonic() + timeout
-    while not names <= present and time.monotonic() < deadline:
-        event = node.poll(0.2)
-        if event is not None and not isinstance(event, Input) and event.alive:
-            present.add(event.node)
-    if not names <= present:
-        raise SystemExit(f"not present after {timeout} s: {', '.join(names - present)}")
-
-
-def bus(procs: Processes, session: str) -> str:
-    port = free_loopback_port()
-    router = f"tcp/127.0.0.1:{port}"
-    procs.start("router", "--session", session, "--node", "router", "--listen", router)
-    return router
-
-
-def start_logger(procs: Processes, session: str, router: str, *extra: str) -> subprocess.Popen:
-    args = ["--session", session, "--node", "logger", "--mode", "client", "--connect", router]
-    return procs.start("logger", *args, "--serve-port", "0", *extra)
+def _logger(session: LoopbackSession, *extra: str) -> ServiceSpec:
+    """compose.yaml's logger, serving its live recording on a port of its own."""
+    return session.service("logger", "--serve-port", "0", *extra)
 
 
 def session_step_rate(
@@ -104,106 +52,109 @@ def session_step_rate(
 ) -> tuple[float, int, RunDir | None]:
     """Simulator + learner in lockstep for `steps` steps; `watcher`: none, logger, events (a
     logger writing only its event log), or slow (a subscriber process whose callback takes
-    10 ms). Returns steps/s from the simulator's own
-    clock (its episode events)."""
-    session = f"bench-{watcher}-{os.getpid()}"
-    procs = Processes(work)
-    try:
-        router = bus(procs, session)
-        with client(session, router, "bench") as node:
-            run = None
-            if watcher == "logger":
-                logger = start_logger(procs, session, router)
-                wait_for_presence(node, {"logger", "router"})
-                run = RunDir(work / "runs" / session)
-                deadline = time.monotonic() + 60
-                while not run.recording.is_file() and time.monotonic() < deadline:
-                    time.sleep(0.1)  # its renderer is up when it has opened the recording
-            elif watcher == "events":
-                logger = start_logger(procs, session, router, "--no-recording")
-                wait_for_presence(node, {"logger"})
-            elif watcher == "slow":
-                slow = subprocess.Popen(
-                    [sys.executable, "-c", SLOW_SUBSCRIBER, session, router, "0.01"],
-                    cwd=Path(__file__).resolve().parents[1],
-                )
-                procs.procs.append(slow)
-                wait_for_presence(node, {"slow"})
-            node.input("episode", robot_key(session, "r1", "episode"))
-            args = ["--mode", "client", "--connect", router, "--session", session]
-            procs.start("learner", *args, "--node", "learner", "--fresh", "--seed", "0",
-                        "--checkpoint", str(work / f"{session}.npz"))  # fmt: skip
-            wait_for_presence(node, {"learner"})
-            sim_log = work / f"{session}-sim.log"
-            sim = procs.start(
-                "sim", *args, "--node", "sim", "--clock", "lockstep", "--task", task,
-                "--seed", "0", "--max-steps", str(steps), stderr=sim_log.open("w"),
-            )  # fmt: skip
-            events: list[EpisodeEvent] = []
-            deadline = time.monotonic() + 600
-            while sim.poll() is None and time.monotonic() < deadline:
-                event = node.poll(0.2)
-                if isinstance(event, Input):
-                    events.append(event.message)
-        if len(events) < 2:
-            raise SystemExit(f"{watcher}: fewer than two episode events in {steps} steps")
-        first, last = events[0], events[-1]
-        rate = (last.step - first.step) / (last.wall_time - first.wall_time)
+    10 ms). Returns steps/s from the simulator's own clock (its episode events), the times
+    the simulator gave up waiting for an action, and the logger's run (watcher "logger")."""
+    session_id = f"bench-{watcher}-{os.getpid()}"
+    logs = work / "logs" / session_id
+    variables = {"VOXSHAPE_TASK": task}
+    with (
+        LoopbackSession(session_id, variables=variables, logs=logs, cwd=work) as session,
+        Node("bench", session.client_config("bench"), quiet=True) as node,
+    ):
+        run = _start_watcher(session, watcher, work)
+        node.input("episode", robot_key(session_id, "r1", "episode"))
+        checkpoint = str(work / f"{session_id}.npz")
+        session.add(
+            session.service("learner", "--fresh", "--seed", "0", "--checkpoint", checkpoint)
+        )
+        lockstep = ("--clock", "lockstep", "--task", task, "--seed", "0")
+        session.add(session.service("sim", *lockstep, "--max-steps", str(steps)))
+        events = _episodes_until_done(node, session.procs["sim"], deadline_s=600)
         if watcher in ("logger", "events"):
-            procs.stop(logger)
-        stalls = re.findall(r"stopped_without_action=(\d+)", sim_log.read_text())
-        return rate, int(stalls[-1]) if stalls else 0, run
-    finally:
-        procs.stop_all()
+            session.end("logger", grace=60)  # it writes its last figures as it stops
+    if len(events) < 2:
+        raise SystemExit(f"{watcher}: fewer than two episode events in {steps} steps")
+    first, last = events[0], events[-1]
+    rate = (last.step - first.step) / (last.wall_time - first.wall_time)
+    stalls = re.findall(r"stopped_without_action=(\d+)", (logs / "sim.log").read_text())
+    return rate, int(stalls[-1]) if stalls else 0, run
+
+
+def _start_watcher(session: LoopbackSession, watcher: str, work: Path) -> RunDir | None:
+    """The logger (its run, once its renderer is up), the events-only logger, a slow
+    subscriber or nothing, present on the bus."""
+    if watcher == "logger":
+        session.add(_logger(session))
+        run = RunDir(work / "runs" / session.session_id)
+        deadline = time.monotonic() + 60
+        while not run.recording.is_file() and time.monotonic() < deadline:
+            time.sleep(0.1)  # its renderer is up when it has opened the recording
+        return run
+    if watcher == "events":
+        session.add(_logger(session, "--no-recording"))
+    elif watcher == "slow":
+        slow = [sys.executable, "-c", SLOW_SUBSCRIBER, "0.01"]
+        session.add(session.client("slow", slow, environment=checkout_environment()))
+    return None
+
+
+def _episodes_until_done(
+    node: Node, sim: subprocess.Popen, deadline_s: float
+) -> list[EpisodeEvent]:
+    """The simulator's episode events until it ends (its --max-steps) or `deadline_s`."""
+    events: list[EpisodeEvent] = []
+    deadline = time.monotonic() + deadline_s
+    while sim.poll() is None and time.monotonic() < deadline:
+        event = node.poll(0.2)
+        if isinstance(event, Input):
+            events.append(event.message)
+    return events
 
 
 def flood_rate(work: Path, n: int) -> tuple[float, float, dict]:
     """`n` encoded observations put as fast as zenoh takes them (BLOCK, no encoding per put) to
     a logger that only writes its event log: the publisher's rate, and the rate at which they
     arrived in the event log (from the receive times it records)."""
-    session = f"bench-flood-{os.getpid()}"
-    procs = Processes(work)
-    try:
-        router = bus(procs, session)
-        logger = start_logger(procs, session, router, "--no-recording")
-        key, obs = example_messages(session)[0]
+    session_id = f"bench-flood-{os.getpid()}"
+    stats_path = RunDir(work / "runs" / session_id).receiver_stats
+    with (
+        LoopbackSession(session_id, logs=work / "logs" / session_id, cwd=work) as session,
+        Node("bench", session.client_config("flooder"), quiet=True) as node,
+    ):
+        session.add(_logger(session, "--no-recording"))
+        key, obs = example_messages(session_id)[0]
         payload = encode(obs)
-        stats_path = RunDir(work / "runs" / session).receiver_stats
-        with client(session, router, "flooder") as node:
-            wait_for_presence(node, {"logger"})
-            publisher = node.zenoh.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
-            )
-            time.sleep(0.5)
-            t0 = time.perf_counter()
-            for _ in range(n):
-                publisher.put(payload)
-            sent = time.perf_counter() - t0
-            deadline = time.monotonic() + 60
-            stats: dict = {}
-            while time.monotonic() < deadline and stats.get("received.obs", 0) < n:
-                time.sleep(0.05)
-                if stats_path.is_file():
-                    stats = json.loads(stats_path.read_text())
-            publisher.undeclare()
-        procs.stop(logger)
-        stats = json.loads(stats_path.read_text())
-        times = [r.received for r in read_events(stats_path.parent / "events.msgpack").records]
-        times = times[-n:]  # the observations (the first records are presence tokens)
-        return n / sent, (len(times) - 1) / (times[-1] - times[0]), stats
-    finally:
-        procs.stop_all()
+        publisher = node.zenoh.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
+        time.sleep(0.5)
+        t0 = time.perf_counter()
+        for _ in range(n):
+            publisher.put(payload)
+        sent = time.perf_counter() - t0
+        deadline = time.monotonic() + 60
+        stats: dict = {}
+        while time.monotonic() < deadline and stats.get("received.obs", 0) < n:
+            time.sleep(0.05)
+            if stats_path.is_file():
+                stats = json.loads(stats_path.read_text())
+        publisher.undeclare()
+        session.end("logger", grace=60)
+    stats = json.loads(stats_path.read_text())
+    times = [r.received for r in read_events(stats_path.parent / "events.msgpack").records]
+    times = times[-n:]  # the observations (the first records are presence tokens)
+    return n / sent, (len(times) - 1) / (times[-1] - times[0]), stats
 
 
+# A subscriber of every message whose callback takes `delay` seconds, a client of the
+# session its environment names (LoopbackSession.client)
 SLOW_SUBSCRIBER = """
-import sys, time, zenoh
+import sys, time
 from services.runtime import Node, bus_config
-from dataclasses import replace
-session, router, delay = sys.argv[1], sys.argv[2], float(sys.argv[3])
-config = replace(bus_config("slow", env={}), session=session, node="slow", mode="client",
-                 connect=(router,))
+delay = float(sys.argv[1])
+config = bus_config("slow")
 with Node("slow", config, quiet=True) as node:
-    node.zenoh.declare_subscriber(f"voxshape/{session}/**", lambda s: time.sleep(delay))
+    node.zenoh.declare_subscriber(f"voxshape/{config.session}/**", lambda s: time.sleep(delay))
     for event in node.events():
         pass
 """

@@ -1,7 +1,7 @@
 """The ROS 2 bridge's added latency: from a scan leaving the robot to the cmd_vel it causes
 reaching the robot, less the learner's own decision time, through real buses: a robot (this
 process, as its own rmw_zenohd router, publishing /scan and /odom with rmw_zenoh's
-attachments), `voxshape ros2` (its own process), a session's router (`voxshape router`) and
+attachments), `voxshape ros2` (its own process), a session's router (a LoopbackSession's) and
 a learner (this process) that answers each observation at once. What is left is the bridge's
 work and its four hops. One scan a control period (0.1 s at --rtf 1); an observation is of
 the last scan sent before it arrived (the bridge steps as a scan comes, well within a
@@ -20,25 +20,23 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import statistics
-import subprocess
 import sys
+import tempfile
 import threading
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import zenoh
 
-from protocol import Action, Observation, robot_key
-from services.ros2 import msgs, rmw
-from services.runtime import Input, Node, bus_config, free_loopback_port
-from services.runtime.config import wait_for_loopback_port
-from services.runtime.processes import end_process
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-VOXSHAPE = str(Path(sys.executable).with_name("voxshape"))
+from benchmarks.common import is_max, percentile, spread
+from protocol import Action, Observation, robot_key
+from services.launcher import LoopbackSession
+from services.ros2 import msgs, rmw
+from services.runtime import Input, Node, free_loopback_port
+
 SESSION = "bench-ros2"
 UNIT = 0.001  # m/s of speed per step number in the learner's answers
 CYCLE = 500  # step numbers repeat after this many
@@ -66,8 +64,17 @@ def robot_keys() -> dict[str, str]:
         ("cmd", "cmd_vel", msgs.TWIST))}  # fmt: skip
 
 
-def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[float]:
-    robot = robot_session(robot_endpoint)
+def bridge_command(args: argparse.Namespace, robot_endpoint: str) -> list[str]:
+    """`voxshape ros2` bringing the robot at `robot_endpoint` into the session."""
+    bridge = ["voxshape", "ros2", "--connect", robot_endpoint, "--goal", "100,100"]
+    return [*bridge, "--rtf", str(args.rtf), "--max-speed", "1.0", "--radius", "0.05"]
+
+
+def measure(
+    args: argparse.Namespace, robot: zenoh.Session, session: LoopbackSession
+) -> list[float]:
+    """The bridge's added latency (seconds) of each scan after the warm-up, the robot
+    publishing on `robot` and this process's learner answering on the session's bus."""
     keys = robot_keys()
     t_scan: list[float] = []  # each scan's send time
     of_step: dict[int, tuple[float, float, float]] = {}  # step -> (its scan's, obs, action)
@@ -89,8 +96,7 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
         robot.declare_publisher(keys["scan"]),
         robot.declare_publisher(keys["odom"]),
     )
-    config = replace(bus_config("bench", env={}), session=SESSION, mode="client", connect=(bus,))
-    with Node("bench", config, quiet=True) as learner:
+    with Node("bench", session.client_config("learner"), quiet=True) as learner:
         learner.input("obs", robot_key(SESSION, "r1", "obs"))
         out = learner.output("action", robot_key(SESSION, "r1", "action"))
         stop = threading.Event()
@@ -123,7 +129,6 @@ def measure(args: argparse.Namespace, robot_endpoint: str, bus: str) -> list[flo
         time.sleep(0.5)
         stop.set()
     cmd.undeclare()
-    robot.close()
     return added[args.warmup :]
 
 
@@ -134,29 +139,27 @@ def main() -> int:
     parser.add_argument("--rtf", type=float, default=1.0)
     parser.add_argument("--target-ms", type=float, default=10.0)
     args = parser.parse_args()
-    bus = f"tcp/127.0.0.1:{free_loopback_port()}"
     robot = f"tcp/127.0.0.1:{free_loopback_port()}"
-    env = {**os.environ, "VOXSHAPE_LOG_LEVEL": "WARNING"}
-    procs = [subprocess.Popen([VOXSHAPE, "router", "--session", SESSION, "--listen", bus], env=env)]
-    try:
-        wait_for_loopback_port(int(bus.rsplit(":", 1)[1]))
-        bridge = [VOXSHAPE, "ros2", "--session", SESSION, "--bus", bus, "--bus-mode", "client",
-                  "--connect", robot, "--goal", "100,100", "--rtf", str(args.rtf),
-                  "--max-speed", "1.0", "--radius", "0.05"]  # fmt: skip
-        threading.Timer(0.5, lambda: procs.append(subprocess.Popen(bridge, env=env))).start()
-        added = measure(args, robot, bus)
-    finally:
-        for proc in reversed(procs):
-            end_process(proc, 10, 5)
+    with (
+        tempfile.TemporaryDirectory(prefix="voxshape-bench-ros2-") as logs,
+        LoopbackSession(SESSION, logs=Path(logs)) as session,
+    ):
+        robot_bus = robot_session(robot)  # the robot's router, before the bridge joins it
+        try:
+            session.add(session.client("ros2", bridge_command(args, robot)))
+            added = measure(args, robot_bus, session)
+        finally:
+            robot_bus.close()
     ms = sorted(a * 1000 for a in added)
     if not ms:
         print("no scan came back as a command: is the bridge running?")
         return 1
-    p50, p99 = statistics.median(ms), ms[min(len(ms) - 1, math.ceil(0.99 * len(ms)) - 1)]
+    p99 = percentile(ms, 99)
     print(f"samples {len(ms)} of {args.samples} scans, at {args.rtf:g}x real time")
+    worst = "" if is_max(99, len(ms)) else f", max {ms[-1]:.1f} ms"
     print(
-        f"bridge's added latency (scan in to cmd_vel out, less the learner's): p50 {p50:.2f} "
-        f"ms, p99 {p99:.2f} ms, max {ms[-1]:.2f} ms (target p99 <= {args.target_ms:g} ms)"
+        f"bridge's added latency (scan in to cmd_vel out, less the learner's): {spread(ms)}"
+        f"{worst} (target p99 <= {args.target_ms:g} ms)"
     )
     ok = p99 <= args.target_ms and len(ms) >= 0.95 * args.samples
     print("ok" if ok else "FAILED: above the target, or scans lost")

@@ -24,7 +24,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks.harness import Probe, Session
+from benchmarks.harness import Session
+from benchmarks.probe import Probe
 
 WARM_UP_S = 60.0  # memory "at start" is taken after a minute: imports, first episodes done
 Sample = tuple[float, dict[str, int], dict[str, int]]  # seconds, memory (kB), sizes (bytes)
@@ -40,7 +41,7 @@ def main() -> int:
     # stopped early (SIGTERM, or SIGINT, which a background job ignores): the tables so far
     signal.signal(signal.SIGTERM, signal.default_int_handler)
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    probe = Probe(session, keep_obs=4000)
+    probe = Probe(session.client_config("probe"), keep_obs=4000)
     session.start()
     probe.start()
     t0 = time.monotonic()

@@ -18,13 +18,11 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 import uuid
 import wave
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -33,60 +31,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.common import spread  # noqa: E402
 from protocol import Observation, Utterance, robot_key, teacher_key  # noqa: E402
-from services.runtime import Input, Node, bus_config, free_loopback_port  # noqa: E402
+from services.launcher import LoopbackSession  # noqa: E402
+from services.runtime import Input, Node, free_loopback_port  # noqa: E402
 from services.runtime.audio import read_wav  # noqa: E402
 from services.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
-from services.runtime.processes import end_process  # noqa: E402
 
-VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
 CHROMIUM = "/usr/bin/chromium"
 SPOKEN = ROOT / "tests" / "fixtures" / "speech" / "en-voc-turn-left-kal-diphone.wav"
 PAD_S = (0.3, 0.7)
-
-
-class Session:
-    """A router and the services as child processes, each ended by its pid."""
-
-    def __init__(self, cwd: Path) -> None:
-        self.cwd = cwd
-        self.id = f"bench{uuid.uuid4().hex[:8]}"
-        port = free_loopback_port()
-        self.router = f"tcp/127.0.0.1:{port}"
-        self.children: list[subprocess.Popen] = []
-        self.start("router", "router", "--listen", self.router, bus=False)
-        wait_for_port(port, timeout=30.0)
-
-    def start(self, command: str, node: str, *argv: str, bus: bool = True) -> subprocess.Popen:
-        flags = ["--session", self.id, "--node", node]
-        if bus:
-            flags += ["--mode", "client", "--connect", self.router]
-        proc = subprocess.Popen(
-            [VOXSHAPE, command, *flags, *argv],
-            cwd=self.cwd,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-        )
-        self.children.append(proc)
-        return proc
-
-    def end(self, proc: subprocess.Popen) -> None:
-        end_process(proc, 10, 5)
-
-    def close(self) -> None:
-        for proc in reversed(self.children):
-            self.end(proc)
-
-    def node(self, name: str) -> Node:
-        config = replace(
-            bus_config("bench", env={}),
-            session=self.id,
-            node=name,
-            mode="client",
-            connect=(self.router,),
-            connect_timeout=5.0,
-        )
-        return Node("bench", config)
 
 
 def padded_wav(folder: Path) -> Path:
@@ -109,10 +63,6 @@ def open_page(browser: Any, url: str, teacher: str) -> tuple[Any, Any]:
     page.wait_for_function("window.voxshape.obs.r1 !== undefined", timeout=30_000)
     page.wait_for_function("window.voxshape.clock.replies >= 5", timeout=20_000)
     return context, page
-
-
-def percentile(values: list[float], q: float) -> float:
-    return float(np.percentile(values, q)) if values else float("nan")
 
 
 def draw_latency(page: Any, seconds: float) -> dict[str, list[float]]:
@@ -171,25 +121,30 @@ def main() -> int:
         return 2
     from playwright.sync_api import sync_playwright
 
+    port = free_loopback_port()
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        session = Session(folder)
-        try:
-            return measure(session, padded_wav(folder), args, sync_playwright)
-        finally:
-            session.close()
+        with LoopbackSession(
+            f"bench{uuid.uuid4().hex[:8]}",
+            variables={"VOXSHAPE_WEB_PORT": str(port)},
+            logs=folder / "logs",
+            cwd=folder,
+        ) as session:
+            return measure(session, padded_wav(folder), port, args, sync_playwright)
 
 
-def measure(session: Session, wav: Path, args: argparse.Namespace, sync_playwright: Any) -> int:
-    session.start("learner", "learner", "--robot", "r1", "--seed", "1")
-    session.start("arbiter", "arbiter")
-    session.start("speech", "speech")
-    port = free_loopback_port()
-    session.start("web", "web", "--port", str(port))
+def measure(
+    session: LoopbackSession, wav: Path, port: int, args: argparse.Namespace, sync_playwright: Any
+) -> int:
+    """The session's services, the page's latencies, then the simulator's step rates."""
+    session.add(
+        session.service("learner", "--robot", "r1", "--seed", "1"),
+        *(session.service(name) for name in ("arbiter", "speech", "web")),
+        session.service("sim", "--robot", "r1", "--rtf", "1", "--seed", "1"),
+    )
     wait_for_port(port, timeout=30.0)
     url = f"http://127.0.0.1:{port}/"
-    sim = session.start("sim", "sim", "--robot", "r1", "--rtf", "1", "--seed", "1")
-    time.sleep(3.0)  # every service joined
+    time.sleep(0.5)  # their subscriptions reach the router with their tokens
     browser_args = [
         *("--no-sandbox", "--disable-gpu", "--disable-background-networking"),
         *("--disable-component-update", "--disable-sync", "--no-first-run"),
@@ -198,45 +153,57 @@ def measure(session: Session, wav: Path, args: argparse.Namespace, sync_playwrig
     ]
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=CHROMIUM, args=browser_args)
-        context, page = open_page(browser, url, "bench")
-        latency = draw_latency(page, args.seconds)
-        with session.node("words") as node:
-            node.input("utterance", teacher_key(session.id, "bench", "utterance"))
-            time.sleep(0.5)
-            words = spoken_words(page, node, args.words)
-        context.close()
-        print(f"obs -> frame drawn, simulator paced at real time, one page, {args.seconds:g} s:")
-        for name, values in latency.items():
-            print(
-                f"  from {name:9}: p50 {percentile(values, 50):6.1f} ms, "
-                f"p99 {percentile(values, 99):6.1f} ms ({len(values)} frames)"
-            )
-        heard = f"{len(words)} of {args.words} presses heard"
-        if words:
-            median, worst = statistics.median(words) * 1000, max(words) * 1000
-            print(
-                f"end of a spoken word -> utterance on the bus: median {median:.0f} ms, "
-                f"max {worst:.0f} ms ({heard})"
-            )
-        else:
-            print(f"end of a spoken word -> utterance on the bus: {heard}")
-
-        session.end(sim)
-        session.start("sim", "sim-lockstep", "--robot", "r1", "--clock", "lockstep", "--seed", "1")
-        with session.node("steps") as node:
-            node.input("obs", robot_key(session.id, "r1", "obs"))
-            time.sleep(3.0)  # the learner and the simulator find their pace
-            alone = step_rate(node, args.seconds)
-            pages = [open_page(browser, url, f"watch{i}") for i in range(2)]
-            watched = step_rate(node, args.seconds)
-            for context, _ in pages:
-                context.close()
+        page_latencies(browser, url, session, args)
+        alone, watched = step_rates(browser, url, session, args.seconds)
         browser.close()
     print(
         f"simulator steps a second in lockstep: {alone:.0f} with no page, {watched:.0f} with "
         f"two pages open: ratio {watched / alone:.2f}"
     )
     return 0
+
+
+def page_latencies(
+    browser: Any, url: str, session: LoopbackSession, args: argparse.Namespace
+) -> None:
+    """Prints observation -> frame drawn, and the end of a spoken word -> its utterance."""
+    context, page = open_page(browser, url, "bench")
+    latency = draw_latency(page, args.seconds)
+    with Node("bench", session.client_config("words")) as node:
+        node.input("utterance", teacher_key(session.session_id, "bench", "utterance"))
+        time.sleep(0.5)
+        words = spoken_words(page, node, args.words)
+    context.close()
+    print(f"obs -> frame drawn, simulator paced at real time, one page, {args.seconds:g} s:")
+    for name, values in latency.items():
+        print(f"  from {name:9}: {spread(values)}")
+    heard = f"{len(words)} of {args.words} presses heard"
+    if words:
+        median, worst = statistics.median(words) * 1000, max(words) * 1000
+        print(
+            f"end of a spoken word -> utterance on the bus: median {median:.0f} ms, "
+            f"max {worst:.0f} ms ({heard})"
+        )
+    else:
+        print(f"end of a spoken word -> utterance on the bus: {heard}")
+
+
+def step_rates(
+    browser: Any, url: str, session: LoopbackSession, seconds: float
+) -> tuple[float, float]:
+    """The simulator's steps a second in lockstep with no page open, then with two."""
+    session.end("sim")
+    lockstep = ("--robot", "r1", "--clock", "lockstep", "--seed", "1")
+    session.add(session.service("sim", *lockstep, named="sim-lockstep"))
+    with Node("bench", session.client_config("steps")) as node:
+        node.input("obs", robot_key(session.session_id, "r1", "obs"))
+        time.sleep(3.0)  # the learner and the simulator find their pace
+        alone = step_rate(node, seconds)
+        pages = [open_page(browser, url, f"watch{i}") for i in range(2)]
+        watched = step_rate(node, seconds)
+        for context, _ in pages:
+            context.close()
+    return alone, watched
 
 
 if __name__ == "__main__":

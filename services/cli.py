@@ -80,12 +80,6 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
         "add_map_arguments",
         "map_command",
     ),
-    "bench": (
-        "measure and print performance figures",
-        "services.bench",
-        "add_arguments",
-        "run",
-    ),
     "status": (
         "list the nodes present in a session",
         "services.tools",

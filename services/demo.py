@@ -286,7 +286,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     mode = speech_mode(args.speech)
     session_id = prepare_environment(args, mode)
-    session = launcher.open_session(args)
+    session = launcher.local_session(args)
     simulated = not args.web or args.sim_teacher
     problem = _arrange_services(session, args, mode, simulated)
     if problem is not None:

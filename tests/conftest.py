@@ -17,6 +17,7 @@ import pytest
 
 from services.deploy.access import load_access
 from services.deploy.certs import make_all
+from services.launcher import router_command
 from services.runtime import BusConfig, Input, Node, Presence, bus_config
 from services.runtime import free_loopback_port as free_port
 from services.runtime.config import wait_for_loopback_port as wait_for_port
@@ -80,7 +81,7 @@ def router(spawn, session_id) -> str:
     """A real `voxshape router` on a free loopback port; returns its endpoint."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    spawn([VOXSHAPE, "router", "--session", session_id, "--node", "router", "--listen", endpoint])
+    spawn(router_command("--session", session_id, "--node", "router", "--listen", endpoint))
     wait_for_port(port)
     return endpoint
 
@@ -162,10 +163,10 @@ def secured(tmp_path, spawn) -> tuple[str, Path]:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     spawn(
-        [
-            *(VOXSHAPE, "router", "--session", "secured", "--node", "router"),
+        router_command(
+            *("--session", "secured", "--node", "router"),
             *("--secrets", str(tmp_path), "--access", str(access), "--listen", endpoint),
-        ]
+        )
     )
     wait_for_port(port)
     return endpoint, tmp_path

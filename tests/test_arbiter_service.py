@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import signal
 import subprocess
+import sys
 import time
 
 import msgpack
@@ -22,7 +23,7 @@ from protocol import (
 from services.arbiter.scripted import observation, utterance
 from services.runtime import Node
 from services.runtime.clock import ClockSyncError, sync_clock
-from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
+from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
 
 PERIOD = 0.05  # the fake simulator's step period
 SKEW = 5.0  # the teacher's clock is this far ahead
@@ -103,18 +104,20 @@ def test_bad_settings_are_a_clear_error():
 
 
 def test_the_benchmark_prints_latency_and_accuracy(tmp_path):
-    result = subprocess.run(
-        [VOXSHAPE, "bench", "arbiter", "--json", "--utterances", "40"],
-        capture_output=True,
-        text=True,
-        timeout=90,
-        cwd=tmp_path,
-    )
+    script = ROOT / "benchmarks" / "arbiter.py"
+    argv = [sys.executable, str(script), "--json", "--utterances", "40", "--seeds", "1"]
+    argv += ["--steps", "1500", "--delays", "0,1.7", "--skews=-5,5", "--jitters", "0"]
+    result = subprocess.run(argv, capture_output=True, text=True, timeout=90, cwd=tmp_path)
     assert result.returncode == 0, result.stderr
     figures = json.loads(result.stdout)
-    assert figures["lost"] == 0 and 0 < figures["latency_p50_ms"] <= figures["latency_p99_ms"]
-    assert figures["credit_within_one_step"]["delay=1.7s skew=+5s"] == 1.0
-    print({k: v for k, v in figures.items() if k.startswith("latency")})
+    latency = figures["latency"]
+    assert latency["lost"] == 0 and latency["latency_n"] == 40
+    assert 0 < latency["latency_p50_ms"] <= latency["latency_p99_ms"]
+    assert "max" in latency["summary"] and "(n=40)" in latency["summary"]  # 40: no p99
+    credit = {(r["delay_s"], r["skew_s"]): r for r in figures["credit"]}
+    assert len(credit) == 4 and credit[1.7, 5.0]["learnt_within_one_step"] == 1.0
+    assert credit[1.7, 5.0]["tamer_within_one_step"] == 0.0  # its fixed window misses it
+    print(latency)
 
 
 def test_sync_clock_says_when_no_arbiter_answers(client_config):

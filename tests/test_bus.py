@@ -16,6 +16,7 @@ import zenoh
 
 from protocol import MESSAGE_TYPES, session_keys, to_wire
 from protocol.examples import example_messages
+from services.launcher import router_command
 from services.runtime import BusError, Input, Node, Presence
 from services.tools import jsonable
 from tests.conftest import VOXSHAPE, bus_args, free_port, read_until
@@ -198,7 +199,7 @@ def test_unreachable_router_is_a_clear_error(session_id):
 
 def test_second_router_on_a_busy_port_is_a_clear_error(router, session_id):
     result = subprocess.run(
-        [VOXSHAPE, "router", "--session", session_id, "--listen", router],
+        router_command("--session", session_id, "--listen", router),
         capture_output=True,
         text=True,
         timeout=30,

@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 
+from benchmarks.speech import scoring
 from protocol import Observation, robot_key
 from services.runtime import Node
-from services.speech import bench
 from services.speech.cascade import CascadeRecognizer
 from services.speech.engines import open_recognizer
 from services.speech.recognizer import Recognition
@@ -24,7 +24,7 @@ from tests.test_faults import paced_sim, service
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_whisper import needs_whisper
 
-CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
+CLIPS = {c.path.name: c for c in scoring.load_clips(FIXTURES)}
 AUDIO = np.zeros(16000, dtype=np.int16)
 
 
@@ -81,7 +81,7 @@ def test_without_whisper_it_is_pocketsphinx_and_says_why(monkeypatch):
     assert isinstance(cascade, CascadeRecognizer) and cascade.second is None
     assert "pip install -e '.[whisper]'" in cascade.missing
     clip = CLIPS["en-voc-turn-left-kal-diphone.wav"]
-    assert bench.transcribe_clip(clip, cascade).heard == ["turn left"]
+    assert scoring.transcribe_clip(clip, cascade).heard == ["turn left"]
 
 
 @pytest.fixture(scope="module")
@@ -103,7 +103,7 @@ def cascade() -> CascadeRecognizer:
     ],
 )
 def test_the_cascade_hears_the_vocabulary(cascade, name):
-    outcome = bench.transcribe_clip(CLIPS[name], cascade)
+    outcome = scoring.transcribe_clip(CLIPS[name], cascade)
     assert outcome.heard == [CLIPS[name].text], outcome.recognized
 
 
@@ -119,7 +119,7 @@ def test_the_cascade_hears_the_vocabulary(cascade, name):
     ],
 )
 def test_the_cascade_refuses_what_is_not_in_the_vocabulary(cascade, name):
-    assert bench.transcribe_clip(CLIPS[name], cascade).heard == []
+    assert scoring.transcribe_clip(CLIPS[name], cascade).heard == []
 
 
 @needs_whisper
@@ -152,12 +152,15 @@ def test_the_suites_good_clip_is_understood_through_teach(
 
 @needs_whisper
 def test_the_speech_benchmark_measures_the_default_engine():
-    script = FIXTURES.parents[2] / "benchmarks" / "speech.py"
-    argv = [sys.executable, str(script), "--engine", "default", "--language", "en", "--json"]
-    result = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    argv = [sys.executable, "-m", "benchmarks.speech", "--engine", "default", "--language", "en"]
+    root = FIXTURES.parents[2]
+    result = subprocess.run(
+        [*argv, "--json"], capture_output=True, text=True, timeout=300, cwd=root
+    )
     assert result.returncode == 0, result.stderr
     (cascade, mock) = json.loads(result.stdout)["engines"]
     assert (cascade["engine"], mock["engine"]) == ("cascade", "mock")
     assert 0 < cascade["to_whisper_share"] < 1 and cascade["cpu_s"]["whisper"] > 0
     assert cascade["accuracy"] >= 0.9 and cascade["false_accept_rate"] <= 0.1
     assert 0 < cascade["latency_p50_s"] <= cascade["latency_p95_s"] < 2
+    assert cascade["latency_n"] > 0

@@ -1,4 +1,4 @@
-"""The chaos test: benchmarks/chaos.py's harness (benchmarks/harness.py) on a shorter session.
+"""The chaos test: benchmarks/chaos.py's harness (benchmarks/harness) on a shorter session.
 Two robots at 10x, a simulated teacher each, `voxshape up` restarting what dies; the learner,
 the speech service, the arbiter and the router each killed once (SIGKILL) and the simulator
 frozen once (SIGSTOP for 15 s, longer than zenoh's lease). Every word the arbiter understood

@@ -17,6 +17,7 @@ import yaml
 
 from services.deploy.access import find_access_file, load_access
 from services.deploy.certs import make_all, make_certificate
+from services.launcher import router_command
 from services.topology import load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until
 
@@ -132,7 +133,7 @@ def test_each_service_mounts_only_its_own_secrets(secrets, spawn, session_id, tm
     kit = secrets / "per-user"
     bus = ["--session", session_id, "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}"]
     router = ["--node", "router", "--secrets", str(kit / "router")]
-    spawn([VOXSHAPE, "router", "--session", session_id, *router, "--listen", bus[-1]])
+    spawn(router_command("--session", session_id, *router, "--listen", bus[-1]))
     spawn([VOXSHAPE, "sim", *bus, "--node", "sim", "--secrets", str(kit / "sim")])
     launcher = ["--secrets", str(kit / "launcher"), "--user", "launcher"]
     for _ in range(30):  # the simulator joins within a few seconds

@@ -7,8 +7,9 @@ import json
 
 import pytest
 
+from benchmarks.experiment import steps_per_second
 from services.cli import main
-from services.experiment import bench, distributed
+from services.experiment import distributed
 from services.experiment.inprocess import RunResult, RunSpec, run
 from services.experiment.paper import (
     PAPER_AVERAGE,
@@ -70,7 +71,7 @@ def test_the_reference_path_gives_the_same_runs():
 
 
 def test_the_experiment_benchmark_shares_the_time_among_the_cores():
-    figures = bench.steps_per_second([RunSpec("1", "rl+f", 0, max_episodes=1)], False)
+    figures = steps_per_second([RunSpec("1", "rl+f", 0, max_episodes=1)], False)
     assert figures["steps"] > 0 and figures["steps_per_s"] > 0
     shares = figures["shares"]
     assert set(shares) == {"simulator", "learner", "arbiter", "teacher", "rest"}

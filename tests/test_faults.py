@@ -44,6 +44,7 @@ from protocol import (
     to_wire,
 )
 from services.arbiter.scripted import utterance
+from services.launcher import router_command
 from services.runtime import Input, Node, bus_config, free_loopback_port
 from tests.conftest import VOXSHAPE, bus_args, collect, wait_for_port, wait_present
 from tests.strategies import messages
@@ -217,7 +218,7 @@ def test_a_killed_learner_resumes_from_its_checkpoint_and_loses_no_feedback(
 # -- the router killed and restarted -----------------------------------------------------------
 def start_router(spawn, session_id: str, endpoint: str) -> subprocess.Popen:
     proc = spawn(
-        [VOXSHAPE, "router", "--session", session_id, "--node", "router", "--listen", endpoint],
+        router_command("--session", session_id, "--node", "router", "--listen", endpoint),
         text=True,
         env=JSON_LOGS,
     )

@@ -22,6 +22,7 @@ import numpy as np
 import pexpect
 import pytest
 
+from services.launcher import router_command
 from services.runtime import free_loopback_port
 from tests.conftest import ROOT, VOXSHAPE
 
@@ -123,9 +124,11 @@ def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
     port = free_loopback_port()
     env = session_env(session_id, port)
     router_env = {k: v for k, v in env.items() if k != "VOXSHAPE_CONNECT"}
+    access = str(ROOT / "deploy" / "access.toml")
+    voxshape, *argv = router_command("--secrets", str(secrets), "--access", access)
     router = pexpect.spawn(
-        VOXSHAPE,
-        ["router", "--secrets", str(secrets), "--access", str(ROOT / "deploy" / "access.toml")],
+        voxshape,
+        argv,
         env={**router_env, "VOXSHAPE_LISTEN": env["VOXSHAPE_CONNECT"]},
         encoding="utf-8",
         timeout=30,

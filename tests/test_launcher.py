@@ -14,7 +14,13 @@ import pytest
 
 from protocol import CreditedFeedback, LearningSummary, robot_key
 from services.cli import parser
-from services.launcher import LocalSession, prepare_run, session_variables, without_simulator
+from services.launcher import (
+    LocalSession,
+    prepare_run,
+    router_command,
+    session_variables,
+    without_simulator,
+)
 from services.runtime import BusConfig, Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
@@ -214,7 +220,7 @@ def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
     """What the demo does to every service when no episode ends: each says where it is."""
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    argv = [VOXSHAPE, "router", "--session", session_id, "--listen", endpoint]
+    argv = router_command("--session", session_id, "--listen", endpoint)
     router = spawn(argv, text=True, stderr=subprocess.STDOUT)
     wait_for_port(port)
     router.send_signal(signal.SIGUSR1)

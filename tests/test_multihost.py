@@ -21,6 +21,7 @@ import pytest
 
 from services.deploy.access import find_access_file, load_access
 from services.deploy.certs import make_all
+from services.launcher import router_command
 from tests.conftest import ROOT, VOXSHAPE, read_until
 
 ROUTER_TO_SERVICES, SERVICES = "10.77.1.1", "10.77.1.2"
@@ -87,8 +88,7 @@ def test_a_typed_good_crosses_three_hosts_to_the_learner(hosts, spawn, session_i
     router = spawn(
         in_host(
             hosts["router"],
-            *(VOXSHAPE, "router", "--node", "router"),
-            *("--listen", "tcp/0.0.0.0:7447,tls/0.0.0.0:7448"),
+            *router_command("--node", "router", "--listen", "tcp/0.0.0.0:7447,tls/0.0.0.0:7448"),
         ),
         env=env,
         text=True,

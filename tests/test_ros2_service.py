@@ -19,6 +19,7 @@ import pytest
 import zenoh
 
 from protocol import Action, EpisodeEvent, Observation, robot_key
+from services.launcher import router_command
 from services.runtime import Node
 from services.runtime.config import wait_for_loopback_port
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port
@@ -223,7 +224,7 @@ def test_a_silent_robot_stops_it(spawn, router, session_id, learner_node):
 def test_the_session_s_router_lost_stops_it(spawn, session_id, client_config):
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
-    argv = [VOXSHAPE, "router", "--session", session_id, "--node", "router2", "--listen", endpoint]
+    argv = router_command("--session", session_id, "--node", "router2", "--listen", endpoint)
     own = spawn(argv)
     wait_for_loopback_port(port)
     robot = start_robot(spawn)

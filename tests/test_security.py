@@ -33,6 +33,7 @@ from services.deploy.access import (
     load_credentials,
 )
 from services.deploy.certs import make_all
+from services.launcher import router_command
 from services.runtime import BusConfig, BusError, ConfigError, Node, bus_config
 from services.runtime.node import open_session
 from tests.conftest import VOXSHAPE, collect, free_port, wait_for_port
@@ -68,11 +69,11 @@ def router(secrets) -> dict[str, str]:
     """A secured router: tcp/ (passwords) and tls/ (mutual TLS); its endpoints."""
     tcp, tls = f"tcp/127.0.0.1:{free_port()}", f"tls/127.0.0.1:{free_port()}"
     proc = subprocess.Popen(
-        [
-            *(VOXSHAPE, "router", "--session", SESSION, "--node", "router"),
+        router_command(
+            *("--session", SESSION, "--node", "router"),
             *("--secrets", str(secrets), "--access", str(secrets / "access.toml")),
             *("--listen", f"{tcp},{tls}", "--mtls"),
-        ],
+        ),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,

@@ -35,6 +35,7 @@ import zenoh
 from protocol import load_vocabulary, robot_key, teacher_key
 from services.deploy.access import load_access
 from services.deploy.certs import make_all
+from services.launcher import router_command
 from services.router import secured
 from services.runtime import ConfigError, bus_config
 from services.runtime.processes import end_process
@@ -217,19 +218,19 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
     router_b = sites.start(
         "b",
         "router-b",
-        [
-            *(VOXSHAPE, "router", "--session", session_id, "--node", "router-b"),
+        router_command(
+            *("--session", session_id, "--node", "router-b"),
             *("--listen", LOCAL, "--connect", f"tcp/{SITE_A}:{PORT}"),
-        ],
+        ),
     )
     sites.until(lambda: sites.says("router-b", "joined the bus"), 30, "router B up alone")
     sites.start(
         "a",
         "router-a",
-        [
-            *(VOXSHAPE, "router", "--session", session_id, "--node", "router-a"),
+        router_command(
+            *("--session", session_id, "--node", "router-a"),
             *("--listen", f"tcp/{SITE_A}:{PORT},{LOCAL}"),
-        ],
+        ),
     )
     sites.until(lambda: sites.says("router-a", "joined the bus"), 30, "router A up")
     sites.until(
@@ -411,7 +412,7 @@ def test_secured_sites_mesh_over_tls_with_one_kit(tmp_path, spawn, session_id):
     kit = tmp_path / "secrets"
     make_all(kit, load_access(access))
     a_tcp, a_tls, b_tcp = free_port(), free_port(), free_port()
-    router = (VOXSHAPE, "router", "--session", session_id, "--secrets", str(kit))
+    router = router_command("--session", session_id, "--secrets", str(kit))
     listen_a = f"tcp/127.0.0.1:{a_tcp},tls/127.0.0.1:{a_tls}"
     spawn([*router, "--node", "router-a", "--access", str(access), "--listen", listen_a])
     wait_for_port(a_tcp)

@@ -13,10 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.speech import scoring
 from protocol import AudioChunk, Said, Utterance, load_vocabulary
 from protocol.messages import SAMPLE_RATE
 from services.runtime.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
-from services.speech import bench
 from services.speech.mock import MockRecognizer, MockSettings
 from services.speech.recognizer import EngineError, Recognition
 from services.speech.segmenter import Segmenter, SegmenterConfig
@@ -120,7 +120,7 @@ def test_a_noise_floor_that_rises_is_not_taken_for_speech():
 
 
 def test_recorded_noisy_speech_is_found_where_it_is():
-    noisy = [c for c in bench.load_clips(FIXTURES) if c.noise != "none"]
+    noisy = [c for c in scoring.load_clips(FIXTURES) if c.noise != "none"]
     assert noisy
     for clip in noisy:
         segments, _ = segment_all(read_wav(clip.path))
@@ -213,7 +213,7 @@ def test_odd_byte_counts_are_an_audio_error():
 
 
 def test_fixtures_are_small_16k_mono_and_listed():
-    clips = bench.load_clips(FIXTURES)
+    clips = scoring.load_clips(FIXTURES)
     assert len(clips) >= 30
     total = 0
     for clip in clips:
@@ -232,7 +232,7 @@ def pocketsphinx_report() -> dict:
     from services.speech.pocketsphinx_engine import PocketsphinxRecognizer
 
     recognizer = PocketsphinxRecognizer(VOCABULARY, "en")
-    report = bench.run(bench.load_clips(FIXTURES), recognizer)
+    report = scoring.run(scoring.load_clips(FIXTURES), recognizer)
     return report.summary(VOCABULARY)
 
 
@@ -303,7 +303,7 @@ def test_the_full_plan_holds_out_voices_words_and_conditions():
 
 
 def test_old_manifests_load_as_tuning_clips_with_conditions_from_their_noise():
-    clips = bench.load_clips(FIXTURES) + bench.load_clips(FIXTURES / "ko")
+    clips = scoring.load_clips(FIXTURES) + scoring.load_clips(FIXTURES / "ko")
     assert {c.split for c in clips} == {"tune"}
     assert {c.condition for c in clips} == {
         "clean", "white 10 dB", "white 15 dB", "pink 10 dB", "pink 15 dB"
@@ -324,27 +324,27 @@ class Says:
 
 
 def test_latency_runs_from_the_end_of_speech_and_conditions_get_quiet_around():
-    clip = next(c for c in bench.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
+    clip = next(c for c in scoring.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
     for condition in ("clean", "telephone", "reverb", "level -30 dBFS"):
-        samples, offset = bench.as_stream(dataclasses.replace(clip, condition=condition))
-        assert offset == bench.QUIET_S and len(samples) > 2 * bench.QUIET_S * SAMPLE_RATE
-    outcome = bench.transcribe_clip(clip, Says("good"))
+        samples, offset = scoring.as_stream(dataclasses.replace(clip, condition=condition))
+        assert offset == scoring.QUIET_S and len(samples) > 2 * scoring.QUIET_S * SAMPLE_RATE
+    outcome = scoring.transcribe_clip(clip, Says("good"))
     assert outcome.heard == ["good"]
     # the segmenter waits out its hangover (0.3 s) before it gives the utterance out
     assert 0.25 <= outcome.latency_s <= 0.5
-    assert bench.transcribe_clip(clip, Says(None)).latency_s is None
+    assert scoring.transcribe_clip(clip, Says(None)).latency_s is None
 
 
 def test_the_benchmark_counts_what_passes_the_arbiters_confidence_gate():
-    clip = next(c for c in bench.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
+    clip = next(c for c in scoring.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
 
     class Unsure(Says):
         def recognize(self, samples):
             return Recognition(self.text, 0.3)
 
-    outcome = bench.transcribe_clip(clip, Unsure("good"))
+    outcome = scoring.transcribe_clip(clip, Unsure("good"))
     assert outcome.heard == [] and outcome.recognized == [("good", 0.3)]
-    summary = bench.Report("stub", "en", [outcome]).summary(VOCABULARY)
+    summary = scoring.Report("stub", "en", [outcome]).summary(VOCABULARY)
     assert summary["accuracy"] == 0.0
     assert summary["calibration"]["tune"] == {"0.25": {"n": 1, "right": 1, "share": 1.0}}
 
@@ -352,10 +352,10 @@ def test_the_benchmark_counts_what_passes_the_arbiters_confidence_gate():
 def test_the_summary_reports_each_split_condition_voice_and_false_accept():
     def outcome(text, heard, split="tune", condition="clean", voice="en-us", kind="vocabulary",
                 language="en", latency=0.4):  # fmt: skip
-        clip = bench.Clip(
+        clip = scoring.Clip(
             Path("x.wav"), text, language, kind, voice, "none", 0.0, 0.0, 1.0, condition, split
         )
-        return bench.Outcome(clip, heard, 0.01, 0.01, 1.0, latency if heard else None)
+        return scoring.Outcome(clip, heard, 0.01, 0.01, 1.0, latency if heard else None)
 
     outcomes = [
         outcome("good", ["good"]),
@@ -372,7 +372,7 @@ def test_the_summary_reports_each_split_condition_voice_and_false_accept():
         outcome("terrible", ["terrible"], language="es"),  # also English: not counted
         outcome("bien", ["left"], language="es", split="held-out"),  # another meaning: outside
     ]
-    report = bench.Report("stub", "en", outcomes)
+    report = scoring.Report("stub", "en", outcomes)
     s = report.summary(VOCABULARY)
     assert (s["accuracy"], s["meaning_accuracy"]) == (0.5, 0.75)
     assert (s["held_out_accuracy"], s["held_out_meaning_accuracy"]) == (0.5, 0.5)
@@ -389,7 +389,7 @@ def test_the_summary_reports_each_split_condition_voice_and_false_accept():
     assert s["per_word_accuracy"]["en:left"] == {"tune": None, "held-out": 0.5}
     assert s["latency_p50_s"] == 0.4 and 0.6 < s["latency_p95_s"] < 0.8  # of those heard
     # the Spanish engine's headline is Spanish
-    spanish = bench.Report("stub", "es", outcomes).summary(VOCABULARY)
+    spanish = scoring.Report("stub", "es", outcomes).summary(VOCABULARY)
     assert spanish["accuracy"] == 0.5 and spanish["held_out_accuracy"] == 0.0
     assert spanish["false_accepts"]["tune"]["other language"]["n"] == 6
 

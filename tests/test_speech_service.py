@@ -14,11 +14,11 @@ from dataclasses import replace
 import msgpack
 import pytest
 
+from benchmarks.speech.scoring import load_clips
 from protocol import AudioChunk, Utterance, teacher_key, to_wire
 from protocol.messages import SAMPLE_RATE
 from services.runtime import Node
 from services.runtime.audio import read_wav
-from services.speech.bench import load_clips
 from tests.conftest import VOXSHAPE, bus_args, collect, quiet
 from tests.test_speech import FIXTURES
 

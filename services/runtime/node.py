@@ -116,7 +116,7 @@ class Node:
         protocol/dataflow.py says.
 
         Express: each message leaves at once rather than waiting to be batched. Every
-        voxshape message is small and latency-bound; `voxshape bench sim` measured no
+        voxshape message is small and latency-bound; `benchmarks/sim.py` measured no
         difference in lockstep speed either way (the round trip is Python-bound)."""
         self.declare("publishes", key)
         if keep is None:

@@ -8,13 +8,13 @@ vocabulary word is not lost to its own near-homophones. Tried on synthesized
 speech while building this (one-off scripts, not kept): keyword spotting with per-phrase
 thresholds, a free phone loop as garbage path, and score ratios against a phone decoder all
 rejected worse at the same accuracy; the phone loop was also 2-7x slower. The trade-off of
-the number of distractors is measured by `benchmarks/speech.py` (docs/speech.md#accuracy).
+the number of distractors is measured by `python -m benchmarks.speech` (docs/speech.md#accuracy).
 
 The confidence is calibrated. The lattice posterior of the phrase hardly tells right from
 wrong: the arbiter's gate of 0.5 dropped 27 phrases of the tuning split's vocabulary speech,
 22 of them right, and the clean accuracy a teacher meets fell from 0.786 to 0.726.
 So the posterior is mapped to the share of phrases recognized right at that posterior on the
-tuning split (`PRECISION_BY_POSTERIOR`; `benchmarks/speech.py --raw-confidence --split tune`
+tuning split (`PRECISION_BY_POSTERIOR`; `python -m benchmarks.speech --raw-confidence --split tune`
 prints the table). Rejection stays the distractors' job.
 
 Digital silence (exact zeros, as synthesized or gated audio has) derails pocketsphinx's

@@ -1,26 +1,29 @@
-"""`voxshape bench sim`: the simulator's speed, in one process and over the bus."""
+"""The simulator's speed: steps a second in one process, and in lockstep over the bus (a
+`voxshape sim --clock lockstep` process answered by this one, both clients of the router of a
+LoopbackSession, as in a local session), with the median time from an action sent to the
+next observation received.
+
+    .venv/bin/python benchmarks/sim.py [--task 1] [--steps 3000] [--json]
+"""
 
 from __future__ import annotations
 
 import argparse
 import json
 import statistics
-import subprocess
 import sys
+import tempfile
 import time
 import uuid
-from dataclasses import replace
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
 from protocol import Action, Observation, robot_key
-from services.runtime import Input, Node, Output, bus_config, free_loopback_port
+from services.launcher import LoopbackSession
+from services.runtime import Input, Node, Output
 from services.sim.task import SimConfig, Simulation
 from services.world.maps import load_map
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--task", default="1")
-    parser.add_argument("--steps", type=int, default=3000, help="steps measured per figure")
 
 
 def policy(obs_laser: tuple[float, ...] | list[float]) -> tuple[float, float]:
@@ -42,37 +45,27 @@ def in_process(task: str, steps: int) -> float:
     return steps / elapsed
 
 
-def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float]:
+def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float, int]:
     """Steps per second of a `voxshape sim --clock lockstep` process answered by this one,
-    both peers of a router process, as in a local session; and the median seconds from an
-    action sent to the next observation received."""
-    session = f"bench{uuid.uuid4().hex[:8]}"
-    router = f"tcp/127.0.0.1:{free_loopback_port()}"
-    voxshape = str(Path(sys.executable).parent / "voxshape")
-    children = [_quiet([voxshape, "router", "--session", session, "--listen", router])]
-    try:
-        config = replace(bus_config("bench"), session=session, connect=(router,))
-        with Node("bench", config, quiet=True) as node:
-            node.input("obs", robot_key(session, "r1", "obs"))
-            act = node.output("action", robot_key(session, "r1", "action"))
-            sim = [voxshape, "sim", "--session", session, "--connect", router, "--task", task]
-            sim += ["--clock", "lockstep", "--max-steps", str(warmup + steps)]
-            children.append(_quiet([*sim, "--action-timeout", "5", "--seed", "0"]))
-            return _answer(node, act, warmup, steps)
-    finally:
-        for child in reversed(children):
-            child.terminate()
-            child.wait(10)
+    both clients of a router process, as in a local session; the median seconds from an
+    action sent to the next observation received, and of how many."""
+    sim = ["--task", task, "--clock", "lockstep", "--max-steps", str(warmup + steps)]
+    sim += ["--action-timeout", "5", "--seed", "0"]
+    with (
+        tempfile.TemporaryDirectory(prefix="voxshape-bench-sim-") as logs,
+        LoopbackSession(f"bench{uuid.uuid4().hex[:8]}", logs=Path(logs)) as session,
+        Node("bench", session.client_config("bench"), quiet=True) as node,
+    ):
+        node.input("obs", robot_key(session.session_id, "r1", "obs"))
+        act = node.output("action", robot_key(session.session_id, "r1", "action"))
+        session.add(session.service("sim", *sim))
+        return _answer(node, act, warmup, steps)
 
 
-def _quiet(command: list[str]) -> subprocess.Popen:
-    """A child process whose output is discarded."""
-    return subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-
-
-def _answer(node: Node, act: Output, warmup: int, steps: int) -> tuple[float, float]:
+def _answer(node: Node, act: Output, warmup: int, steps: int) -> tuple[float, float, int]:
     """Answers the simulator's observations with the policy's actions: steps per second after
-    `warmup` steps, and the median seconds from an action sent to the next observation."""
+    `warmup` steps, the median seconds from an action sent to the next observation, and the
+    number of such samples."""
     answered, t0, sent_at = 0, 0.0, None
     step_times: list[float] = []  # action sent -> next observation received
     deadline = time.monotonic() + 120
@@ -93,7 +86,8 @@ def _answer(node: Node, act: Output, warmup: int, steps: int) -> tuple[float, fl
             t0 = time.perf_counter()
     if answered < warmup + steps:
         raise RuntimeError(f"the simulator answered only {answered} steps in 120 s")
-    return steps / (time.perf_counter() - t0), statistics.median(step_times)
+    rate = steps / (time.perf_counter() - t0)
+    return rate, statistics.median(step_times), len(step_times)
 
 
 def _action(obs: Observation) -> Action:
@@ -110,10 +104,15 @@ def _action(obs: Observation) -> Action:
     )
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def main() -> int:
     """The simulator's figures: steps a second in one process and in lockstep over the bus."""
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--task", default="1")
+    parser.add_argument("--steps", type=int, default=3000, help="steps measured per figure")
+    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    args = parser.parse_args()
     local = in_process(args.task, args.steps)
-    bus, round_trip = bus_lockstep(args.task, args.steps)
+    bus, round_trip, samples = bus_lockstep(args.task, args.steps)
     result = {
         "task": args.task,
         "steps": args.steps,
@@ -123,7 +122,8 @@ def bench_command(args: argparse.Namespace) -> int:
         "bus_over_in_process": round(bus / local, 3),
         "in_process_step_ms": round(1000 / local, 3),
         "bus_action_to_next_obs_ms_p50": round(1000 * round_trip, 3),
-        "topology": "sim and policy processes, peers of a router process, loopback",
+        "bus_action_to_next_obs_n": samples,
+        "topology": "sim and policy processes, clients of a router process, loopback",
     }
     if args.json:
         print(json.dumps(result))
@@ -131,3 +131,7 @@ def bench_command(args: argparse.Namespace) -> int:
         for key, value in result.items():
             print(f"{key:<26} {value}")
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,10 +1,10 @@
 """The speech engines on WAV fixtures: accuracy, false accepts, latency, real-time factor.
 
-    .venv/bin/python benchmarks/speech.py                            # the committed fixtures
-    .venv/bin/python benchmarks/speech.py --synthesize /tmp/speech   # the larger set first
-    .venv/bin/python benchmarks/speech.py --fixtures DIR --split tune --language es
-    .venv/bin/python benchmarks/speech.py --fixtures DIR --markdown  # docs/speech.md's tables
-    .venv/bin/python benchmarks/speech.py --fixtures DIR --engine default  # what runs by default
+    .venv/bin/python -m benchmarks.speech                            # the committed fixtures
+    .venv/bin/python -m benchmarks.speech --synthesize /tmp/speech   # the larger set first
+    .venv/bin/python -m benchmarks.speech --fixtures DIR --split tune --language es
+    .venv/bin/python -m benchmarks.speech --fixtures DIR --markdown  # docs/speech.md's tables
+    .venv/bin/python -m benchmarks.speech --fixtures DIR --engine default  # what runs by default
 
 --synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng, sox and
 festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
@@ -35,11 +35,11 @@ import time
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.speech import scoring  # noqa: E402
 from protocol import Vocabulary, load_vocabulary  # noqa: E402
-from services.speech import bench  # noqa: E402
 from services.speech.engines import open_recognizer  # noqa: E402
 from services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
 from services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
@@ -61,10 +61,10 @@ def main() -> int:
     args = _parser().parse_args()
     folder, synthesis_s = _fixtures(args)
     vocabulary = load_vocabulary()
-    clips = [c for c in bench.load_clips(folder) if args.split in ("all", c.split)]
+    clips = [c for c in scoring.load_clips(folder) if args.split in ("all", c.split)]
     results = _measure_engines(args, vocabulary, clips)
     mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
-    summary = bench.run_mock(clips, mock).summary(vocabulary)
+    summary = scoring.run_mock(clips, mock).summary(vocabulary)
     summary["error_rate_setting"] = args.mock_error_rate
     results.append(summary)
     _print_results(args, folder, synthesis_s, clips, results)
@@ -110,7 +110,7 @@ def _fixtures(args: argparse.Namespace) -> tuple[Path, float | None]:
 
 
 def _measure_engines(
-    args: argparse.Namespace, vocabulary: Vocabulary, clips: list[bench.Clip]
+    args: argparse.Namespace, vocabulary: Vocabulary, clips: list[scoring.Clip]
 ) -> list[dict]:
     """Each engine asked for on the clips, with the seconds it took to load and to run; one
     that cannot be opened is skipped, said on stderr, as is vosk without a model."""
@@ -134,7 +134,7 @@ def _measure_engines(
             print(f"{engine} ({language}): skipped: {e}", file=sys.stderr)
             continue
         t0 = time.perf_counter()
-        summary = bench.run(clips, recognizer).summary(vocabulary)
+        summary = scoring.run(clips, recognizer).summary(vocabulary)
         summary["load_s"], summary["run_s"] = round(load_s, 2), round(time.perf_counter() - t0)
         if stats := getattr(recognizer, "stats", None):  # the cascade's
             summary["to_whisper_share"] = round(stats.to_whisper / max(1, stats.utterances), 3)
@@ -148,7 +148,7 @@ def _print_results(
     args: argparse.Namespace,
     folder: Path,
     synthesis_s: float | None,
-    clips: list[bench.Clip],
+    clips: list[scoring.Clip],
     results: list[dict],
 ) -> None:
     """One JSON object (--json), or a line on the clips and each engine's tables."""
@@ -175,7 +175,8 @@ def _headline(r: dict) -> str:
         f"{language} of the tuning voices, {_f(r['held_out_accuracy'])} "
         f"({_f(r['held_out_meaning_accuracy'])}) of the held-out ones; false accepts "
         f"{_f(r['false_accept_rate'])} tune, {_f(r['held_out_false_accept_rate'])} held out; "
-        f"latency p50 {_f(r['latency_p50_s'])} s, p95 {_f(r['latency_p95_s'])} s; "
+        f"latency p50 {_f(r['latency_p50_s'])} s, p95 {_f(r['latency_p95_s'])} s "
+        f"(n={r['latency_n']}); "
         f"real-time factor {r['realtime_factor']}; onset error p50 {r['onset_error_p50_s']} s"
     )
 
@@ -225,19 +226,22 @@ def print_markdown(r: dict) -> None:
         for split, name, g in _rows(r, table):
             figures = (g["accuracy"], g["meaning_accuracy"], g["accept_rate"])
             print(f"| {split} | {name} | {g['n']} | " + " | ".join(map(_f, figures)) + " |")
-    kinds = ["unrelated", "near", bench.OTHER_LANGUAGE]
+    kinds = ["unrelated", "near", scoring.OTHER_LANGUAGE]
     print(f"\n| false accepts | {' | '.join(kinds)} |\n|---|---|---|---|")
     for split, found in [(s, f) for s, f in r["false_accepts"].items() if f]:
         cells = [_share(found[k]) if k in found else "-" for k in kinds]
         print(f"| {split} | {' | '.join(cells)} |")
     if r["language"] is None:
         return  # the mock takes text: no latency, and its per-phrase figures are its dice
-    print("\n| latency p50 | latency p95 | real-time factor | onset error p50 |\n|---|---|---|---|")
     print(
-        f"| {_f(r['latency_p50_s'])} s | {_f(r['latency_p95_s'])} s | "
+        "\n| latency p50 | latency p95 | utterances | real-time factor | onset error p50 |\n"
+        "|---|---|---|---|---|"
+    )
+    print(
+        f"| {_f(r['latency_p50_s'])} s | {_f(r['latency_p95_s'])} s | {r['latency_n']} | "
         f"{r['realtime_factor']} | {_f(r['onset_error_p50_s'])} s |"
     )
-    bands = list(bench.CONFIDENCE_BANDS)
+    bands = list(scoring.CONFIDENCE_BANDS)
     print(f"\n| recognized with confidence from | {' | '.join(map(str, bands))} |")
     print("|---" * (len(bands) + 1) + "|")
     for split, found in [(s, f) for s, f in r["calibration"].items() if f]:

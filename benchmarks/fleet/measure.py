@@ -1,8 +1,10 @@
-"""benchmarks/fleet.py's figures: the window's CPU reading, a point's figures and its limit.
+"""The fleet's figures: the window's CPU reading, a point's figures and its limit.
 
 `measure()` waits out the warm-up and the window and reads the CPU and memory of every
 process; `results()` makes a point's figures of that reading, of what the probe saw
-(fleet_probe.Window) and of the browsers' records; `limit()` names what ran out first.
+(benchmarks/probe.py's Window) and of the browsers' records; `limit()` names what ran out
+first. Each latency's percentiles come with their sample count (`..._n`): a p99 of fewer than
+100 samples is their maximum.
 """
 
 from __future__ import annotations
@@ -10,7 +12,6 @@ from __future__ import annotations
 import argparse
 import bisect
 import contextlib
-import math
 import os
 import time
 from collections import Counter, defaultdict
@@ -18,11 +19,12 @@ from typing import TYPE_CHECKING, Any
 
 import psutil
 
+from benchmarks.common import percentile
 from services.speech.transcriber import heard_id
 
 if TYPE_CHECKING:
-    from benchmarks.fleet_probe import Window
-    from benchmarks.fleet_session import Fleet
+    from benchmarks.fleet.session import Fleet
+    from benchmarks.probe import Window
 
 RATE_HZ = 10.0  # the robots' control rate at real time
 ACTION_VALID_S = 0.5  # voxshape sim, paced: an action older than this stops the robot
@@ -37,10 +39,19 @@ Word = tuple[str, float, float | None, float | None]
 
 
 def pct(values: list[float], q: float) -> float | None:
-    if not values:
-        return None
-    ordered = sorted(values)
-    return round(ordered[min(len(ordered) - 1, math.ceil(q / 100 * len(ordered)) - 1)], 1)
+    """The nearest-rank percentile, in tenths (None: no values)."""
+    found = percentile(values, q)
+    return None if found is None else round(found, 1)
+
+
+def latency(name: str, values: list[float]) -> dict[str, Any]:
+    """`name`_p50_ms and `name`_p99_ms of `values` (ms), and `name`_n, how many there were:
+    the p99 of fewer than 100 is their maximum."""
+    return {
+        f"{name}_p50_ms": pct(values, 50),
+        f"{name}_p99_ms": pct(values, 99),
+        f"{name}_n": len(values),
+    }
 
 
 # -- the CPU reading ----------------------------------------------------------------------------
@@ -92,9 +103,7 @@ def measure(fleet: Fleet, args: argparse.Namespace) -> tuple[dict, CpuMeter, flo
     t0 = time.time()
     deadline = time.monotonic() + args.seconds
     while time.monotonic() < deadline:
-        for name, proc in fleet.procs.items():
-            if proc.poll() is not None:
-                raise RuntimeError(f"{name} ended ({proc.returncode}) during the window")
+        fleet.session.check_children()  # ServiceDied if one ended, with the end of its log
         time.sleep(min(0.5, max(0.0, deadline - time.monotonic())))
     cpu, rss, machine = meter.read()
     return {"cpu": cpu, "rss": rss, "machine": machine}, meter, t0, time.time()
@@ -156,8 +165,7 @@ def _robot_figures(window: Window) -> dict[str, Any]:
         "robot_rates_hz": rates,
         "min_obs_received_share": min(received.values()) if received else 0.0,
         "steps_without_action_share": round(sum(stale.values()) / steps, 4),
-        "obs_to_action_p50_ms": pct(window.lags, 50),
-        "obs_to_action_p99_ms": pct(window.lags, 99),
+        **latency("obs_to_action", window.lags),
     }
 
 
@@ -244,10 +252,8 @@ def _word_figures(words: list[Word], refused: Counter[str]) -> dict[str, Any]:
         "words_understood": sum(1 for w in words if w[2] is not None),
         "words_lost": sum(1 for w in words if w[2] is None),
         "words_not_understood_why": dict(refused),
-        "word_to_notice_p50_ms": pct(to_notice, 50),
-        "word_to_notice_p99_ms": pct(to_notice, 99),
-        "word_to_feedback_p50_ms": pct(to_feedback, 50),
-        "word_to_feedback_p99_ms": pct(to_feedback, 99),
+        **latency("word_to_notice", to_notice),
+        **latency("word_to_feedback", to_feedback),
         "words_without_feedback": sum(1 for w in words if w[2] is not None and w[3] is None),
         "words_by_teacher_kind": _by_kind(words),
     }
@@ -261,10 +267,8 @@ def _by_kind(words: list[Word]) -> dict[str, dict[str, Any]]:
         by_kind[kind] = {
             "said": len(mine),
             "lost": sum(1 for w in mine if w[2] is None),
-            "to_notice_p50_ms": pct([(w[2] - w[1]) * 1000 for w in mine if w[2]], 50),
-            "to_notice_p99_ms": pct([(w[2] - w[1]) * 1000 for w in mine if w[2]], 99),
-            "to_feedback_p50_ms": pct([(w[3] - w[1]) * 1000 for w in mine if w[3]], 50),
-            "to_feedback_p99_ms": pct([(w[3] - w[1]) * 1000 for w in mine if w[3]], 99),
+            **latency("to_notice", [(w[2] - w[1]) * 1000 for w in mine if w[2]]),
+            **latency("to_feedback", [(w[3] - w[1]) * 1000 for w in mine if w[3]]),
         }
     return by_kind
 
@@ -277,12 +281,9 @@ def _frame_figures(
     ages = [f[1] for f in frames]
     hops = [f[2] for f in frames]
     return {
-        "frame_age_p50_ms": pct(ages, 50),
-        "frame_age_p99_ms": pct(ages, 99),
-        "frame_sim_to_gateway_p50_ms": pct([f[1] - f[2] for f in frames], 50),
-        "frame_sim_to_gateway_p99_ms": pct([f[1] - f[2] for f in frames], 99),
-        "frame_gateway_to_page_p50_ms": pct(hops, 50),
-        "frame_gateway_to_page_p99_ms": pct(hops, 99),
+        **latency("frame_age", ages),
+        **latency("frame_sim_to_gateway", [f[1] - f[2] for f in frames]),
+        **latency("frame_gateway_to_page", hops),
         "frames_per_browser_s": round(len(frames) / browsers / seconds, 1) if browsers else None,
         "frames_expected_per_browser_s": RATE_HZ * robots if browsers else None,
     }

@@ -256,7 +256,8 @@ class Report:
         return tallies
 
     def _speed(self) -> dict[str, float | None]:
-        """The real-time factor, the segmenter's onset error and the latency."""
+        """The real-time factor, the segmenter's onset error and the latency (with how many
+        utterances it is of)."""
         spent = sum(o.recognize_s for o in self.outcomes)
         audio = sum(o.audio_s for o in self.outcomes)
         onsets = [abs(o.onset_error_s) for o in self.outcomes if o.onset_error_s is not None]
@@ -266,6 +267,7 @@ class Report:
             "onset_error_p50_s": _percentile(onsets, 50),
             "latency_p50_s": _percentile(latencies, 50),
             "latency_p95_s": _percentile(latencies, 95),
+            "latency_n": len(latencies),
         }
 
 

@@ -1,4 +1,4 @@
-"""benchmarks/fleet.py's profiles of the limiting process.
+"""The fleet's profile of the limiting process (`Profiler`: of which point, of which process).
 
 py-spy `--gil` on the live process where py-spy is installed, else cProfile of an in-process
 equivalent of one tick of the simulator, the learner, the arbiter or the page's gateway,
@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from benchmarks.fleet_measure import RATE_HZ
+from benchmarks.fleet.measure import RATE_HZ
 from protocol import Action, Observation, decode, encode, load_vocabulary
 
 TICKS = 200  # the equivalent's ticks
@@ -243,3 +243,38 @@ def _web_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]
 
 # The processes with an equivalent: the work of TICKS ticks of each
 WORKS = {"sim": _sim_work, "learner": _learner_work, "arbiter": _arbiter_work, "web": _web_work}
+
+
+class Profiler:
+    """Profiles the limiting process of the first point where something ran out (or of the
+    last point): py-spy on the live process; with no py-spy, noted for an in-process
+    profile at the end. `index` and `last`: the point being measured."""
+
+    def __init__(self, seconds: float, workdir: Path, py_spy: str | None) -> None:
+        self.seconds, self.workdir, self.py_spy = seconds, workdir, py_spy
+        self.index, self.last = 0, False  # where the point will be among those measured
+        self.profiled = False
+        self.equivalent: tuple[str, int] | None = None  # (process, index) for the end
+
+    def __call__(self, point: dict[str, Any], pids: dict[str, int]) -> str | None:
+        """py-spy on the limiting process, of the first point where something ran out (or
+        the last point); with no py-spy, noted for an in-process profile at the end."""
+        if self.profiled or self.seconds <= 0 or not (point["limit"]["ran_out"] or self.last):
+            return None
+        self.profiled = True
+        process = point["limit"]["process"]
+        pid = pids.get(process)
+        if self.py_spy is None or pid is None:
+            self.equivalent = (process, self.index)
+            return None
+        print(f"  py-spy on {process} (pid {pid}) for {self.seconds:g} s", file=sys.stderr)
+        out = self.workdir / f"py-spy-{process}.txt"
+        return f"{process}: " + py_spy_profile(self.py_spy, pid, self.seconds, out)
+
+    def add_equivalent(self, done: list[dict[str, Any]], task: str) -> None:
+        """The in-process profile noted, into its point."""
+        if self.equivalent is None:
+            return
+        process, index = self.equivalent
+        text = equivalent_profile(process, done[index], task) if index < len(done) else None
+        done[index]["profile"] = text or f"{process}: no profile available for it"

@@ -1,4 +1,4 @@
-"""`voxshape bench experiment`: how fast the in-process run is, against its reference path.
+"""How fast the in-process run is, against its reference path.
 
 Two figures, each measured for the fast path and the reference path (full numpy scans, a
 PyBullet contact query at every sub-step: `run(spec, reference=True)`) in the same sitting,
@@ -9,15 +9,21 @@ so their ratio holds on a noisy machine:
   the runs of one task;
 - the wall time of a small paper experiment (every task and setting, `--seeds` seeds) in
   `--workers` processes, and whether both paths gave the same runs.
+
+    .venv/bin/python benchmarks/experiment.py [--seeds 1] [--workers 2] [--json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from services.arbiter.arbiter import Arbiter
 from services.experiment.inprocess import SETTINGS, RunSpec, run
@@ -34,14 +40,13 @@ CORES = {  # the methods the run calls of each core (none calls another's)
 }
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--seeds", type=int, default=1, help="experiment: seeds of the timed paper experiment"
-    )
-    parser.add_argument("--workers", type=int, default=2, help="experiment: processes")
-    parser.add_argument(
-        "--share-task", default="1", help="experiment: the task whose runs give the shares"
-    )
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=(__doc__ or "").split("\n\n")[0])
+    parser.add_argument("--seeds", type=int, default=1, help="seeds of the timed experiment")
+    parser.add_argument("--workers", type=int, default=2, help="processes")
+    parser.add_argument("--share-task", default="1", help="the task whose runs give the shares")
+    parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
+    return parser
 
 
 @contextmanager
@@ -87,7 +92,8 @@ def steps_per_second(specs: list[RunSpec], reference: bool) -> dict:
     }
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def main() -> int:
+    args = _parser().parse_args()
     share_specs = [RunSpec(args.share_task, setting, 0) for setting in SETTINGS]
     specs = [
         RunSpec(task, setting, seed)
@@ -136,3 +142,7 @@ def bench_command(args: argparse.Namespace) -> int:
     ratios = result["steps_per_s_ratio"], result["wall_time_ratio"]
     print(f"fast / reference: {ratios[0]}x steps/s, {ratios[1]}x wall time")
     return 0 if e["same_runs"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,11 +1,11 @@
-"""benchmarks/fleet.py's teachers: the simulated people and the browsers.
+"""The fleet's teachers: the simulated people and the browsers.
 
 A simulated person is `voxshape sim-teacher` (its default profile). A browser is a WebSocket
 client of the page's gateway speaking the page's own protocol (services/teacher/web/static/
 net.js and app.js): log in, clock probes, `watch` its robot, read every map frame, press a
-word button now and then. The browsers run in processes of the harness (`fleet.py
---browser-client`), at most BROWSERS_PER_PROCESS in each, each writing what it saw to a JSON
-file when it ends.
+word button now and then. The browsers run in processes of the harness (`python -m
+benchmarks.fleet --browser-client`), at most BROWSERS_PER_PROCESS in each, each writing what
+it saw to a JSON file when it ends.
 """
 
 from __future__ import annotations
@@ -23,9 +23,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from benchmarks.harness import VOXSHAPE
-
-ENTRY = Path(__file__).resolve().with_name("fleet.py")  # runs the browsers: --browser-client
 BROWSERS_PER_PROCESS = 10
 LOGINS_AT_ONCE = 4  # the gateway lets 8 sockets an address wait to log in
 # The page's word buttons (services/teacher/web/static/words.js)
@@ -34,23 +31,21 @@ MEANINGS += ("right",)
 
 
 # -- starting them ----------------------------------------------------------------------------
-def sim_teacher_argv(teacher: str, robot: str, seed: int) -> list[str]:
-    """A simulated person teaching `robot`, as node `teacher`."""
-    argv = [VOXSHAPE, "sim-teacher", "--robot", robot, "--teacher", teacher]
-    argv += ["--node", teacher, "--seed", str(seed)]
-    return argv
+def sim_teacher_command(teacher: str, robot: str, seed: int) -> list[str]:
+    """A simulated person, `teacher`, teaching `robot`."""
+    return ["voxshape", "sim-teacher", "--robot", robot, "--teacher", teacher, "--seed", str(seed)]
 
 
 def browser_processes(
     browsers: list[tuple[str, str]], web_port: int, workdir: Path, word_every: float, seed: int
 ) -> list[tuple[str, list[str]]]:
     """The processes for the (teacher, robot) browsers, BROWSERS_PER_PROCESS in each: name
-    and argv of each."""
+    and argv of each (run with the checkout on their PYTHONPATH: common.checkout_environment())."""
     out = []
     for i in range(0, len(browsers), BROWSERS_PER_PROCESS):
         group = browsers[i : i + BROWSERS_PER_PROCESS]
         name = f"browsers-{i // BROWSERS_PER_PROCESS + 1}"
-        argv = [sys.executable, str(ENTRY), "--browser-client"]
+        argv = [sys.executable, "-m", "benchmarks.fleet", "--browser-client"]
         argv += ["--url", f"ws://127.0.0.1:{web_port}/ws"]
         argv += ["--assign", ",".join(f"{t}={r}" for t, r in group)]
         argv += ["--word-every", f"{word_every:g}", "--seed", str(seed + i)]
