@@ -10,14 +10,10 @@ import pytest
 from services.cli import main
 from services.experiment import bench, distributed
 from services.experiment.inprocess import RunResult, RunSpec, run
-from services.experiment.paper import (
-    PAPER_AVERAGE,
-    mean_ci,
-    paper_average,
-    report,
-    speedup_interval,
-    summarize,
-)
+from services.experiment.intervals import mean_ci, speedup_interval
+from services.experiment.paper_report import report
+from services.experiment.published import PAPER_AVERAGE, paper_average
+from services.experiment.summary import summarize
 from services.runtime.settings import SettingsError, replaced
 from services.sim.task import Simulation
 from services.teacher.simulated.teacher import PERSON, TIRELESS, TeacherProfile

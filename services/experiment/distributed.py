@@ -27,7 +27,7 @@ from pathlib import Path
 
 from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
 from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
-from services.experiment.paper import mean_ci
+from services.experiment.intervals import mean_ci
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.runtime import Input, Node, Presence, bus_config, free_loopback_port
