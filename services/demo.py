@@ -7,7 +7,7 @@ installed, else text through the mock speech engine.
 It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
 converges (services/learner/convergence.py, judged by that map's shortest time), showing each
 episode, then stops the session and writes the logger's recording, the report's pictures
-(services/report.py) and a table of the episodes under runs/<session>/: demo.md counts
+(services/report/) and a table of the episodes under runs/<session>/: demo.md counts
 episodes and interventions from the event log as the report's summary.md does.
 
 `voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
@@ -35,14 +35,9 @@ from services import launcher
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.logger.run import RunDir, RunError
-from services.report import (
-    INTERVENTIONS_ARE,
-    STEP_SECONDS,
-    EpisodeCounts,
-    RobotSummary,
-    load_run,
-    write_report,
-)
+from services.report import load_run, write_report
+from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts
+from services.report.summary import STEP_SECONDS, RobotSummary
 from services.runtime import BusError, Input, Tick
 from services.speech.recognizer import DEFAULT_ENGINE
 from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS
