@@ -40,11 +40,7 @@ from services.teacher.web.admission import (
     Origins,
     public_origin,
 )
-from services.teacher.web.gateway import (
-    SessionView,
-    map_json,
-    vocabulary_json,
-)
+from services.teacher.web.page_json import SessionView, map_json, vocabulary_json
 from services.teacher.web.server import Gateway
 from services.world.maps import add_task_argument, load_map
 
