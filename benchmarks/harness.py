@@ -45,7 +45,7 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.arbiter.arbiter import feedback_id
+from services.arbiter.replies import feedback_id
 from services.runtime import Input, Node, bus_config, free_loopback_port
 from services.runtime.processes import end_process
 from services.speech.transcriber import heard_id
