@@ -107,7 +107,7 @@ def task_title(task: str, m: Map) -> str:
 
 
 @dataclass
-class Shown:
+class ShownEpisode:
     """An ended episode as displayed."""
 
     number: int
@@ -149,7 +149,7 @@ class ConvergenceWatch:
     convergence: Convergence = field(
         default_factory=lambda: convergence_on(load_map(demo_task()), LearnerConfig())
     )
-    episodes: list[Shown] = field(default_factory=list)
+    episodes: list[ShownEpisode] = field(default_factory=list)
     interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
     _shown: int = 0
 
@@ -157,7 +157,9 @@ class ConvergenceWatch:
         if event.robot != self.robot or event.kind == "start" or self.done:
             return
         seconds = event.episode_steps * STEP_SECONDS
-        self.episodes.append(Shown(event.episode, event.kind, event.episode_steps, seconds, now))
+        self.episodes.append(
+            ShownEpisode(event.episode, event.kind, event.episode_steps, seconds, now)
+        )
         self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
 
     def on_teaching(self, stats: TeachingStats) -> None:
@@ -181,7 +183,7 @@ class ConvergenceWatch:
             self._shown += 1
         return lines
 
-    def line(self, e: Shown) -> str:
+    def line(self, e: ShownEpisode) -> str:
         c = self.convergence
         converged = c.converged and e.number == self.episodes[c.n_episodes - 1].number
         return (

@@ -44,7 +44,7 @@ PERIOD = SimConfig().control_period
 
 
 @dataclass(frozen=True)
-class Outcome:
+class LearningOutcome:
     """How one run learnt: the figures compared between the two ways of running it."""
 
     converged: bool
@@ -55,10 +55,10 @@ class Outcome:
     interventions: int  # understood utterances until convergence (or the end)
 
 
-def in_process(spec: RunSpec) -> Outcome:
+def in_process(spec: RunSpec) -> LearningOutcome:
     start = time.monotonic()
     result = run(spec)
-    return Outcome(
+    return LearningOutcome(
         result.converged,
         result.episodes,
         result.learning_time_s,
@@ -81,7 +81,7 @@ class _Bus:
         return [*where, "--mode", "client", "--connect", self.router]
 
 
-def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
+def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> LearningOutcome:
     """The same run with every service as its own process; the simulator's episode events
     tell when it converged (the rule of services/learner/convergence.py)."""
     bus = _Bus(f"equivalence-{os.getpid()}", f"tcp/127.0.0.1:{free_loopback_port()}")
@@ -96,7 +96,7 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
         finally:
             for child in reversed(children):
                 _stop(child)
-    return Outcome(
+    return LearningOutcome(
         progress.converged,
         progress.n_episodes,
         round(progress.learning_time, 1),

@@ -37,7 +37,7 @@ _CLOSING = (WSMsgType.CLOSE, WSMsgType.CLOSING, WSMsgType.CLOSED, WSMsgType.ERRO
 
 
 class LoginFlow:
-    """The Gateway's logins (a part of it: the Gateway sets these attributes)."""
+    """The PageServer's logins (a part of it: the PageServer sets these attributes)."""
 
     bus: BusConfig
     view: SessionView

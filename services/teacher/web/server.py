@@ -1,5 +1,5 @@
 """The page's server: the aiohttp application, one Browser per socket (browser.py; its login:
-login.py), and the Gateway between them and the bus: the robots to every browser, each
+login.py), and the PageServer between them and the bus: the robots to every browser, each
 browser's frames to its teacher node.
 """
 
@@ -57,7 +57,10 @@ HARD_FRAME_LIMIT = 4 * MAX_BINARY_BYTES  # aiohttp closes the socket above this 
 NOT_A_HANDSHAKE = "this is the page's WebSocket: open it with a WebSocket handshake"
 
 
-class Gateway(LoginFlow):
+class PageServer(LoginFlow):
+    """The page's aiohttp server and its bridge to the bus: serves static/, admits sockets,
+    sends every page the robots and each browser's frames to its teacher node."""
+
     def __init__(
         self,
         bus: BusConfig,
