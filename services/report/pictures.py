@@ -18,11 +18,10 @@ from matplotlib.patches import Circle, FancyArrow, Polygon
 from matplotlib.ticker import MaxNLocator
 
 from services.report.counts import EpisodeCounts
-from services.report.summary import STEP_SECONDS, EpisodeSummary, RobotSummary
+from services.report.summary import MOVING_AVERAGE, STEP_SECONDS, EpisodeSummary, RobotSummary
 from services.world.maps import Box, Cylinder, Map
 
 MAX_EPISODES_DRAWN = 6
-MOVING_AVERAGE = 10
 
 
 def pick_episodes(robot: RobotSummary, wanted: Sequence[str] | None = None) -> list[EpisodeSummary]:

@@ -22,6 +22,7 @@ from services.logger.run import RunError
 from services.world.robot import CONTROL_PERIOD_S
 
 STEP_SECONDS = CONTROL_PERIOD_S  # robot seconds per step
+MOVING_AVERAGE = 10  # episodes: the learning curve's mean, and summary.md's recent return
 
 
 @dataclass

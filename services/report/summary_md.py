@@ -6,8 +6,7 @@ import statistics
 from pathlib import Path
 
 from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts, count_episodes
-from services.report.pictures import MOVING_AVERAGE
-from services.report.summary import SessionSummary
+from services.report.summary import MOVING_AVERAGE, SessionSummary
 from services.world.maps import Map
 
 
