@@ -20,7 +20,8 @@ os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
 
 from services.experiment.cluster import LocalCluster
 from services.experiment.inprocess import SETTINGS, RunSpec
-from services.experiment.paper import TASKS, run_all
+from services.experiment.published import TASKS
+from services.experiment.runner import run_all
 
 
 def main() -> None:

@@ -27,7 +27,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from services.arbiter.arbiter import Arbiter
 from services.experiment.inprocess import SETTINGS, RunSpec, run
-from services.experiment.paper import TASKS, run_all
+from services.experiment.published import TASKS
+from services.experiment.runner import run_all
 from services.learner.sarsa import Learner
 from services.sim.task import Simulation
 from services.teacher.simulated.teacher import SimulatedTeacher

@@ -7,7 +7,7 @@ installed, else text through the mock speech engine.
 It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
 converges (services/learner/convergence.py, judged by that map's shortest time), showing each
 episode, then stops the session and writes the logger's recording, the report's pictures
-(services/report.py) and a table of the episodes under runs/<session>/: demo.md counts
+(services/report/) and a table of the episodes under runs/<session>/: demo.md counts
 episodes and interventions from the event log as the report's summary.md does.
 
 `voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
@@ -35,14 +35,9 @@ from services import launcher
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.logger.run import RunDir, RunError
-from services.report import (
-    INTERVENTIONS_ARE,
-    STEP_SECONDS,
-    EpisodeCounts,
-    RobotSummary,
-    load_run,
-    write_report,
-)
+from services.report import load_run, write_report
+from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts
+from services.report.summary import STEP_SECONDS, RobotSummary
 from services.runtime import BusError, Input, Tick
 from services.speech.recognizer import DEFAULT_ENGINE
 from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS
@@ -112,7 +107,7 @@ def task_title(task: str, m: Map) -> str:
 
 
 @dataclass
-class Shown:
+class ShownEpisode:
     """An ended episode as displayed."""
 
     number: int
@@ -154,7 +149,7 @@ class ConvergenceWatch:
     convergence: Convergence = field(
         default_factory=lambda: convergence_on(load_map(demo_task()), LearnerConfig())
     )
-    episodes: list[Shown] = field(default_factory=list)
+    episodes: list[ShownEpisode] = field(default_factory=list)
     interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
     _shown: int = 0
 
@@ -162,7 +157,9 @@ class ConvergenceWatch:
         if event.robot != self.robot or event.kind == "start" or self.done:
             return
         seconds = event.episode_steps * STEP_SECONDS
-        self.episodes.append(Shown(event.episode, event.kind, event.episode_steps, seconds, now))
+        self.episodes.append(
+            ShownEpisode(event.episode, event.kind, event.episode_steps, seconds, now)
+        )
         self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
 
     def on_teaching(self, stats: TeachingStats) -> None:
@@ -186,7 +183,7 @@ class ConvergenceWatch:
             self._shown += 1
         return lines
 
-    def line(self, e: Shown) -> str:
+    def line(self, e: ShownEpisode) -> str:
         c = self.convergence
         converged = c.converged and e.number == self.episodes[c.n_episodes - 1].number
         return (

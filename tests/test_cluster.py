@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from services.cli import main
-from services.experiment import cluster, paper
+from services.experiment import cluster, runner
 from services.experiment.inprocess import RunSpec, run
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
@@ -48,7 +48,7 @@ def failing_run(spec: RunSpec, reference: bool = False):
 def test_a_run_that_fails_for_good_is_named_and_the_experiment_exits_non_zero(
     tmp_path, monkeypatch, capsys
 ):
-    monkeypatch.setattr(paper, "run", failing_run)  # the pool's forked workers see it too
+    monkeypatch.setattr(runner, "run", failing_run)  # the pool's forked workers see it too
     out = tmp_path / "paper"
     assert main(paper_args(out, "--workers", "2", episodes=1)) == 1
     err = capsys.readouterr().err

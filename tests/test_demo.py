@@ -13,7 +13,8 @@ import pytest
 
 from protocol import EpisodeEvent, TeachingStats
 from services.demo import FINAL_WAIT_S, ConvergenceWatch, StallWatch, demo_table, task_title
-from services.report import RobotSummary, count_episodes
+from services.report.counts import count_episodes
+from services.report.summary import RobotSummary
 from services.runtime import free_loopback_port
 from services.world.maps import load_map
 from tests.conftest import VOXSHAPE

@@ -10,15 +10,12 @@ import pytest
 from benchmarks.experiment import steps_per_second
 from services.cli import main
 from services.experiment import distributed
-from services.experiment.inprocess import RunResult, RunSpec, run
-from services.experiment.paper import (
-    PAPER_AVERAGE,
-    mean_ci,
-    paper_average,
-    report,
-    speedup_interval,
-    summarize,
-)
+from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
+from services.experiment.intervals import mean_ci, speedup_interval
+from services.experiment.legend import SETTING_STYLES
+from services.experiment.paper_report import report
+from services.experiment.published import PAPER_AVERAGE, paper_average
+from services.experiment.summary import summarize
 from services.runtime.settings import SettingsError, replaced
 from services.sim.task import Simulation
 from services.teacher.simulated.teacher import PERSON, TIRELESS, TeacherProfile
@@ -375,3 +372,11 @@ def test_a_report_on_some_tasks_compares_with_the_paper_on_those_tasks_only():
     text = report(summarize(four, 2), "voxshape experiment paper", 1.0)
     assert "| Avg | 20.0 | 92.54 | 10.0 | 24.08 |" in text  # the printed four-task figures
     assert "| RL + F | 2.00 | 2.00-2.00 | 3.84 |" in text
+
+
+def test_every_setting_has_its_name_and_marker_in_the_legend():
+    """The reports name and draw a setting from legend.py: a setting added to SETTINGS without
+    its line there would fail every report that ran it."""
+    assert list(SETTING_STYLES) == list(SETTINGS)  # the tables' order is the settings'
+    assert len({s.label for s in SETTING_STYLES.values()}) == len(SETTINGS)
+    assert len({s.marker for s in SETTING_STYLES.values()}) == len(SETTINGS)

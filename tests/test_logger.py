@@ -21,7 +21,9 @@ from services.logger.eventlog import EventLogWriter, EventRecord, read_events
 from services.logger.recording import Recorder
 from services.logger.replay import ScanThinning, close_stream, open_stream, render
 from services.logger.run import RunDir, describe_session, session_map, write_session_info
-from services.report import moving_average, summarize, write_report
+from services.report import write_report
+from services.report.pictures import moving_average
+from services.report.summary import summarize
 from tests.conftest import VOXSHAPE, free_port
 from tests.logger_support import (
     listening_on,

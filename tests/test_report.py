@@ -10,15 +10,10 @@ import pytest
 from protocol import EpisodeEvent, TeachingStats
 from services.logger.eventlog import read_events
 from services.logger.run import RunDir, RunError, describe_session, write_session_info
-from services.report import (
-    RobotSummary,
-    count_episodes,
-    load_run,
-    pick_episodes,
-    robust_limits,
-    summarize,
-    write_report,
-)
+from services.report import load_run, write_report
+from services.report.counts import count_episodes
+from services.report.pictures import pick_episodes, robust_limits
+from services.report.summary import RobotSummary, summarize
 from services.world.maps import load_map
 from tests.logger_support import LONG_ROOM, scripted_session, write_script
 

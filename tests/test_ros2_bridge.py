@@ -12,7 +12,7 @@ import pytest
 from protocol import Action, EpisodeEvent, Observation, Placed
 from services.ros2 import msgs
 from services.ros2.bridge import Bridge, BridgeConfig
-from services.ros2.episodes import EpisodeRules, Episodes, Percept
+from services.ros2.episodes import BridgePercept, EpisodeRules, Episodes
 from services.ros2.homing import HomingConfig, homing_command
 from services.ros2.perception import (
     Anchor,
@@ -94,8 +94,8 @@ def test_the_goal_and_the_rewards_are_the_simulator_s():
     )
 
 
-def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0) -> Percept:
-    return Percept(x, y, 0.0, 0.1, 0.0, np.full(180, near), np.full(8, 3.0))
+def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0) -> BridgePercept:
+    return BridgePercept(x, y, 0.0, 0.1, 0.0, np.full(180, near), np.full(8, 3.0))
 
 
 def test_episodes_end_at_the_goal_at_a_bump_and_at_the_timeout():

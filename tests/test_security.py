@@ -35,7 +35,7 @@ from services.deploy.access import (
 from services.deploy.certs import make_all
 from services.launcher import router_command
 from services.runtime import BusConfig, BusError, ConfigError, Node, bus_config
-from services.runtime.node import open_session
+from services.runtime.node import open_zenoh
 from tests.conftest import VOXSHAPE, collect, free_port, wait_for_port
 
 SESSION = "secured"
@@ -111,7 +111,7 @@ class Receiver:
     def __init__(self, config: BusConfig, *keys: str) -> None:
         self.keys: list[str] = []
         self._lock = threading.Lock()
-        self.session = open_session(config)
+        self.session = open_zenoh(config)
         self._subscribers = [self.session.declare_subscriber(k, self._on) for k in keys]
 
     def _on(self, sample: zenoh.Sample) -> None:
@@ -144,10 +144,10 @@ def put_until_received(publisher: zenoh.Session, key: str, receiver: Receiver) -
 
 def test_a_wrong_password_is_refused(router, secrets):
     with pytest.raises(BusError, match="refused user 'ana': a wrong password"):
-        open_session(as_user(router, secrets, "ana", password="not-her-password"))
+        open_zenoh(as_user(router, secrets, "ana", password="not-her-password"))
     with pytest.raises(BusError, match="answers but refused this session"):  # no credentials
-        open_session(replace(as_user(router, secrets, "ana"), user=None, password=None))
-    open_session(as_user(router, secrets, "ana")).close()  # her own password opens
+        open_zenoh(replace(as_user(router, secrets, "ana"), user=None, password=None))
+    open_zenoh(as_user(router, secrets, "ana")).close()  # her own password opens
 
 
 def test_a_teacher_with_a_wrong_password_is_told_so_at_once_in_one_line(router, secrets):
@@ -173,7 +173,7 @@ def test_a_teacher_with_a_wrong_password_is_told_so_at_once_in_one_line(router, 
 
 def test_a_teacher_publishes_only_its_own_utterances_audio_and_clock(router, secrets):
     admin = Receiver(as_user(router, secrets, "logger"), session_keys(SESSION), "voxshape/other/**")
-    ana = open_session(as_user(router, secrets, "ana"))
+    ana = open_zenoh(as_user(router, secrets, "ana"))
     try:
         own = teacher_key(SESSION, "ana", "utterance")
         put_until_received(ana, own, admin)
@@ -203,7 +203,7 @@ def test_a_teacher_cannot_listen_to_another_teachers_notices(router, secrets):
         teacher_key(SESSION, "ana", "notice"),
         teacher_key(SESSION, "*", "utterance"),
     )
-    arbiter = open_session(as_user(router, secrets, "arbiter"))
+    arbiter = open_zenoh(as_user(router, secrets, "arbiter"))
     try:
         notice = teacher_key(SESSION, "ana", "notice")
         put_until_received(arbiter, notice, ana)
@@ -226,9 +226,9 @@ def test_only_the_robots_learner_asks_only_the_arbiter_answers_and_teachers_hear
         robot_key(SESSION, "*", "help"),
         robot_key(SESSION, "*", "answer"),
     )
-    ana = open_session(as_user(router, secrets, "ana"))
-    learner = open_session(as_user(router, secrets, "learner"))
-    arbiter = open_session(as_user(router, secrets, "arbiter"))
+    ana = open_zenoh(as_user(router, secrets, "ana"))
+    learner = open_zenoh(as_user(router, secrets, "learner"))
+    arbiter = open_zenoh(as_user(router, secrets, "arbiter"))
     asks, answers = robot_key(SESSION, "r1", "help"), robot_key(SESSION, "r1", "answer")
     try:
         put_until_received(ana, teacher_key(SESSION, "ana", "utterance"), admin)
@@ -251,7 +251,7 @@ def test_only_the_robots_learner_asks_only_the_arbiter_answers_and_teachers_hear
 
 def test_a_robots_services_use_only_their_own_robots_topics(router, secrets):
     admin = Receiver(as_user(router, secrets, "logger"), session_keys(SESSION))
-    sim = open_session(as_user(router, secrets, "sim"))
+    sim = open_zenoh(as_user(router, secrets, "sim"))
     try:
         own = robot_key(SESSION, "r1", "obs")
         put_until_received(sim, own, admin)
@@ -292,12 +292,12 @@ def test_kept_feedback_is_recovered_through_the_access_control(router, secrets):
 
 
 def test_tls_with_a_certificate_works_and_plain_tcp_cannot_use_the_tls_endpoint(router, secrets):
-    open_session(as_user(router, secrets, "ana", via="tls")).close()  # CA + her certificate
+    open_zenoh(as_user(router, secrets, "ana", via="tls")).close()  # CA + her certificate
     plain = replace(
         as_user(router, secrets, "ana"), connect=(router["tls"].replace("tls/", "tcp/"),)
     )
     with pytest.raises(BusError, match=r"refused user 'ana'.*TLS endpoint: connect with tls/"):
-        open_session(plain)
+        open_zenoh(plain)
 
 
 def test_a_client_without_a_certificate_is_refused_under_mutual_tls(router, secrets):
@@ -305,7 +305,7 @@ def test_a_client_without_a_certificate_is_refused_under_mutual_tls(router, secr
         as_user(router, secrets, "ana", via="tls"), tls_cert=None, tls_key=None, mtls=False
     )
     with pytest.raises(BusError, match=r"refused user 'ana'.*a certificate it does not accept"):
-        open_session(no_certificate)
+        open_zenoh(no_certificate)
 
 
 # -- the pieces, without a bus ----------------------------------------------------------------

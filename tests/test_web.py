@@ -36,18 +36,10 @@ from protocol import (
 from services.arbiter.scripted import observation
 from services.runtime import Node, bus_config
 from services.teacher.board import Board
-from services.teacher.web.gateway import (
-    AUDIO_HEADER,
-    QUESTION_OPEN_S,
-    BrowserError,
-    Robots,
-    SessionView,
-    Teaching,
-    map_json,
-    parse_frame,
-    parse_login,
-    vocabulary_json,
-)
+from services.teacher.web.frames import BrowserError, parse_frame, parse_login
+from services.teacher.web.gateway import AUDIO_HEADER, Teaching
+from services.teacher.web.page_json import SessionView, map_json, vocabulary_json
+from services.teacher.web.robots import QUESTION_OPEN_S, Robots
 from services.teacher.web.server import REFUSED
 from services.world.maps import load_map
 from tests.conftest import (

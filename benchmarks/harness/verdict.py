@@ -17,7 +17,7 @@ from benchmarks.harness.replay import compare_replay
 from benchmarks.harness.session import Session
 from benchmarks.probe import Probe
 from protocol import CreditedFeedback, Said, TeacherNotice, Utterance
-from services.arbiter.arbiter import feedback_id
+from services.arbiter.replies import feedback_id
 from services.speech.transcriber import heard_id
 
 

@@ -24,15 +24,11 @@ the step they credit and published (TeachingStats) with each teacher's statistic
 
 from __future__ import annotations
 
-import hashlib
-from collections import Counter, OrderedDict
-from dataclasses import dataclass, field
+from collections import Counter
 
 from protocol import (
     ClockProbe,
-    Credit,
     CreditedFeedback,
-    HelpAnswer,
     HelpRequest,
     Message,
     Observation,
@@ -43,13 +39,15 @@ from protocol import (
     Vocabulary,
 )
 from protocol.messages import NoticeKind
-from services.arbiter.clocks import SimulatorClock, TeacherClocks, answer
+from services.arbiter.clocks import TeacherClocks, answer
 from services.arbiter.config import ArbiterConfig, DelayWindow
-from services.arbiter.credit import MAX_CREDITS, ReactionDelay, SalientEvents, StepTimeline
+from services.arbiter.credit import ReactionDelay, StepTimeline
 from services.arbiter.hygiene import RateLimits, RecentIds
-from services.arbiter.meaning import NotUnderstood, examples_of, interpret
+from services.arbiter.meaning import NotUnderstood, interpret
 from services.arbiter.merge import Agreement, Judgement, Merged, Merger
-from services.arbiter.questions import OpenQuestions, Question
+from services.arbiter.questions import AskedQuestion, OpenQuestions
+from services.arbiter.records import EpisodeTally, KnownRobot, KnownTeacher, TeacherTally
+from services.arbiter.replies import command_feedback, explain, help_answer, notice, reward_feedback
 from services.runtime.limits import Throttle
 
 FUTURE_TOLERANCE = 0.25  # s: an onset later than its arrival by more is a clock error
@@ -61,56 +59,6 @@ STARTING_S = 3.0
 RATE_LOOKBACK_S = 30.0  # words said this long before they arrive (what inputs recover)
 MAX_HELD = 1024
 PROBE_RATE, PROBE_BURST = 10.0, 20.0  # clock probes per second per teacher
-MAX_TEXT = 500
-
-
-@dataclass
-class _Tally:
-    """One teacher's utterances to one robot."""
-
-    utterances: int = 0
-    understood: int = 0
-    ignored: int = 0
-
-
-@dataclass
-class _Episode:
-    interventions: Counter[str] = field(default_factory=Counter)  # per teacher
-    ended_at: float | None = None  # arbiter clock
-    final: bool = False  # its final statistics were published
-
-
-@dataclass
-class _Robot:
-    timeline: StepTimeline
-    clock: SimulatorClock = field(default_factory=SimulatorClock)
-    events: SalientEvents = field(default_factory=SalientEvents)
-    last_seen: float = 0.0  # arbiter clock
-    episodes: OrderedDict[int, _Episode] = field(default_factory=OrderedDict)
-    tallies: dict[str, _Tally] = field(default_factory=dict)
-    changed: bool = False
-    stats_sent: float = float("-inf")
-
-    def tally(self, teacher: str) -> _Tally:
-        return self.tallies.setdefault(teacher, _Tally())
-
-    def episode(self, number: int) -> _Episode:
-        if number not in self.episodes:
-            self.episodes[number] = _Episode()
-        return self.episodes[number]
-
-
-@dataclass
-class _Teacher:
-    delay: ReactionDelay
-
-
-def feedback_id(robot: str, kind: str, sources: tuple[str, ...]) -> str:
-    """A feedback message's id, derived from the utterances it comes from: an arbiter that
-    restarts and derives it again from the utterances it recovers gives it the same id, so a
-    learner that took it before skips it."""
-    key = "|".join((robot, kind, *sorted(sources))).encode()
-    return hashlib.blake2b(key, digest_size=16).hexdigest()
 
 
 class Arbiter:
@@ -128,10 +76,10 @@ class Arbiter:
         self._rates = RateLimits(config.utterances_per_s, config.utterances_at_once)
         self._probe_rates = RateLimits(PROBE_RATE, PROBE_BURST)
         self._notices = Throttle(config.notice_every)
-        self._robots: dict[str, _Robot] = {}
-        self._teachers: dict[str, _Teacher] = {}
+        self._robots: dict[str, KnownRobot] = {}
+        self._teachers: dict[str, KnownTeacher] = {}
         self._started_at = float("inf") if started_at is None else started_at
-        self._held: list[tuple[Utterance, _Teacher, float]] = []  # recovered while starting
+        self._held: list[tuple[Utterance, KnownTeacher, float]] = []  # recovered while starting
         self.questions = OpenQuestions()
 
     # -- inputs ---------------------------------------------------------------------------
@@ -143,7 +91,7 @@ class Arbiter:
             if len(self._robots) >= self.config.max_robots:
                 self.counters["rejected.too_many_robots"] += 1
                 return []
-            robot = self._robots[obs.robot] = _Robot(
+            robot = self._robots[obs.robot] = KnownRobot(
                 StepTimeline(self.config.history_seconds, self.config.max_history_steps)
             )
         added = robot.timeline.add(
@@ -191,7 +139,7 @@ class Arbiter:
         return self._utterance(utterance, teacher, received_at)
 
     def _utterance(
-        self, utterance: Utterance, teacher: _Teacher, received_at: float
+        self, utterance: Utterance, teacher: KnownTeacher, received_at: float
     ) -> list[Message]:
         teacher_id, robot_id = utterance.teacher, utterance.robot
         self._started_at = min(self._started_at, received_at)
@@ -201,7 +149,7 @@ class Arbiter:
             return []
         if robot is not None and received_at - robot.last_seen > self.config.history_seconds:
             robot = None  # its simulator went quiet: nothing to credit
-        tally = robot.tally(teacher_id) if robot is not None else _Tally()
+        tally = robot.tally(teacher_id) if robot is not None else TeacherTally()
         tally.utterances += 1
         pace = robot.timeline.pace if robot is not None else 1.0
         scale = self.config.time_scale(teacher_id, pace)  # for its rate, and its delays below
@@ -239,7 +187,7 @@ class Arbiter:
         text = f"understood {utterance.text!r}: {said}"
         return [*out, self._notice(utterance, "understood", text, meaning.name)]
 
-    def _intervened(self, robot: _Robot, episode: int, teacher: str) -> None:
+    def _intervened(self, robot: KnownRobot, episode: int, teacher: str) -> None:
         """An understood word, counted in the interventions of the episode it is about."""
         record = robot.episodes.get(episode)
         if record is None or record.final:  # its final statistics are out: too late for them
@@ -248,7 +196,7 @@ class Arbiter:
             record.interventions[teacher] += 1
 
     def _set_aside(
-        self, utterance: Utterance, teacher: _Teacher, received_at: float, said_at: float
+        self, utterance: Utterance, teacher: KnownTeacher, received_at: float, said_at: float
     ) -> bool:
         """Whether a word said before this arbiter started is dropped (too old: the one
         before answered it, its steps are forgotten; no token of the rate taken) or held
@@ -337,39 +285,29 @@ class Arbiter:
         return list(self._robots)
 
     # -- helpers --------------------------------------------------------------------------
-    def _teacher(self, teacher: str) -> _Teacher | None:
+    def _teacher(self, teacher: str) -> KnownTeacher | None:
         state = self._teachers.get(teacher)
         if state is None:
             if len(self._teachers) >= self.config.max_teachers:
                 self.counters["rejected.too_many_teachers"] += 1
                 return None
-            state = self._teachers[teacher] = _Teacher(
+            state = self._teachers[teacher] = KnownTeacher(
                 ReactionDelay(self.config.window_of(teacher), self.config.learning)
             )
         return state
 
     def _command(
-        self, utterance: Utterance, action: str, robot: _Robot
+        self, utterance: Utterance, action: str, robot: KnownRobot
     ) -> tuple[list[Message], int]:
         """A command, credited to the current step (the learner applies h)."""
         latest = robot.timeline.latest_running_step()
         step, episode = latest or (robot.timeline.latest_step, robot.timeline.latest_episode)
         self.counters["commands"] += 1
-        feedback = CreditedFeedback(
-            id=feedback_id(utterance.robot, "command", (utterance.id,)),
-            robot=utterance.robot,
-            kind="command",
-            reward=None,
-            command=action,  # type: ignore[arg-type]
-            credits=(Credit(step=step, weight=1.0),),
-            sources=(utterance.id,),
-            teachers=(utterance.teacher,),
-        )
-        return [feedback], episode
+        return [command_feedback(utterance, action, step)], episode
 
     def _question_answered(
         self, utterance: Utterance, is_command: bool, scale: float
-    ) -> Question | None:
+    ) -> AskedQuestion | None:
         """The robot's open question a command answers (said within a few seconds of it)."""
         if not is_command:
             return None
@@ -377,36 +315,19 @@ class Arbiter:
         return self.questions.answered_by(utterance.robot, onset, scale)
 
     def _answer(
-        self, utterance: Utterance, action: str, question: Question
+        self, utterance: Utterance, action: str, question: AskedQuestion
     ) -> tuple[list[Message], int]:
         """The answer to a question (a command), credited to its step, and who gave it."""
         self.counters["answers"] += 1
-        feedback = CreditedFeedback(
-            id=feedback_id(utterance.robot, "command", (utterance.id,)),  # as a command: once
-            robot=utterance.robot,
-            kind="command",
-            reward=None,
-            command=action,  # type: ignore[arg-type]
-            credits=(Credit(step=question.step, weight=1.0),),
-            sources=(utterance.id,),
-            teachers=(utterance.teacher,),
-        )
-        answered = HelpAnswer(
-            robot=utterance.robot,
-            question=question.id,
-            step=question.step,
-            teacher=utterance.teacher,
-            meaning=action,
-            utterance=utterance.id,
-        )
-        return [feedback, answered], question.episode
+        feedback = command_feedback(utterance, action, question.step)
+        return [feedback, help_answer(utterance, action, question)], question.episode
 
     def _judge(
         self,
         utterance: Utterance,
         reward: float,
-        teacher: _Teacher,
-        robot: _Robot,
+        teacher: KnownTeacher,
+        robot: KnownRobot,
         now: float,
         scale: float,
     ) -> tuple[list[Message], int] | None:
@@ -436,7 +357,9 @@ class Arbiter:
         self.counters["judgements"] += 1
         return [self._feedback(m) for m in self.merger.add(judgement)], spread.episode
 
-    def _onset_on_sim_clock(self, utterance: Utterance, robot: _Robot, received_at: float) -> float:
+    def _onset_on_sim_clock(
+        self, utterance: Utterance, robot: KnownRobot, received_at: float
+    ) -> float:
         if self.clocks.report(utterance.teacher) is None:
             self.counters["unsynced_teacher_utterances"] += 1
         onset = robot.clock.to_sim(self.clocks.to_arbiter(utterance.teacher, utterance.onset))
@@ -448,9 +371,9 @@ class Arbiter:
 
     def _learn_delay(
         self,
-        teacher: _Teacher,
+        teacher: KnownTeacher,
         robot_id: str,
-        robot: _Robot,
+        robot: KnownRobot,
         polarity: int,
         onset: float,
         scale: float,
@@ -464,28 +387,14 @@ class Arbiter:
                 self.counters["delay_candidates"] += 1
 
     def _feedback(self, merged: Merged) -> CreditedFeedback:
-        """The merged reward over at most MAX_CREDITS credits (the learner's g bounds it)."""
-        credits = merged.credits
-        if len(credits) > MAX_CREDITS:
-            credits = tuple(sorted(sorted(credits, key=lambda c: -c[1])[:MAX_CREDITS]))
-        total = sum(w for _, w in credits)
         self.counters["feedback"] += 1
-        return CreditedFeedback(
-            id=feedback_id(merged.robot, "reward", merged.sources),
-            robot=merged.robot,
-            kind="reward",
-            reward=merged.reward,
-            command=None,
-            credits=tuple(Credit(step=s, weight=min(1.0, w / total)) for s, w in credits),
-            sources=merged.sources[:64],
-            teachers=merged.teachers[:64],
-        )
+        return reward_feedback(merged)
 
     def _ignore(
         self,
         reason: NoticeKind,
         utterance: Utterance,
-        tally: _Tally,
+        tally: TeacherTally,
         now: float,
         detail: str = "",
     ) -> list[Message]:
@@ -493,40 +402,19 @@ class Arbiter:
         tally.ignored += 1
         if reason == "rate_limited" and not self._notices.due((utterance.teacher, reason), now):
             return []
-        return [self._notice(utterance, reason, self._explain(reason, utterance, detail), None)]
-
-    def _explain(self, reason: str, utterance: Utterance, detail: str) -> str:
-        """Why an utterance was not used, in a sentence that says what to do."""
-        if reason == "low_confidence":
-            return f"not used: {detail}; say it again, clearly"
-        if reason == "not_understood":
-            said = examples_of(self.vocabulary, utterance.language)
-            return f"not understood: {detail}; say e.g. {said}"
-        if reason == "rate_limited":
-            return (
-                f"not used: too many words, at most {self.config.utterances_per_s:g} a second; "
-                "slow down (words beyond it are ignored, told once a second)"
-            )
-        if reason == "unknown_robot":
-            known = ", ".join(self._robots) or "none yet"
-            return f"not used: no robot {utterance.robot!r} runs in this session (robots: {known})"
-        return "too late: the steps you mean are no longer remembered; say it sooner"
+        why = explain(
+            reason, utterance, detail, self.vocabulary, self.config.utterances_per_s, self._robots
+        )
+        return [self._notice(utterance, reason, why, None)]
 
     def _notice(
         self, utterance: Utterance, kind: NoticeKind, text: str, meaning: str | None
     ) -> TeacherNotice:
         self.counters[f"notices.{kind}"] += 1
-        return TeacherNotice(
-            teacher=utterance.teacher,
-            robot=utterance.robot,
-            utterance=utterance.id,
-            kind=kind,
-            meaning=meaning[:32] if meaning else None,
-            text=text[:MAX_TEXT],
-        )
+        return notice(utterance, kind, text, meaning)
 
-    def _stats(self, robot_id: str, robot: _Robot, number: int, final: bool) -> TeachingStats:
-        episode = robot.episodes.get(number) or _Episode()
+    def _stats(self, robot_id: str, robot: KnownRobot, number: int, final: bool) -> TeachingStats:
+        episode = robot.episodes.get(number) or EpisodeTally()
         teachers = []
         for teacher_id, tally in list(robot.tallies.items())[:64]:
             state = self._teachers.get(teacher_id)

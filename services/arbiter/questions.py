@@ -13,7 +13,10 @@ EARLY_S = 0.5  # an onset this much before the question still answers it (clocks
 
 
 @dataclass(frozen=True)
-class Question:
+class AskedQuestion:
+    """A robot's question as the arbiter holds it open: which, where the robot was (step,
+    episode) and when it was asked."""
+
     id: str
     robot: str
     step: int
@@ -25,14 +28,14 @@ class OpenQuestions:
     """At most one open question per robot: a new one replaces the last."""
 
     def __init__(self) -> None:
-        self._open: dict[str, Question] = {}
+        self._open: dict[str, AskedQuestion] = {}
 
     def ask(self, request: HelpRequest, received_at: float) -> None:
-        self._open[request.robot] = Question(
+        self._open[request.robot] = AskedQuestion(
             request.id, request.robot, request.step, request.episode, received_at
         )
 
-    def answered_by(self, robot: str, onset: float, scale: float = 1.0) -> Question | None:
+    def answered_by(self, robot: str, onset: float, scale: float = 1.0) -> AskedQuestion | None:
         """The question a word said at `onset` (arbiter clock) answers, closed; `scale`: wall
         seconds per second of the teacher's."""
         question = self._open.get(robot)

@@ -12,14 +12,9 @@ from pathlib import Path
 from services.experiment import distributed
 from services.experiment.cluster import ClusterError
 from services.experiment.inprocess import PAPER_SETTINGS, SETTINGS, RunSpec
-from services.experiment.paper import (
-    TASKS,
-    PoolError,
-    ResumeError,
-    RunsFailed,
-    experiment,
-    pool,
-)
+from services.experiment.paper import PoolError, experiment, pool
+from services.experiment.published import TASKS
+from services.experiment.runner import ResumeError, RunsFailed
 from services.experiment.sweep import sweep
 from services.learner.config import add_settings_argument, with_settings
 from services.runtime.settings import SettingsError, replaced

@@ -26,7 +26,7 @@ from pathlib import Path
 
 from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
 from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
-from services.experiment.paper import mean_ci
+from services.experiment.intervals import mean_ci
 from services.launcher import LoopbackSession
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
@@ -41,7 +41,7 @@ PERIOD = SimConfig().control_period
 
 
 @dataclass(frozen=True)
-class Outcome:
+class LearningOutcome:
     """How one run learnt: the figures compared between the two ways of running it."""
 
     converged: bool
@@ -52,10 +52,10 @@ class Outcome:
     interventions: int  # understood utterances until convergence (or the end)
 
 
-def in_process(spec: RunSpec) -> Outcome:
+def in_process(spec: RunSpec) -> LearningOutcome:
     start = time.monotonic()
     result = run(spec)
-    return Outcome(
+    return LearningOutcome(
         result.converged,
         result.episodes,
         result.learning_time_s,
@@ -65,7 +65,7 @@ def in_process(spec: RunSpec) -> Outcome:
     )
 
 
-def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
+def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> LearningOutcome:
     """The same run with every service as its own process; the simulator's episode events
     tell when it converged (the rule of services/learner/convergence.py)."""
     with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
@@ -73,7 +73,7 @@ def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> Outcome:
         start = time.monotonic()
         with LoopbackSession(f"equivalence-{os.getpid()}", logs=where, cwd=where) as session:
             progress, interventions = _follow(spec, session, where, start + timeout_s)
-    return Outcome(
+    return LearningOutcome(
         progress.converged,
         progress.n_episodes,
         round(progress.learning_time, 1),

@@ -22,13 +22,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from services.experiment.inprocess import SETTINGS, RunResult, RunSpec
-from services.experiment.paper import (
-    LABELS,
-    run_all,
-    speedup_interval,
-    start_log,
-    task_means,
-)
+from services.experiment.intervals import speedup_interval, task_means
+from services.experiment.legend import SETTING_STYLES
+from services.experiment.runner import run_all, start_log
 from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 FEEDBACK, TRACES = "rl+f", "rl+t+f"
@@ -47,7 +43,7 @@ class Point:
             return f"delay {self.value:g} s, correction {'on' if self.correction else 'off'}"
         if self.axis == "rate":
             rate = f"{self.value:g} words/min" if self.value else "tireless"
-            return f"{rate}, {LABELS[self.setting]}"
+            return f"{rate}, {SETTING_STYLES[self.setting].label}"
         return f"{self.axis} {self.value:g}"
 
 
@@ -191,7 +187,9 @@ def _budget_curve(plot: object, rows: list[dict]) -> None:
         xs, ys = [r["words_per_minute"] for r in line], [r["speedup"] for r in line]
         low = [y - r["speedup_ci95"][0] for y, r in zip(ys, line, strict=True)]
         high = [r["speedup_ci95"][1] - y for y, r in zip(ys, line, strict=True)]
-        plot.errorbar(xs, ys, yerr=[low, high], marker="o", capsize=3, label=LABELS[setting])
+        plot.errorbar(
+            xs, ys, yerr=[low, high], marker="o", capsize=3, label=SETTING_STYLES[setting].label
+        )
         for x, y, r in zip(xs, ys, line, strict=True):
             plot.annotate(f"{r['value']:g}" if r["value"] else "tireless", (x, y), fontsize=7)
     plot.set_xscale("log")

@@ -22,7 +22,9 @@ Entities (`<r>` a robot, `<t>` a teacher):
 
 Timelines: `step` (the robot's global step), `episode`, `sim_time` and `wall_time` (when the
 logger received the message; messages without a robot have only `wall_time`).
-Per-step data is buffered and sent as columns (`flush`), 5-20x cheaper than one call per item.
+Per-step data is buffered and sent as columns (`flush`; columns.py), 5-20x cheaper than one
+call per item. What is logged once, static (the viewer's layout, the map, the series' styles),
+is scene.py's.
 No bus here: the same code renders live (following the event log) and in replays.
 """
 
@@ -31,14 +33,11 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter
-from dataclasses import dataclass, field
 
 import numpy as np
 import rerun as rr
-import rerun.blueprint as rrb
 
 from protocol import (
-    ACTION_NAMES,
     Action,
     AudioChunk,
     CreditedFeedback,
@@ -50,98 +49,19 @@ from protocol import (
     Utterance,
     to_wire,
 )
+from services.logger.columns import Columns, When, set_time
 from services.logger.decoding import Decoded, Known, PresenceChange, Rejected, Unknown
+from services.logger.scene import log_map, log_robot_styles
 from services.logger.tally import RobotTally, SessionTally
 from services.runtime import worth_logging
-from services.world.maps import Box, Cylinder, Map
+from services.world.maps import Map
 from services.world.robot import RobotModel
 
 log = logging.getLogger("voxshape.logger")
 
-APPLICATION = "voxshape"
-TRAIL_STEPS = 600  # the trails view shows the positions of this many steps before the cursor
 GOAL_MISMATCH_M = 0.05  # the map's goal and the one observations imply may differ this much
 ENDS_KEPT = 256  # episode ends remembered, to draw their final interventions when they come
 TEXT_PREVIEW = 160
-
-WALL = (90, 90, 90)
-GOAL = (44, 160, 44, 90)
-START = (31, 119, 180)
-ROBOT = (214, 39, 40)
-SCAN = (255, 127, 14)
-TRAIL = (31, 119, 180)
-POLICY = (31, 119, 180)
-TEACHER = (214, 39, 40)
-FEEDBACK = (148, 103, 189)
-UTTERANCE = (23, 190, 207)
-
-
-def blueprint(world: Map | None) -> rrb.Blueprint:
-    """The default layout: the map (now, and trails), the text log, and the plots."""
-    bounds = None
-    if world is not None:  # after the y flip the map spans y in [-height, 0]
-        bounds = rrb.VisualBounds2D(
-            x_range=[-0.3, world.width + 0.3], y_range=[-world.height - 0.3, 0.3]
-        )
-    now = rrb.Spatial2DView(name="map", origin="world", visual_bounds=bounds)
-    trails = rrb.Spatial2DView(
-        name=f"trails ({TRAIL_STEPS} steps)",
-        origin="world",
-        contents=["+ world/map/static/**", "+ world/map/poses/**"],
-        visual_bounds=bounds,
-        time_ranges=rrb.VisibleTimeRange(
-            "step",
-            start=rrb.TimeRangeBoundary.cursor_relative(seq=-TRAIL_STEPS),
-            end=rrb.TimeRangeBoundary.cursor_relative(),
-        ),
-    )
-    plots = rrb.Vertical(
-        rrb.TimeSeriesView(name="rewards: environment, teacher, feedback", origin="reward"),
-        rrb.TimeSeriesView(name="Q-values of the current state", origin="q"),
-        rrb.TimeSeriesView(name="episode return (learning curve)", origin="episode/return"),
-        rrb.TimeSeriesView(
-            name="episode steps and interventions",
-            contents=["+ episode/steps/**", "+ episode/interventions/**"],
-        ),
-        rrb.TimeSeriesView(name="states", origin="states"),
-        rrb.TimeSeriesView(name="actions (0 stop 1 fwd 2 back 3 left 4 right)", origin="action"),
-    )
-    return rrb.Blueprint(
-        rrb.Horizontal(
-            rrb.Vertical(
-                rrb.Tabs(now, trails),
-                rrb.TextLogView(name="what happened", origin="log"),
-                row_shares=[3, 2],
-            ),
-            plots,
-            column_shares=[3, 2],
-        ),
-        rrb.BlueprintPanel(state="collapsed"),
-        rrb.SelectionPanel(state="collapsed"),
-        # The step timeline, following the newest data: live, the robot as it moves; in a
-        # file, where the session ended.
-        rrb.TimePanel(state="collapsed", timeline="step", play_state="following"),
-    )
-
-
-@dataclass
-class _Column:
-    """Rows of one entity waiting to be sent together (all rows carry all four timelines)."""
-
-    kind: str  # scalar | scalars | point | points | arrow | strip
-    steps: list[int] = field(default_factory=list)
-    episodes: list[int] = field(default_factory=list)
-    sim_times: list[float] = field(default_factory=list)
-    wall_times: list[float] = field(default_factory=list)
-    values: list = field(default_factory=list)
-
-
-@dataclass(frozen=True)
-class _When:
-    step: int
-    episode: int
-    sim_time: float
-    wall_time: float
 
 
 class Recorder:
@@ -157,101 +77,21 @@ class Recorder:
         self.model = RobotModel()
         self.tally = SessionTally()
         self.counters: Counter[str] = Counter()
-        self._columns: dict[str, _Column] = {}
+        self._columns = Columns()
         self._robots: set[str] = set()
         self._goal_checked: set[str] = set()
-        self._ends: dict[tuple[str, int], _When] = {}  # (robot, episode) -> when it ended
-        self._pending_rows = 0
+        self._ends: dict[tuple[str, int], When] = {}  # (robot, episode) -> when it ended
         self.counters["thinned_scans"] = 0  # always reported, even when nothing was thinned
 
     # -- static --------------------------------------------------------------------------
     def start(self) -> None:
         """Logs the map and the y-up flip (static: visible at every time)."""
-        s = self.stream
-        s.log("world/map", rr.Transform3D(scale=[1.0, -1.0, 1.0]), static=True)
-        m = self.world
-        if m is None:
-            return
-        outlines = [
-            np.array([*shape.corners(), shape.corners()[0]])
-            for shape in m.shapes
-            if isinstance(shape, Box)
-        ]
-        s.log(
-            "world/map/static/walls",
-            rr.LineStrips2D(outlines, colors=WALL, radii=0.02),
-            static=True,
-        )
-        cylinders = [c for c in m.shapes if isinstance(c, Cylinder)]
-        if cylinders:
-            s.log(
-                "world/map/static/obstacles",
-                rr.Ellipses2D(
-                    centers=[(c.x, c.y) for c in cylinders],
-                    half_sizes=[(c.radius, c.radius) for c in cylinders],
-                    colors=WALL,
-                ),
-                static=True,
-            )
-        s.log(
-            "world/map/static/goal",
-            rr.Points2D([(m.goal_x, m.goal_y)], radii=m.goal_radius, colors=GOAL, labels="goal"),
-            static=True,
-        )
-        st = m.start
-        s.log(
-            "world/map/static/start",
-            rr.Arrows2D(
-                origins=[(st.x, st.y)],
-                vectors=[(0.4 * math.cos(st.theta), 0.4 * math.sin(st.theta))],
-                colors=START,
-                labels="start",
-            ),
-            static=True,
-        )
+        log_map(self.stream, self.world)
 
     def _new_robot(self, robot: str) -> None:
-        """Series styles of a robot's plots (static)."""
+        """A robot's series styles (static), once."""
         self._robots.add(robot)
-        s = self.stream
-        lines = {
-            f"reward/env/{robot}": (f"R_RL {robot}", (127, 127, 127)),
-            f"states/{robot}": (f"states {robot}", POLICY),
-            f"td_error/{robot}": (f"TD error {robot}", (127, 127, 127)),
-            f"episode/return/{robot}": (f"return {robot}", POLICY),
-            f"episode/steps/{robot}": (f"steps {robot}", POLICY),
-        }
-        for entity, (name, color) in lines.items():
-            s.log(entity, rr.SeriesLines(names=name, colors=color), static=True)
-        points = {
-            f"reward/teacher/{robot}": (f"teacher reward {robot}", TEACHER, "circle"),
-            f"reward/feedback/{robot}": (f"feedback arrives {robot}", FEEDBACK, "down"),
-            f"reward/utterance/{robot}": (f"utterance {robot}", UTTERANCE, "diamond"),
-            f"action/policy/{robot}": (f"policy {robot}", POLICY, "circle"),
-            f"action/teacher/{robot}": (f"teacher {robot}", TEACHER, "cross"),
-            f"episode/interventions/{robot}": (f"interventions {robot}", TEACHER, "square"),
-        }
-        for entity, (name, color, marker) in points.items():
-            s.log(
-                entity,
-                rr.SeriesPoints(names=name, colors=color, markers=marker, marker_sizes=3.0),
-                static=True,
-            )
-        s.log(
-            f"q/{robot}",
-            rr.SeriesLines(names=[f"Q({a}) {robot}" for a in ACTION_NAMES]),
-            static=True,
-        )
-        # Colours and sizes once; the per-step rows carry only positions.
-        where = f"world/map/robots/{robot}"
-        s.log(f"{where}/scan", rr.Points2D.from_fields(colors=SCAN, radii=0.02), static=True)
-        s.log(f"{where}/body", rr.LineStrips2D.from_fields(colors=ROBOT, radii=0.015), static=True)
-        s.log(f"{where}/heading", rr.Arrows2D.from_fields(colors=ROBOT, radii=0.02), static=True)
-        s.log(
-            f"world/map/poses/{robot}",
-            rr.Points2D.from_fields(colors=TRAIL, radii=0.03),
-            static=True,
-        )
+        log_robot_styles(self.stream, robot)
 
     # -- records -------------------------------------------------------------------------
     def record(self, decoded: Decoded, *, detail: bool = True) -> None:
@@ -335,7 +175,7 @@ class Recorder:
 
     def _observation(self, decoded: Known, obs: Observation, detail: bool) -> None:
         r = obs.robot
-        when = _When(obs.step, obs.episode, obs.sim_time, decoded.record.received)
+        when = When(obs.step, obs.episode, obs.sim_time, decoded.record.received)
         self._row(f"world/map/poses/{r}", "point", when, (obs.x, obs.y))
         c, s = math.cos(obs.theta), math.sin(obs.theta)
         self._row(
@@ -387,7 +227,7 @@ class Recorder:
 
     def _episode(self, decoded: Known, event: EpisodeEvent) -> None:
         r = event.robot
-        when = _When(event.step, event.episode, event.sim_time, decoded.record.received)
+        when = When(event.step, event.episode, event.sim_time, decoded.record.received)
         if event.kind == "start":
             self._text(decoded, f"log/{r}", f"episode {event.episode} starts", "DEBUG", when=when)
             return
@@ -436,7 +276,7 @@ class Recorder:
             what = f"reward {feedback.reward:+g}"
             for credit in feedback.credits:
                 past = tally.time_of(credit.step)
-                when = _When(
+                when = When(
                     credit.step,
                     past.episode if past else tally.episode,
                     past.sim_time if past else tally.sim_time,
@@ -466,30 +306,22 @@ class Recorder:
         )
 
     # -- time and output -----------------------------------------------------------------
-    def _when_step(self, robot: str, step: int, decoded: Decoded) -> _When:
+    def _when_step(self, robot: str, step: int, decoded: Decoded) -> When:
         tally = self.tally.robot(robot)
         past = tally.time_of(step)
         if past is not None:
-            return _When(step, past.episode, past.sim_time, decoded.record.received)
-        return _When(step, tally.episode, tally.sim_time, decoded.record.received)
+            return When(step, past.episode, past.sim_time, decoded.record.received)
+        return When(step, tally.episode, tally.sim_time, decoded.record.received)
 
     @staticmethod
-    def _when_now(tally: RobotTally, decoded: Decoded) -> _When | None:
+    def _when_now(tally: RobotTally, decoded: Decoded) -> When | None:
         """The robot's latest step, or None before its first observation."""
         if tally.step is None:
             return None
-        return _When(tally.step, tally.episode, tally.sim_time, decoded.record.received)
+        return When(tally.step, tally.episode, tally.sim_time, decoded.record.received)
 
-    def _set_time(self, when: _When | None, wall_time: float | None = None) -> None:
-        s = self.stream
-        s.reset_time()
-        if when is None:
-            s.set_time("wall_time", timestamp=wall_time)
-            return
-        s.set_time("step", sequence=when.step)
-        s.set_time("episode", sequence=when.episode)
-        s.set_time("sim_time", duration=when.sim_time)
-        s.set_time("wall_time", timestamp=when.wall_time)
+    def _set_time(self, when: When | None, wall_time: float | None = None) -> None:
+        set_time(self.stream, when, wall_time)
 
     def _text(
         self,
@@ -499,67 +331,23 @@ class Recorder:
         level: str,
         *,
         robot: str | None = None,
-        when: _When | None = None,
+        when: When | None = None,
     ) -> None:
         if when is None and robot is not None:
             when = self._when_now(self.tally.robot(robot), decoded)
         self._set_time(when, decoded.record.received)
         self.stream.log(entity, rr.TextLog(text, level=level))
 
-    def _row(self, entity: str, kind: str, when: _When, value: object) -> None:
-        column = self._columns.get(entity)
-        if column is None:
-            column = self._columns[entity] = _Column(kind)
-        column.steps.append(when.step)
-        column.episodes.append(when.episode)
-        column.sim_times.append(when.sim_time)
-        column.wall_times.append(when.wall_time)
-        column.values.append(value)
-        self._pending_rows += 1
+    def _row(self, entity: str, kind: str, when: When, value: object) -> None:
+        self._columns.add(entity, kind, when, value)
 
     @property
     def pending_rows(self) -> int:
-        return self._pending_rows
+        return self._columns.pending_rows
 
     def flush(self) -> None:
         """Sends the buffered per-step rows as columns."""
-        for entity, column in self._columns.items():
-            if column.steps:
-                self.stream.send_columns(
-                    entity,
-                    indexes=[
-                        rr.TimeColumn("step", sequence=column.steps),
-                        rr.TimeColumn("episode", sequence=column.episodes),
-                        rr.TimeColumn("sim_time", duration=column.sim_times),
-                        rr.TimeColumn("wall_time", timestamp=column.wall_times),
-                    ],
-                    columns=_columns_of(column),
-                )
-        self._columns.clear()
-        self._pending_rows = 0
-
-
-def _columns_of(column: _Column) -> rr.ComponentColumnList:
-    values = column.values
-    match column.kind:
-        case "scalar":
-            return rr.Scalars.columns(scalars=np.asarray(values, dtype=np.float64))
-        case "scalars":
-            flat = np.concatenate([np.asarray(v, dtype=np.float64) for v in values])
-            return rr.Scalars.columns(scalars=flat).partition([len(v) for v in values])
-        case "point":
-            return rr.Points2D.columns(positions=np.asarray(values, dtype=np.float64))
-        case "points":
-            flat = np.concatenate(values) if values else np.zeros((0, 2))
-            return rr.Points2D.columns(positions=flat).partition([len(v) for v in values])
-        case "arrow":
-            return rr.Arrows2D.columns(
-                origins=np.asarray([o for o, _ in values], dtype=np.float64),
-                vectors=np.asarray([v for _, v in values], dtype=np.float64),
-            )
-        case "strip":
-            return rr.LineStrips2D.columns(strips=values)
-    raise ValueError(f"unknown column kind {column.kind!r}")
+        self._columns.send(self.stream)
 
 
 def _preview(fields: dict) -> str:

@@ -90,7 +90,7 @@ def open_stream(
     index grew by ~27 MB a minute with four robots (benchmarks/soak.py), so it writes none."""
     import rerun as rr
 
-    from services.logger.recording import APPLICATION, blueprint
+    from services.logger.scene import APPLICATION, blueprint
 
     stream = rr.RecordingStream(APPLICATION, recording_id=recording_id)
     sinks: list = [rr.FileSink(str(output), write_footer=footer)]

@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 
 from protocol import Action, EpisodeEvent, Message, Placed
-from services.ros2.episodes import EpisodeRules, Episodes, Percept
+from services.ros2.episodes import BridgePercept, EpisodeRules, Episodes
 from services.ros2.homing import HomingConfig, Pose3, homing_command
 from services.ros2.msgs import LaserScanMsg, OdometryMsg
 from services.ros2.perception import (
@@ -55,12 +55,15 @@ class BridgeConfig:
 
 
 @dataclass
-class Output:
+class BridgeOutput:
+    """What one input to the bridge gives: messages for the bus, a velocity for the robot,
+    notes for the log."""
+
     messages: list[Message] = field(default_factory=list)
     velocity: Velocity | None = None  # to send to the robot now
     notes: list[str] = field(default_factory=list)  # for the log
 
-    def add(self, other: Output) -> Output:
+    def add(self, other: BridgeOutput) -> BridgeOutput:
         self.messages += other.messages
         self.velocity = other.velocity if other.velocity is not None else self.velocity
         self.notes += other.notes
@@ -97,21 +100,21 @@ class Bridge:
     def on_odom(self, odom: OdometryMsg, now: float) -> None:
         self.odom, self.odom_at = odom, now
 
-    def on_scan(self, scan: LaserScanMsg, now: float) -> Output:
+    def on_scan(self, scan: LaserScanMsg, now: float) -> BridgeOutput:
         self.scan, self.scan_at, self.fresh_scan = scan, now, True
         if now >= self.next_due - self.period * EARLY:
             return self._step(now)
-        return Output()
+        return BridgeOutput()
 
-    def on_action(self, action: Action, now: float) -> Output:
+    def on_action(self, action: Action, now: float) -> BridgeOutput:
         why = self._refused(action)
         if why is not None:
             self.counters[f"actions.ignored.{why}"] += 1
-            return Output()
+            return BridgeOutput()
         assert action.v is not None and action.omega is not None
         self.counters["actions"] += 1
         fresh = self.bus_ok and self.data_ok(now)
-        return Output(velocity=self.safety.go(action.v, action.omega, now, fresh))
+        return BridgeOutput(velocity=self.safety.go(action.v, action.omega, now, fresh))
 
     def _refused(self, action: Action) -> str | None:
         if action.robot != self.config.robot:
@@ -122,20 +125,20 @@ class Bridge:
             return "no_velocity"
         return None
 
-    def on_placed(self, placed: Placed, now: float) -> Output:
+    def on_placed(self, placed: Placed, now: float) -> BridgeOutput:
         if placed.robot != self.config.robot or self.state not in ("homing", "placing"):
             self.counters["placed.ignored"] += 1
-            return Output()
+            return BridgeOutput()
         if self.odom is None or self.start is None:
-            return Output()
+            return BridgeOutput()
         self.anchor = Anchor.placing(self._odom_pose(), self.start)
-        out = Output(notes=[f"placed by {placed.teacher}: odometry re-anchored at the start"])
+        out = BridgeOutput(notes=[f"placed by {placed.teacher}: odometry re-anchored at the start"])
         return out.add(self._begin(now))
 
-    def tick(self, now: float, bus_ok: bool) -> Output:
+    def tick(self, now: float, bus_ok: bool) -> BridgeOutput:
         """Each period or sooner: a step due without a scan, stops due, homing commands."""
         self.bus_ok = bus_ok
-        out = Output()
+        out = BridgeOutput()
         if self.fresh_scan is False and now >= self.next_due + self.period * LATE:
             out.add(self._step(now))
         fresh = bus_ok and self.data_ok(now)
@@ -144,8 +147,10 @@ class Bridge:
             out.velocity = stop
         return out
 
-    def shutdown(self, now: float) -> Output:
-        return Output(velocity=self.safety.halt(now, "exit"), notes=["stopped the robot: exit"])
+    def shutdown(self, now: float) -> BridgeOutput:
+        return BridgeOutput(
+            velocity=self.safety.halt(now, "exit"), notes=["stopped the robot: exit"]
+        )
 
     # -- steps ------------------------------------------------------------------------------------
     def _odom_pose(self) -> Pose3:
@@ -153,14 +158,14 @@ class Bridge:
         o = self.odom
         return o.position[0], o.position[1], yaw_of(*o.orientation)
 
-    def percept(self) -> Percept:
+    def percept(self) -> BridgePercept:
         assert self.scan is not None and self.odom is not None
         scan, model = self.scan, self.config.model
         geometry = ScanGeometry(
             scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
         )
         x, y, theta = self.anchor.apply(*self._odom_pose())
-        return Percept(
+        return BridgePercept(
             x,
             y,
             theta,
@@ -170,9 +175,9 @@ class Bridge:
             sonar_from_scan(scan.ranges, geometry, model),
         )
 
-    def _step(self, now: float) -> Output:
+    def _step(self, now: float) -> BridgeOutput:
         if not self.data_ok(now):
-            return Output()
+            return BridgeOutput()
         self.fresh_scan = False
         self._schedule(now)
         if self.state == "waiting":
@@ -181,7 +186,7 @@ class Bridge:
             return self._run(now)
         if self.state == "homing":
             return self._home(now)
-        return Output()
+        return BridgeOutput()
 
     def _schedule(self, now: float) -> None:
         """The next step's due time: a period after this one's (a late scan does not push the
@@ -194,21 +199,23 @@ class Bridge:
             else max(self.next_due + self.period, now + (1 - 2 * EARLY) * self.period)
         )
 
-    def _begin(self, now: float) -> Output:
+    def _begin(self, now: float) -> BridgeOutput:
         p = self.percept()
         if self.start is None:
             self.start = (p.x, p.y, p.theta)
         self.state = "running"
         messages = self.episodes.start(p, self.robot_time(now))
-        return Output(messages=list(messages), notes=[f"episode {self.episodes.episode} starts"])
+        return BridgeOutput(
+            messages=list(messages), notes=[f"episode {self.episodes.episode} starts"]
+        )
 
-    def _run(self, now: float) -> Output:
+    def _run(self, now: float) -> BridgeOutput:
         messages: list[Message] = list(self.episodes.advance(self.percept(), self.robot_time(now)))
         end = next((m for m in messages if isinstance(m, EpisodeEvent)), None)
         if end is None:
-            return Output(messages=messages)
+            return BridgeOutput(messages=messages)
         self.counters[f"episodes.{end.kind}"] += 1
-        out = Output(messages, self.safety.halt(now, "episode"))
+        out = BridgeOutput(messages, self.safety.halt(now, "episode"))
         if self.config.reset == "drive":
             self.state, self.homing_since = "homing", self.robot_time(now)
             out.notes.append(f"episode {end.episode} ended ({end.kind}): driving back to the start")
@@ -224,13 +231,13 @@ class Bridge:
             f"'placed' button, or `voxshape placed --robot {robot}`)"
         )
 
-    def _home(self, now: float) -> Output:
+    def _home(self, now: float) -> BridgeOutput:
         assert self.start is not None
         p = self.percept()
         if self.robot_time(now) - self.homing_since > self.config.homing.timeout:
             self.state = "placing"
             self.counters["homing.gave_up"] += 1
-            return Output(
+            return BridgeOutput(
                 velocity=self.safety.halt(now, "homing"),
                 notes=[f"could not drive back to the start: {self.waits_for()}"],
             )
@@ -244,6 +251,6 @@ class Bridge:
         )
         if arrived:
             self.counters["homing.arrived"] += 1
-            out = Output(velocity=self.safety.halt(now, "arrived"))
+            out = BridgeOutput(velocity=self.safety.halt(now, "arrived"))
             return out.add(self._begin(now))
-        return Output(velocity=self.safety.go(v, omega, now, self.bus_ok))
+        return BridgeOutput(velocity=self.safety.go(v, omega, now, self.bus_ok))

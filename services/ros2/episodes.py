@@ -22,8 +22,9 @@ SPEED_BOUND, TURN_BOUND = 10.0, 20.0  # Observation's bounds on v and omega
 
 
 @dataclass(frozen=True)
-class Percept:
-    """One step's senses, in the task's frame."""
+class BridgePercept:
+    """One step's senses of the real robot, in the task's frame (what the bridge makes of its
+    scan and odometry)."""
 
     x: float
     y: float
@@ -58,7 +59,7 @@ class Episodes:
         self.episode_return = 0.0
         self.running = False
 
-    def start(self, p: Percept, robot_time: float) -> list[EpisodeEvent | Observation]:
+    def start(self, p: BridgePercept, robot_time: float) -> list[EpisodeEvent | Observation]:
         """A new episode from where the robot stands: its start event and first observation."""
         self.episode += 1
         self.step += 1
@@ -68,7 +69,7 @@ class Episodes:
         event = self._event("start", robot_time)
         return [event, self._observation(p, 0.0, "running", False, robot_time)]
 
-    def advance(self, p: Percept, robot_time: float) -> list[EpisodeEvent | Observation]:
+    def advance(self, p: BridgePercept, robot_time: float) -> list[EpisodeEvent | Observation]:
         """One control step: its observation, and the end event if the episode ended."""
         assert self.running, "start() an episode first"
         rules = self.rules
@@ -95,7 +96,7 @@ class Episodes:
         return out
 
     def _observation(
-        self, p: Percept, reward: float, outcome: str, collided: bool, robot_time: float
+        self, p: BridgePercept, reward: float, outcome: str, collided: bool, robot_time: float
     ) -> Observation:
         r = self.rules
         dx, dy = r.goal_x - p.x, r.goal_y - p.y

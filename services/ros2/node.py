@@ -22,7 +22,7 @@ import time
 import zenoh
 
 from protocol import Action, EpisodeEvent, Placed, check_id, robot_key, teacher_key
-from services.ros2.bridge import Bridge, BridgeConfig, Output
+from services.ros2.bridge import Bridge, BridgeConfig, BridgeOutput
 from services.ros2.episodes import EpisodeRules
 from services.ros2.homing import HomingConfig
 from services.ros2.rmw import RmwError, check_name
@@ -33,14 +33,12 @@ from services.runtime import (
     ConfigError,
     Input,
     Node,
+    Output,
     Tick,
     add_bus_arguments,
     bus_config,
     fields,
     worth_logging,
-)
-from services.runtime import (
-    Output as BusOutput,
 )
 from services.world.maps import add_task_argument, load_map
 from services.world.robot import CONTROL_PERIOD_S
@@ -190,13 +188,13 @@ def describe(link: RobotLink) -> dict[str, str]:
             "odom": link.keys["odom"], "cmd_vel": link.keys["cmd"]}  # fmt: skip
 
 
-def drive(node: Node, link: RobotLink, bridge: Bridge, outputs: dict[str, BusOutput]) -> None:
+def drive(node: Node, link: RobotLink, bridge: Bridge, outputs: dict[str, Output]) -> None:
     """The loop: the robot's samples, the session's actions and placings, stops when due."""
     bus_ok, checked, started = True, 0.0, time.monotonic()
     heard: set[str] = set()
     for event in node.events(tick=LOOP_TICK_S):
         now = time.monotonic()
-        out = Output()
+        out = BridgeOutput()
         match event:
             case RobotSample(topic="scan", message=scan, attachment=fmt):
                 out = bridge.on_scan(scan, now)  # type: ignore[arg-type]
@@ -233,7 +231,7 @@ def drive(node: Node, link: RobotLink, bridge: Bridge, outputs: dict[str, BusOut
         deliver(node, link, out, outputs)
 
 
-def deliver(node: Node, link: RobotLink, out: Output, outputs: dict[str, BusOutput]) -> None:
+def deliver(node: Node, link: RobotLink, out: BridgeOutput, outputs: dict[str, Output]) -> None:
     if out.velocity is not None:
         link.send(out.velocity)
     for message in out.messages:

@@ -68,5 +68,5 @@ def configure_logging(level: str | None = None, fmt: str | None = None) -> None:
     root.setLevel(level if level in logging.getLevelNamesMapping() else "INFO")
     # zenoh's own errors (a transport closed for congestion, a lost link) are otherwise
     # invisible: they go to stderr in zenoh's format; RUST_LOG chooses more. A refused login
-    # is reported by open_session in one line, not by zenoh's retries.
+    # is reported by open_zenoh in one line, not by zenoh's retries.
     zenoh.init_log_from_env_or("error,zenoh_transport::unicast::establishment::open=off")

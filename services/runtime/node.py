@@ -51,7 +51,7 @@ from services.runtime.flows import (
 )
 from services.runtime.logs import fields, worth_logging
 from services.runtime.session import BusError as BusError  # importable from here too
-from services.runtime.session import open_session
+from services.runtime.session import open_zenoh
 
 SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM within this
 _STOP = object()
@@ -84,7 +84,7 @@ class Node:
         self._recovering: dict[str, tuple[str, Callable[[zenoh.Sample], None], float]] = {}
         # The keys it publishes and subscribes to, checked against protocol/dataflow.py.
         self.declared: dict[str, set[str]] = {"publishes": set(), "subscribes": set()}
-        self.zenoh = open_session(config)
+        self.zenoh = open_zenoh(config)
         self._token = self.zenoh.liveliness().declare_token(
             presence_key(self.session_id, role, self.id)
         )

@@ -17,7 +17,7 @@ class BusError(RuntimeError):
     """The bus cannot be joined; the message says why and what to do."""
 
 
-def open_session(config: BusConfig) -> zenoh.Session:
+def open_zenoh(config: BusConfig) -> zenoh.Session:
     """Opens a zenoh session, translating zenoh's errors into what a user should do. A user
     whose router answers is either let in within milliseconds or refused: refused, it is told
     so at once, not after the whole connect timeout."""

@@ -90,7 +90,9 @@ class Reading:
 
 
 @dataclass
-class _Robot:
+class _RobotProgress:
+    """Where one simulated robot is: its episode and steps, return so far and velocity."""
+
     name: str
     index: int
     episode: int = -1
@@ -117,7 +119,7 @@ class Simulation:
         c = self.config
         self.world = World(m, len(robots), c.model, c.substeps, cull=c.fast)
         self.sensors = Sensors(m, c.model, compiled=c.fast)
-        self.robots = {name: _Robot(name, i) for i, name in enumerate(robots)}
+        self.robots = {name: _RobotProgress(name, i) for i, name in enumerate(robots)}
         self.rng = np.random.default_rng(seed)
         self.sim_time = 0.0
         timeout = self.config.timeout or m.timeout
@@ -229,7 +231,7 @@ class Simulation:
         return laser, sonar
 
     def _reading(
-        self, r: _Robot, laser: np.ndarray, sonar: np.ndarray, reward: float, collided: bool
+        self, r: _RobotProgress, laser: np.ndarray, sonar: np.ndarray, reward: float, collided: bool
     ) -> Reading:
         pose = self.world.poses[r.index]
         dx, dy = self.map.goal_x - pose.x, self.map.goal_y - pose.y

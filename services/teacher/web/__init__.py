@@ -1,5 +1,6 @@
-"""`voxshape web`: the teachers' web page. gateway.py is the pure core (bus messages <->
-browser JSON), node.py the aiohttp server bridged to the bus; static/ is the page itself."""
+"""`voxshape web`: the teachers' web page. gateway.py, frames.py, browser_clock.py,
+page_json.py and robots.py are the pure core (bus messages <-> browser JSON), server.py the
+aiohttp server bridged to the bus, node.py the command; static/ is the page itself."""
 
 
 def page_url(address: str, port: int | str, https: bool) -> str:

@@ -25,16 +25,10 @@ from services.teacher.web.admission import Admission, LoginThrottle, Origins, lo
 from services.teacher.web.browser import Browser, Pump
 from services.teacher.web.connections import Budget
 from services.teacher.web.devices import COOKIE_PATH, DeviceTokens, cookie_name
-from services.teacher.web.gateway import (
-    AUDIO_BURST_S,
-    BrowserError,
-    Login,
-    Robots,
-    SessionView,
-    Teaching,
-    parse_frame,
-    parse_login,
-)
+from services.teacher.web.frames import BrowserError, Login, parse_frame, parse_login
+from services.teacher.web.gateway import AUDIO_BURST_S, Teaching
+from services.teacher.web.page_json import SessionView
+from services.teacher.web.robots import Robots
 
 LOGIN_WAIT_S = 5.0  # a socket that has not logged in by then is closed
 REFUSED = "login refused: wrong user name or password, or not a teacher of this session"
@@ -43,7 +37,7 @@ _CLOSING = (WSMsgType.CLOSE, WSMsgType.CLOSING, WSMsgType.CLOSED, WSMsgType.ERRO
 
 
 class LoginFlow:
-    """The Gateway's logins (a part of it: the Gateway sets these attributes)."""
+    """The PageServer's logins (a part of it: the PageServer sets these attributes)."""
 
     bus: BusConfig
     view: SessionView

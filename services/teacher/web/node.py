@@ -40,12 +40,8 @@ from services.teacher.web.admission import (
     Origins,
     public_origin,
 )
-from services.teacher.web.gateway import (
-    SessionView,
-    map_json,
-    vocabulary_json,
-)
-from services.teacher.web.server import Gateway
+from services.teacher.web.page_json import SessionView, map_json, vocabulary_json
+from services.teacher.web.server import PageServer
 from services.world.maps import add_task_argument, load_map
 
 STATIC = Path(__file__).with_name("static")
@@ -159,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
         digest = access_digest(access) if access is not None else None
     except (AdmissionError, AccessError) as e:
         raise ConfigError(str(e)) from None
-    gateway = Gateway(bus, view, args.static, args.address, tls, args.max_clients, origins)
+    gateway = PageServer(bus, view, args.static, args.address, tls, args.max_clients, origins)
     gateway.teachers = teachers
     if access is not None and digest is not None:
         gateway.access = (access, digest)

@@ -1,5 +1,5 @@
 """The page's server: the aiohttp application, one Browser per socket (browser.py; its login:
-login.py), and the Gateway between them and the bus: the robots to every browser, each
+login.py), and the PageServer between them and the bus: the robots to every browser, each
 browser's frames to its teacher node.
 """
 
@@ -38,18 +38,17 @@ from services.teacher.web.admission import Admission, LoginThrottle, Origins
 from services.teacher.web.browser import Browser, Pump
 from services.teacher.web.connections import Budget, connection_budget, serve_budgeted
 from services.teacher.web.devices import DeviceTokens, device_secret
-from services.teacher.web.gateway import (
+from services.teacher.web.frames import (
     MAX_BINARY_BYTES,
     MAX_MESSAGES_PER_S,
     MAX_TEXT_BYTES,
     BrowserError,
-    Robots,
-    SessionView,
-    feedback_json,
     parse_frame,
 )
 from services.teacher.web.login import REFUSED as REFUSED
 from services.teacher.web.login import LoginFlow
+from services.teacher.web.page_json import SessionView, feedback_json
+from services.teacher.web.robots import Robots
 
 HTTP_IDLE_S = 10.0  # a connection without a whole request for this long is closed
 LOGINS_AT_ONCE = 64  # logins the router checks at once (the throttle lets few wrong ones in)
@@ -58,7 +57,10 @@ HARD_FRAME_LIMIT = 4 * MAX_BINARY_BYTES  # aiohttp closes the socket above this 
 NOT_A_HANDSHAKE = "this is the page's WebSocket: open it with a WebSocket handshake"
 
 
-class Gateway(LoginFlow):
+class PageServer(LoginFlow):
+    """The page's aiohttp server and its bridge to the bus: serves static/, admits sockets,
+    sends every page the robots and each browser's frames to its teacher node."""
+
     def __init__(
         self,
         bus: BusConfig,

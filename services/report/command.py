@@ -1,0 +1,95 @@
+"""`voxshape report RUN_DIR`: reads a run's event log and map, and writes its pictures and
+summary.md into RUN_DIR/report/."""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from services.learner.config import LearnerConfig
+from services.logger.eventlog import EventLog, EventLogError, read_events
+from services.logger.run import RunDir, RunError, read_session_info, session_map
+from services.report.counts import EpisodeCounts, count_episodes
+from services.report.pictures import draw_learning, draw_rewards, draw_trajectories, pick_episodes
+from services.report.summary import SessionSummary, summarize
+from services.report.summary_md import markdown
+from services.world.maps import Map
+
+
+@dataclass
+class LoadedRun:
+    """A run's event log summed up, with the map it ran on."""
+
+    summary: SessionSummary
+    map: Map
+    log: EventLog
+
+    def counts(self, config: LearnerConfig | None = None) -> dict[str, EpisodeCounts]:
+        return {n: count_episodes(r, self.map, config) for n, r in self.summary.robots.items()}
+
+
+def load_run(run: RunDir, task: str | None = None) -> LoadedRun:
+    """Reads a run's event log and map (`task`, else the one in session.json)."""
+    try:
+        log = read_events(run.events)
+    except EventLogError as e:
+        raise RunError(str(e)) from None
+    m = session_map(run, task)
+    try:
+        session = read_session_info(run).session
+    except RunError:
+        session = log.header.session
+    return LoadedRun(summarize(log.records, session), m, log)
+
+
+def write_report(
+    run: RunDir,
+    task: str | None = None,
+    episodes: Sequence[str] | None = None,
+    loaded: LoadedRun | None = None,
+) -> list[Path]:
+    """Writes the pictures and summary.md into run/report/; returns their paths."""
+    loaded = loaded or load_run(run, task)
+    summary, m = loaded.summary, loaded.map
+    counts = loaded.counts()
+    out = run.report
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    pictures: dict[str, list[Path]] = {}
+    for name, robot in sorted(summary.robots.items()):
+        paths = [
+            out / f"trajectories-{name}.png",
+            out / f"learning-{name}.png",
+            out / f"rewards-{name}.png",
+        ]
+        draw_trajectories(m, pick_episodes(robot, episodes), robot, paths[0])
+        draw_learning(robot, paths[1], counts[name])
+        draw_rewards(robot, paths[2])
+        pictures[name] = paths
+        written += paths
+    text = markdown(summary, m, pictures, counts)
+    if loaded.log.describe_tail():
+        text += f"\nNote: {loaded.log.describe_tail()}.\n"
+    (out / "summary.md").write_text(text, encoding="utf-8")
+    written.append(out / "summary.md")
+    return written
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("run", type=Path, help="the run directory, e.g. runs/<session>")
+    parser.add_argument("--task", help="draw this map (default: the one in RUN/session.json)")
+    parser.add_argument(
+        "--episodes",
+        type=lambda text: [n.strip() for n in text.split(",") if n.strip()],
+        help="episodes to draw, e.g. 0,10,42, or run:number (2:0) when the simulator restarted "
+        "within the log (default: first, best, middle, last)",
+    )
+
+
+def run(args: argparse.Namespace) -> int:
+    run_dir = RunDir.existing(args.run)
+    for path in write_report(run_dir, args.task, args.episodes):
+        print(path)
+    return 0
