@@ -8,10 +8,8 @@ from pathlib import Path
 
 from tests.conftest import ROOT
 
-SHARED = {"runtime", "world", "deploy"}
+SHARED = {"runtime", "world", "deploy", "recognition"}
 SERVICES = {"arbiter", "learner", "logger", "sim", "speech", "teacher"}
-# The simulated teacher hears itself through the mock engine's confusion core (in-process).
-EXCEPTIONS = {("teacher/simulated/teacher.py", "services.speech.mock")}
 
 
 def imports(path: Path) -> set[str]:
@@ -35,7 +33,7 @@ def test_services_stand_on_the_shared_floor_only():
                 parts = module.split(".")
                 if parts[0] != "services" or len(parts) < 2:
                     continue
-                if parts[1] not in allowed and (where, module) not in EXCEPTIONS:
+                if parts[1] not in allowed:
                     wrong.append(f"{where} imports {module}")
     assert not wrong, "\n".join(wrong)
     assert (services / "deploy").is_dir() and all((services / p).is_dir() for p in SERVICES)

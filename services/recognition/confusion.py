@@ -1,15 +1,16 @@
-"""The mock engine: text in, text out, with the errors a grammar-restricted recognizer makes.
+"""The recognition confusion model: what a grammar-restricted recognizer makes of a phrase said
+as text, with its errors. The speech service's mock engine runs it (services/speech/mock.py),
+and the simulated teacher models through it what it is heard as.
 
-Its input is what a teacher said as text (a `Said` message: a simulated teacher, or
-`voxshape teach --through-speech`). Like the real engines, it only ever outputs whole phrases of
-the vocabulary, so its errors are whole phrases too. With probability `error_rate` an utterance
-is not recognized as said; the kind of error is drawn by weight:
+Its input is a phrase said as text. Like the real engines, it only ever outputs whole phrases
+of the vocabulary, so its errors are whole phrases too. With probability `error_rate` an
+utterance is not recognized as said; the kind of error is drawn by weight:
 
 - misheard: another phrase of the same language comes out instead;
 - dropped: nothing comes out (a rejection);
 - inserted: the phrase comes out, and a spurious phrase after it (a false accept).
 
-Text outside the vocabulary is rejected, as a grammar engine would. Each result is published
+Text outside the vocabulary is rejected, as a grammar engine would. Each result comes
 `latency_s` (+- `latency_jitter_s`, uniform) after the teacher stopped speaking. Seeded: the
 same seed and inputs give the same results.
 """
@@ -21,22 +22,27 @@ from collections import Counter
 from dataclasses import dataclass
 from typing import Literal
 
-from protocol.vocabulary import Vocabulary, normalize
-from services.speech.recognizer import written_phrases
+from protocol.vocabulary import Vocabulary, normalize, written_phrases
+from services.runtime.settings import option
 
 ErrorKind = Literal["misheard", "dropped", "inserted"]
 ERROR_KINDS: tuple[ErrorKind, ...] = ("misheard", "dropped", "inserted")
+MOCK = "mock engine"  # its flags' group in `voxshape speech --help`
 
 
 @dataclass(frozen=True)
 class MockSettings:
-    error_rate: float = 0.0
+    """The flags are the speech service's (`voxshape speech --engine mock`)."""
+
+    error_rate: float = option(0.0, "0..1 of utterances", group=MOCK)
     misheard: float = 0.6  # relative weights of the kinds of error
     dropped: float = 0.3
     inserted: float = 0.1
-    latency_s: float = 0.3
-    latency_jitter_s: float = 0.0
-    seed: int | None = None
+    latency_s: float = option(0.3, "seconds after the speech", flag="--latency", group=MOCK)
+    latency_jitter_s: float = option(
+        0.0, "+- seconds, uniform", flag="--latency-jitter", group=MOCK
+    )
+    seed: int | None = option(None, "random seed", group=MOCK)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.error_rate <= 1.0:

@@ -32,9 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.vocabulary import Vocabulary, normalize
+from protocol.vocabulary import Vocabulary, normalize, written_phrases
 from services.speech import spanish
-from services.speech.recognizer import EngineError, Recognition, written_phrases
+from services.speech.recognizer import EngineError, Recognition
 
 MODEL_HINT = (
     "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "
