@@ -1,6 +1,9 @@
 """`voxshape router`: the zenoh router of a session (a Python process in router mode).
 
-Inputs: none. Outputs: none. It routes every other node's traffic: local services and remote
+Inputs:  nothing
+Outputs: nothing
+
+It routes every other node's traffic: local services and remote
 teachers and robots connect to it. It holds the presence token `presence/router/<node>`.
 
 Open by default (the local session on loopback). Secured when given users:

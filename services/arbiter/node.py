@@ -1,14 +1,19 @@
 """`voxshape arbiter`: the feedback arbiter on the bus (the core is arbiter.py).
 
-Inputs:  voxshape/<session>/robot/*/obs               step timing, bumps, goals, episodes
-         voxshape/<session>/robot/*/help              a robot's question: the next word answers it
-         voxshape/<session>/teacher/*/utterance       what teachers said
-         voxshape/<session>/teacher/*/clock           teachers' clock probes
-Outputs: voxshape/<session>/robot/<robot>/feedback    credited rewards and commands -> learner
-         voxshape/<session>/robot/<robot>/teaching    interventions per episode, teacher stats
-         voxshape/<session>/robot/<robot>/answer      who answered a question, with what
-         voxshape/<session>/teacher/<teacher>/notice  understood, or why not -> teacher client
-         voxshape/<session>/teacher/<teacher>/clock-reply
+Inputs:  voxshape/<session>/robot/*/obs            Observation (recovers 30 s)
+         voxshape/<session>/robot/*/help           HelpRequest
+         voxshape/<session>/teacher/*/utterance    Utterance (recovers 30 s)
+         voxshape/<session>/teacher/*/clock        ClockProbe
+Outputs: voxshape/<session>/robot/*/feedback       CreditedFeedback (keeps 1024)
+         voxshape/<session>/robot/*/teaching       TeachingStats
+         voxshape/<session>/robot/*/answer         HelpAnswer
+         voxshape/<session>/teacher/*/notice       TeacherNotice
+         voxshape/<session>/teacher/*/clock-reply  ClockReply
+
+From the robots' observations it takes their step timing, bumps, goals and episodes; a
+robot's question is answered by the next word said to it; teachers' utterances become
+credited rewards and commands for the learners, with interventions per episode and teacher
+statistics, and each teacher hears what was understood, or why not.
 
 Nothing a teacher gives is lost to a restart: utterances are a recovering input (what kept
 teacher outputs published while the router restarted is fetched again; copies are dropped by

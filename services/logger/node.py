@@ -1,7 +1,11 @@
 """`voxshape logger`: records a whole session.
 
-Inputs:  voxshape/<session>/**                   every message, raw (known types or not)
-         voxshape/<session>/presence/**          nodes joining and leaving
+Inputs:  voxshape/<session>/**  everything in the session
+Outputs: nothing
+
+Every message, raw (known types or not), and the presence tokens of nodes joining and
+leaving (presence/**).
+
 Writes:  runs/<session>/events.msgpack           the durable event log (eventlog.py)
          runs/<session>/session.json             map and settings (run.py)
          runs/<session>/recording.rrd            the rerun recording, by a child process

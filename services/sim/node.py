@@ -1,8 +1,11 @@
-"""`voxshape sim`: the simulator on the bus.
+"""`voxshape sim`: the simulator on the bus, for each robot it simulates.
 
-Inputs:  voxshape/<session>/robot/<robot>/action   for each robot it simulates
-Outputs: voxshape/<session>/robot/<robot>/obs      one per control step (10 Hz of sim time)
-         voxshape/<session>/robot/<robot>/episode  start, goal, collision, timeout
+Inputs:  voxshape/<session>/robot/<robot>/action   Action
+Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
+         voxshape/<session>/robot/<robot>/episode  EpisodeEvent
+
+An observation per control step (10 Hz of sim time), an episode event at each start, goal,
+collision and timeout.
 """
 
 from __future__ import annotations

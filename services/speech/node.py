@@ -1,12 +1,14 @@
 """`voxshape speech`: the speech service on the bus.
 
-Inputs:  voxshape/<session>/teacher/*/audio      audio chunks (cascade, pocketsphinx, vosk, whisper)
-         voxshape/<session>/teacher/*/said       text said (mock)
-         (an engine's other input is taken only to tell its senders, once, it is not heard)
-Outputs: voxshape/<session>/teacher/<t>/utterance  what each teacher was understood to say
-                                                   (kept: an arbiter that missed it recovers it)
-         voxshape/<session>/teacher/<t>/notice     speech heard but rejected ("not recognized"),
-                                                   or input this engine cannot hear
+Inputs:  voxshape/<session>/teacher/*/audio      AudioChunk (recovers 30 s)
+         voxshape/<session>/teacher/*/said       Said (recovers 30 s)
+Outputs: voxshape/<session>/teacher/*/utterance  Utterance (keeps 256)
+         voxshape/<session>/teacher/*/notice     TeacherNotice
+
+The audio engines (cascade, pocketsphinx, vosk, whisper) hear audio, the mock text said; an
+engine's other input is taken only to tell its senders, once, it is not heard. Utterances are
+what each teacher was understood to say (kept: an arbiter that missed one recovers it);
+notices, speech heard but rejected ("not recognized"), or input this engine cannot hear.
 """
 
 from __future__ import annotations

@@ -1,15 +1,24 @@
 """`voxshape teach`: speak, stream recordings or type words to a robot of a session.
 
-Outputs: voxshape/<session>/teacher/<teacher>/audio      microphone or WAV chunks
-         voxshape/<session>/teacher/<teacher>/utterance  typed words (engine "typed")
-         voxshape/<session>/teacher/<teacher>/said       typed words, with --through-speech
-                                                         (straight out while no speech service)
-Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
-         voxshape/<session>/teacher/<teacher>/notice     what the arbiter made of it
-         voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
-         voxshape/<session>/robot/<robot>/obs, episode, feedback   the robot's status
-         voxshape/<session>/robot/<robot>/help, answer   its questions ("which way?", with
-                                                         the bell) and who answered them
+Inputs:  voxshape/<session>/teacher/<teacher>/utterance    Utterance
+         voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
+         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
+         voxshape/<session>/robot/*/obs                    Observation
+         voxshape/<session>/robot/*/episode                EpisodeEvent
+         voxshape/<session>/robot/*/feedback               CreditedFeedback
+         voxshape/<session>/robot/*/help                   HelpRequest
+         voxshape/<session>/robot/*/answer                 HelpAnswer
+Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
+         voxshape/<session>/teacher/<teacher>/utterance    Utterance (keeps 256)
+         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
+         voxshape/<session>/teacher/<teacher>/placed       Placed
+
+It sends microphone or WAV chunks as audio, typed words as utterances (engine "typed"), or,
+with --through-speech, as said text (straight out while no speech service). It hears what was
+understood and what the arbiter made of it, the clock exchange (a thread), and of the robot
+it teaches its status, its questions ("which way?", with the bell) and who answered them; a
+placed message is `voxshape placed`'s.
 
     voxshape teach                              type words (a prompt, or a script on stdin)
     voxshape teach --wav good.wav --wav left.wav   stream recordings in real time (--fast)

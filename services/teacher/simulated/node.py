@@ -1,13 +1,17 @@
 """`voxshape sim-teacher`: the simulated teacher on the bus, speaking through the normal path.
 
-Inputs:  voxshape/<session>/robot/<robot>/obs              what it watches
-         voxshape/<session>/robot/<robot>/help             the robot's questions (it answers)
-         voxshape/<session>/teacher/<teacher>/notice       what the arbiter made of it (counted)
-         voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
-Outputs: voxshape/<session>/teacher/<teacher>/said     its words, for the mock speech engine
-         voxshape/<session>/teacher/<teacher>/audio    or its words synthesized (--audio), for
-                                                       pocketsphinx: recognition errors are real
-         voxshape/<session>/teacher/<teacher>/clock    clock probes (services/runtime/clock.py)
+Inputs:  voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
+         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
+         voxshape/<session>/robot/*/obs                    Observation
+         voxshape/<session>/robot/*/help                   HelpRequest
+Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
+         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
+
+It watches its robot's observations and answers its questions; the arbiter's notices are
+counted, the clock exchange is a thread (services/runtime/clock.py). Its words go out as said
+text, for the mock speech engine, or synthesized (--audio) for pocketsphinx: recognition
+errors are then real.
 
 It sends what a person's `voxshape teach` client sends, nothing more: the speech service hears
 it, the arbiter credits it, the learner takes it.

@@ -3,12 +3,20 @@
     GET /        the page (services/teacher/web/static/index.html) and its files
     GET /ws      the WebSocket of docs/web.md: login, then JSON and audio frames
 
-Inputs (its own node, role "web"): voxshape/<session>/robot/*/obs, episode, feedback,
-teaching, help (a robot's question) and answer (who answered it). Each logged-in browser gets
-a teacher node of its own (role "teacher", the browser's user and password on a secured
-session, so the router's access control applies to it as to `voxshape teach`): outputs
-teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its notices and
-utterances, and the clock exchange with the arbiter. The server is
+Its own node, role "web":
+
+Inputs:  voxshape/<session>/robot/*/obs       Observation
+         voxshape/<session>/robot/*/episode   EpisodeEvent
+         voxshape/<session>/robot/*/feedback  CreditedFeedback
+         voxshape/<session>/robot/*/teaching  TeachingStats
+         voxshape/<session>/robot/*/help      HelpRequest
+         voxshape/<session>/robot/*/answer    HelpAnswer
+Outputs: nothing
+
+Each logged-in browser gets a teacher node of its own (role "teacher", the browser's user and
+password on a secured session, so the router's access control applies to it as to `voxshape
+teach`): outputs teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its
+notices and utterances, and the clock exchange with the arbiter. The server is
 services/teacher/web/server.py.
 
 On a secured session its teachers come from the access file (--access, VOXSHAPE_ACCESS), which
