@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal, TypeVar
+from typing import Any, Literal, TypeVar
 
 from protocol import check_id
 from protocol.messages import MIN_CONFIDENCE
@@ -65,8 +65,9 @@ def parse_window(text: str) -> DelayWindow:
     return DelayWindow(*bounds)
 
 
-def per_teacher(parse: Callable[[str], T], example: str) -> Callable[[str], tuple[str, T]]:
-    """A parser of `ana=VALUE` -> ("ana", parse(VALUE)), whose error says what is wrong."""
+def per_teacher(help: str, parse: Callable[[str], T], value: str, example: str) -> Any:
+    """A field set by a repeatable flag of `TEACHER=VALUE` items, a dict of each teacher's
+    parse(VALUE); a bad item's error says what is wrong, with `example`."""
 
     def one(item: str) -> tuple[str, T]:
         teacher, sep, value = item.partition("=")
@@ -74,7 +75,14 @@ def per_teacher(parse: Callable[[str], T], example: str) -> Callable[[str], tupl
             raise ArbiterConfigError(f"not TEACHER=VALUE, e.g. {example}")
         return check_id(teacher, "teacher"), parse(value)
 
-    return one
+    return option(
+        help=help,
+        default_factory=dict,
+        repeat=True,
+        metavar=f"TEACHER={value}",
+        parse=one,
+        collect=dict,
+    )
 
 
 @dataclass(frozen=True)
@@ -104,13 +112,8 @@ class ArbiterConfig:
         default_factory=DelayWindow,
         parse=parse_window,
     )
-    teacher_delay: dict[str, DelayWindow] = option(
-        help="one teacher's window",
-        default_factory=dict,
-        repeat=True,
-        metavar="TEACHER=LO:HI",
-        parse=per_teacher(parse_window, "ana=0.5:1.2"),
-        collect=dict,
+    teacher_delay: dict[str, DelayWindow] = per_teacher(
+        "one teacher's window", parse_window, "LO:HI", "ana=0.5:1.2"
     )
     # Teachers whose delays and rate are in robot seconds, not their own: a simulated teacher
     # watching a simulator that runs faster than real time reacts after as many steps, and
@@ -134,13 +137,8 @@ class ArbiterConfig:
     )
     merge_window: float = 1.0  # seconds, for mean and majority
     merge_slack_steps: int = 2  # judgements this close in steps are about the same steps
-    teacher_weight: dict[str, float] = option(
-        help="a teacher's weight; the others weigh 1",
-        default_factory=dict,
-        repeat=True,
-        metavar="TEACHER=W",
-        parse=per_teacher(float, "ana=2"),
-        collect=dict,
+    teacher_weight: dict[str, float] = per_teacher(
+        "a teacher's weight; the others weigh 1", float, "W", "ana=2"
     )
     utterances_per_s: float = 4.0  # per teacher, sustained ...
     utterances_at_once: float = 8.0  # ... and at once (a person says at most 2-3 a second)
