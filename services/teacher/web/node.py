@@ -60,6 +60,7 @@ from services.world.maps import load_map, task_option
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 8080
 DEFAULT_MAX_CLIENTS = 20
+HTTPS = "HTTPS (a certificate and its key, e.g. the router's of `voxshape certs DIR`)"
 
 
 @dataclass(frozen=True)
@@ -83,12 +84,12 @@ class WebOptions:
     port: int = option(DEFAULT_PORT, "port to serve the page on", env="VOXSHAPE_WEB_PORT")
     https_cert: Path | None = option(
         None,
-        "serve HTTPS with this certificate (PEM), e.g. the router's of `voxshape certs DIR`: "
-        "DIR/router.pem",
+        "the page's certificate (PEM), e.g. DIR/router.pem",
         env="VOXSHAPE_WEB_CERT",
+        group=HTTPS,
     )
     https_key: Path | None = option(
-        None, "its private key, e.g. DIR/router.key", env="VOXSHAPE_WEB_KEY"
+        None, "its private key, e.g. DIR/router.key", env="VOXSHAPE_WEB_KEY", group=HTTPS
     )
     max_clients: int = option(
         DEFAULT_MAX_CLIENTS, "browsers at once", env="VOXSHAPE_WEB_MAX_CLIENTS"
