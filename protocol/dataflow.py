@@ -255,6 +255,36 @@ def text() -> str:
     return "\n".join(out)
 
 
+def docstring(role: str) -> str:
+    """A role's row as its node's module docstring shows it: `Inputs:` and `Outputs:`, a key a
+    line (`<robot>`, `<teacher>`: its own; `*`: any of the session's), with the type it carries
+    and what survives a restart (`voxshape dataflow --docstring ROLE` prints it)."""
+    row = DATAFLOW[role]
+    if row.everything:
+        return f"Inputs:  {ROOT}/<session>/**  everything in the session\nOutputs: nothing"
+    sides = {"Inputs: ": row.subscribes, "Outputs:": row.publishes}
+    keys = {f: f"{ROOT}/<session>/{f.scope}/{_owner(f)}/{f.topic}" for f in _flows_of(row)}
+    width = max((len(k) for k in keys.values()), default=0) + 2
+    lines = []
+    for label, flows in sides.items():
+        for i, f in enumerate(flows):
+            extra = f" (keeps {f.kept})" if f.kept else ""
+            extra += f" (recovers {f.recover_s:g} s)" if f.recover_s else ""
+            kind = SCOPES[f.scope][f.topic].__name__
+            lines.append(f"{label if i == 0 else '':<9}{keys[f]:<{width}}{kind}{extra}")
+        if not flows:
+            lines.append(f"{label} nothing")
+    return "\n".join(lines)
+
+
+def _owner(flow: Flow) -> str:
+    return f"<{flow.scope}>" if flow.owner == "own" else ANY
+
+
+def _flows_of(row: NodeRole) -> tuple[Flow, ...]:
+    return (*row.subscribes, *row.publishes)
+
+
 def _check_table() -> None:
     for role, row in DATAFLOW.items():
         for flow in (*row.publishes, *row.subscribes):

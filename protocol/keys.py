@@ -72,6 +72,10 @@ TEACHER_TOPICS: dict[str, type[Message]] = {
     "placed": Placed,
 }
 SCOPES: dict[str, dict[str, type[Message]]] = {"robot": ROBOT_TOPICS, "teacher": TEACHER_TOPICS}
+# Each type travels on one topic, so a message's key follows from it (`message_key`).
+TOPIC_OF: dict[type[Message], tuple[str, str]] = {
+    kind: (scope, topic) for scope, topics in SCOPES.items() for topic, kind in topics.items()
+}
 
 Scope = Literal["robot", "teacher", "presence"]
 _ID = re.compile(ID_PATTERN)
@@ -105,6 +109,17 @@ def teacher_key(session: str, teacher: str, topic: str) -> str:
     """`voxshape/<session>/teacher/<teacher>/<topic>`; `teacher="*"` for every teacher."""
     teacher = teacher if teacher == "*" else check_id(teacher, "teacher")
     return f"{ROOT}/{check_id(session, 'session')}/teacher/{teacher}/{_topic('teacher', topic)}"
+
+
+def message_key(session: str, message: Message) -> str:
+    """The key `message` travels on: its type's topic, of its robot (a robot topic) or its
+    teacher (a teacher topic)."""
+    if type(message) not in TOPIC_OF:
+        raise ProtocolError("message", f"{type(message).__name__} travels on no topic")
+    scope, topic = TOPIC_OF[type(message)]
+    if scope == "robot":
+        return robot_key(session, message.robot, topic)  # type: ignore[attr-defined]
+    return teacher_key(session, message.teacher, topic)  # type: ignore[attr-defined]
 
 
 def presence_key(session: str, role: str = "*", node: str = "*") -> str:

@@ -40,6 +40,11 @@ def normalize(text: str) -> str:
     return " ".join(re.sub(r"[^\w]+", " ", bare).split())
 
 
+def written_phrases(vocabulary: Vocabulary, language: str) -> dict[str, str]:
+    """Normalized phrase -> the phrase as written, for one language."""
+    return {normalize(p): p for p in vocabulary.phrases(language)}
+
+
 @dataclass(frozen=True)
 class Vocabulary:
     meanings: dict[str, Meaning]

@@ -1,6 +1,9 @@
 """`voxshape router`: the zenoh router of a session (a Python process in router mode).
 
-Inputs: none. Outputs: none. It routes every other node's traffic: local services and remote
+Inputs:  nothing
+Outputs: nothing
+
+It routes every other node's traffic: local services and remote
 teachers and robots connect to it. It holds the presence token `presence/router/<node>`.
 
 Open by default (the local session on loopback). Secured when given users:
@@ -35,7 +38,7 @@ import json
 import os
 import shutil
 import tempfile
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from services.deploy.access import (
@@ -51,29 +54,37 @@ from services.deploy.access import (
 from services.deploy.enforced import serve_access
 from services.runtime import BusConfig, ConfigError, Node, Presence, bus_config, fields
 from services.runtime.config import add_bus_arguments
+from services.runtime.settings import add_options, option, read_options
 
 ROUTER_NAME = "router"  # the common name of a router's certificate (voxshape certs)
 LOOPBACK = ("tcp/127.", "tcp/localhost:", "tls/127.", "tls/localhost:", "tcp/[::1]")
 
 
+@dataclass(frozen=True)
+class RouterOptions:
+    """`voxshape router`'s security settings (off unless users are given)."""
+
+    credentials: Path | None = option(
+        None,
+        "user:password lines",
+        env="VOXSHAPE_CREDENTIALS",
+        show="SECRETS/credentials",
+    )
+    access: Path | None = option(
+        None,
+        "users' roles",
+        env="VOXSHAPE_ACCESS",
+        show=f"{ACCESS_FILE} when secured",
+    )
+    print_access: bool = option(
+        False,
+        "print zenoh's access_control settings that the router would use, and exit",
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    g = parser.add_argument_group("security (off unless users are given)")
-    g.add_argument(
-        "--credentials",
-        type=Path,
-        help="user:password lines (VOXSHAPE_CREDENTIALS; default: SECRETS/credentials)",
-    )
-    g.add_argument(
-        "--access",
-        type=Path,
-        help=f"users' roles (VOXSHAPE_ACCESS; default: {ACCESS_FILE} when secured)",
-    )
-    g.add_argument(
-        "--print-access",
-        action="store_true",
-        help="print zenoh's access_control settings that the router would use, and exit",
-    )
+    add_options(parser, RouterOptions, "security (off unless users are given)")
 
 
 def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tuple[BusConfig, str]:
@@ -98,7 +109,7 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
         return bus, note
     try:
         users = load_access(enforced_access(bus, args, env))
-        passwords = load_credentials(Path(credentials))
+        passwords = load_credentials(credentials)
     except AccessError as e:
         raise ConfigError(str(e)) from None
     for warning in check_consistent(users, passwords):
@@ -122,13 +133,13 @@ def secured(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> tu
 
 def _given(
     bus: BusConfig, args: argparse.Namespace, env: dict[str, str]
-) -> tuple[str | None, str | None]:
+) -> tuple[Path | None, Path | None]:
     """The credentials and access files given (flags, variables, the secrets folder)."""
-    credentials = getattr(args, "credentials", None) or env.get("VOXSHAPE_CREDENTIALS") or None
+    options = read_options(RouterOptions, args, env)
+    credentials = options.credentials
     if credentials is None and bus.secrets is not None:
         credentials = bus.secrets / "credentials"
-    access = getattr(args, "access", None) or env.get("VOXSHAPE_ACCESS") or None
-    return credentials, access
+    return credentials, options.access
 
 
 def enforced_access(bus: BusConfig, args: argparse.Namespace, env: dict[str, str]) -> Path | None:
@@ -137,7 +148,7 @@ def enforced_access(bus: BusConfig, args: argparse.Namespace, env: dict[str, str
     if credentials is None:
         return None
     try:
-        return Path(access) if access else find_access_file()
+        return access or find_access_file()
     except AccessError as e:
         raise ConfigError(str(e)) from None
 
@@ -197,7 +208,7 @@ def _private_copy(passwords: dict[str, str]) -> Path:
 def run(args: argparse.Namespace) -> int:
     given, env = bus_config("router", args), dict(os.environ)
     bus, note = secured(given, args, env)
-    if getattr(args, "print_access", False):
+    if read_options(RouterOptions, args, env).print_access:
         acl = dict(bus.extra).get("access_control")
         print(json.dumps(json.loads(acl), indent=2) if acl else "access control is off: " + note)
         return 0

@@ -88,11 +88,21 @@ def unfed_inputs(present: list[dict[str, str]]) -> list[str]:
 
 
 def add_dataflow_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--markdown", action="store_true", help="as a markdown table")
+    shown = parser.add_mutually_exclusive_group()
+    shown.add_argument("--markdown", action="store_true", help="as a markdown table")
+    shown.add_argument(
+        "--docstring",
+        metavar="ROLE",
+        choices=tuple(dataflow.DATAFLOW),
+        help="one role's row as its node's module docstring shows it",
+    )
 
 
 def show_dataflow(args: argparse.Namespace) -> int:
-    print(dataflow.markdown() if args.markdown else dataflow.text())
+    if args.docstring:
+        print(dataflow.docstring(args.docstring))
+    else:
+        print(dataflow.markdown() if args.markdown else dataflow.text())
     return 0
 
 

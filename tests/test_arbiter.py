@@ -24,11 +24,11 @@ from services.arbiter.config import (
     ArbiterConfigError,
     DelayLearning,
     DelayWindow,
-    parse_per_teacher,
     parse_window,
 )
 from services.arbiter.credit import ReactionDelay, StepTimeline
 from services.arbiter.hygiene import RecentIds
+from services.arbiter.node import config_from
 from services.arbiter.scripted import (
     ScriptedTeacher,
     observation,
@@ -36,6 +36,8 @@ from services.arbiter.scripted import (
     sync_in_process,
     utterance,
 )
+from services.cli import parser as cli_parser
+from services.runtime import ConfigError
 from services.runtime.clock import estimate_from
 from services.runtime.limits import TokenBucket
 
@@ -457,16 +459,37 @@ def test_recent_ids_forget_the_oldest_and_buckets_refill():
 # -- settings ---------------------------------------------------------------------------------
 
 
+def arbiter_flags(*argv: str, env: dict[str, str] | None = None) -> ArbiterConfig:
+    return config_from(cli_parser("arbiter").parse_args(["arbiter", *argv]), env or {})
+
+
 def test_settings_errors_name_the_problem_and_the_fix():
     assert parse_window("0.3:1.1") == DelayWindow(0.3, 1.1)
     with pytest.raises(ArbiterConfigError, match=r"needs 0 <= lo < hi .* e\.g\. 0\.2:0\.8"):
         parse_window("1:0.5")
     with pytest.raises(ArbiterConfigError, match="is not LO:HI"):
         parse_window("fast")
-    with pytest.raises(ArbiterConfigError, match=r"not TEACHER=VALUE, e\.g\. ana=2"):
-        parse_per_teacher(["ana"], float, "--teacher-weight", "ana=2")
-    with pytest.raises(ArbiterConfigError, match="use 1-64 of"):
-        parse_per_teacher(["a/b=2"], float, "--teacher-weight", "ana=2")
+    with pytest.raises(
+        ConfigError, match=r"--teacher-weight 'ana': not TEACHER=VALUE, e\.g\. ana=2"
+    ):
+        arbiter_flags("--teacher-weight", "ana")
+    with pytest.raises(ConfigError, match=r"--teacher-weight 'a/b=2': teacher: .* use 1-64 of"):
+        arbiter_flags("--teacher-weight", "a/b=2")
+    with pytest.raises(ConfigError, match=r"--delay 'fast': delay window 'fast' is not LO:HI"):
+        arbiter_flags("--delay", "fast")
+    with pytest.raises(ConfigError, match="VOXSHAPE_MERGE='vote' is not one of sum, mean"):
+        arbiter_flags(env={"VOXSHAPE_MERGE": "vote"})
+    given = arbiter_flags("--teacher-delay", "ana=0.5:1.2", "--teacher-weight", "bob=3")
+    assert given.teacher_delay == {"ana": DelayWindow(0.5, 1.2)}
+    assert given.teacher_weight == {"bob": 3.0}
+    both = arbiter_flags("--robot-time", "sim", env={"VOXSHAPE_ROBOT_TIME": "ana, bob"})
+    assert both.robot_time == {"sim"}  # a flag overrides its variable
+    assert arbiter_flags(env={"VOXSHAPE_ROBOT_TIME": "ana, bob"}).robot_time == {"ana", "bob"}
+    with pytest.raises(
+        ConfigError, match="--set 'merge=mean': merge has a flag of its own: --merge"
+    ):
+        arbiter_flags("--set", "merge=mean")  # one spelling per setting
+    assert arbiter_flags("--set", "settle=5", "--merge", "mean").settle == 5.0
     with pytest.raises(ArbiterConfigError, match="merge policy 'vote'"):
         ArbiterConfig(merge="vote")  # type: ignore[arg-type]
 

@@ -61,7 +61,7 @@ def test_a_teacher_with_a_user_alone_is_asked_for_the_password_or_reads_a_file(t
 @pytest.mark.parametrize(
     ("env", "error"),
     [
-        ({"VOXSHAPE_MODE": "server"}, "mode 'server' is not one of peer, client, router"),
+        ({"VOXSHAPE_MODE": "server"}, "VOXSHAPE_MODE='server' is not one of peer, client, router"),
         ({"VOXSHAPE_CONNECT": "127.0.0.1:7447"}, "not PROTOCOL/HOST:PORT"),
         ({"VOXSHAPE_SESSION": "my/session"}, "session: 'my/session' contains '/'"),
         ({"VOXSHAPE_NODE": "a b"}, "node: 'a b' contains ' '"),

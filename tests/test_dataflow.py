@@ -4,6 +4,7 @@ row, and the real services declare exactly their rows."""
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import signal
@@ -13,7 +14,16 @@ import time
 import pytest
 
 from protocol import CreditedFeedback, TeacherNotice, TeachingStats, robot_key, teacher_key
-from protocol.dataflow import ANY, DATAFLOW, DataflowError, check, flow_of, markdown, publishers_of
+from protocol.dataflow import (
+    ANY,
+    DATAFLOW,
+    DataflowError,
+    check,
+    docstring,
+    flow_of,
+    markdown,
+    publishers_of,
+)
 from protocol.keys import SCOPES
 from services.cli import main
 from services.deploy.access import ROLES, User, access_control
@@ -252,3 +262,39 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
         feedback = node.output("feedback", robot_key(session_id, "r1", "feedback"))
         notice = node.output("notice", teacher_key(session_id, "ana", "notice"))
         assert feedback.kept and not notice.kept
+
+
+# node role -> the module whose docstring shows its row (the learner's: services/learner/node.py)
+NODE_MODULES = {
+    "sim": "services.sim.node",
+    "ros2": "services.ros2.node",
+    "arbiter": "services.arbiter.node",
+    "speech": "services.speech.node",
+    "teacher": "services.teacher.node",
+    "simteacher": "services.teacher.simulated.node",
+    "web": "services.teacher.web.node",
+    "logger": "services.logger.node",
+    "router": "services.router",
+}
+
+
+@pytest.mark.parametrize("role", NODE_MODULES)
+def test_each_node_docstring_shows_its_row_of_the_table(role):
+    """A node's Inputs and Outputs are its row, rendered: not copied by hand."""
+    module = importlib.import_module(NODE_MODULES[role])
+    assert docstring(role) in (module.__doc__ or ""), (
+        f"{module.__file__}: its docstring's Inputs/Outputs are not its row of "
+        f"protocol/dataflow.py; paste `voxshape dataflow --docstring {role}`"
+    )
+
+
+def test_the_docstring_rendering_says_direction_owner_type_and_what_survives():
+    assert docstring("sim").splitlines() == [
+        "Inputs:  voxshape/<session>/robot/<robot>/action   Action",
+        "Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)",
+        "         voxshape/<session>/robot/<robot>/episode  EpisodeEvent",
+    ]
+    assert "voxshape/<session>/teacher/*/utterance    Utterance (recovers 30 s)" in docstring(
+        "arbiter"
+    )
+    assert docstring("router") == "Inputs:  nothing\nOutputs: nothing"

@@ -8,6 +8,7 @@ from hypothesis import given
 from protocol import (
     ROBOT_TOPICS,
     TEACHER_TOPICS,
+    Message,
     Observation,
     ProtocolError,
     Utterance,
@@ -17,6 +18,8 @@ from protocol import (
     session_keys,
     teacher_key,
 )
+from protocol.examples import example_messages
+from protocol.keys import TOPIC_OF, message_key
 from tests.strategies import ids
 
 
@@ -88,3 +91,14 @@ def test_parse_rejects_keys_outside_the_design(bad):
 def test_unknown_topic_lists_the_known_ones():
     with pytest.raises(ProtocolError, match="known: obs, action, episode, feedback, learning"):
         robot_key("lab", "r1", "odometry")
+
+
+def test_a_message_travels_on_the_key_of_its_type():
+    """message_key (Node.publish's): the type's one topic, of its robot or teacher; the key
+    each example of protocol/examples.py is published on, for every topic."""
+    examples = example_messages("lab", robot="r1", teacher="ana")
+    assert {type(m) for _, m in examples} == set(TOPIC_OF)  # every topic has an example
+    for key, message in examples:
+        assert message_key("lab", message) == key
+    with pytest.raises(ProtocolError, match="Message travels on no topic"):
+        message_key("lab", Message())  # the envelope alone

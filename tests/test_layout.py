@@ -1,41 +1,92 @@
-"""The floors of docs/architecture.md#layout, checked from the imports: the shared floor
-imports no service, and a service package imports only itself and the shared floor."""
+"""The floors of docs/architecture.md#layout, checked from the imports (absolute and relative):
+protocol/ imports no service, the shared floor imports no service, and a service package
+imports only itself and the shared floor."""
 
 from __future__ import annotations
 
 import ast
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import ROOT
 
-SHARED = {"runtime", "world", "deploy"}
+SHARED = {"runtime", "world", "deploy", "recognition"}
 SERVICES = {"arbiter", "learner", "logger", "sim", "speech", "teacher"}
-# The simulated teacher hears itself through the mock engine's confusion core (in-process).
-EXCEPTIONS = {("teacher/simulated/teacher.py", "services.speech.mock")}
+
+
+def package_of(path: Path) -> list[str]:
+    """The package a module's relative imports start from: `services/speech/node.py` ->
+    services.speech, `services/speech/__init__.py` -> services.speech."""
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return list(parts[:-1])
 
 
 def imports(path: Path) -> set[str]:
+    return imported(path.read_text(encoding="utf-8"), package_of(path))
+
+
+def imported(source: str, package: list[str]) -> set[str]:
+    """The modules `source` imports, relative imports made absolute from `package` (`from .
+    import mock` in services/speech/node.py is services.speech.mock)."""
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            found.add(node.module)
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom):
+            base = package[: len(package) - node.level + 1] if node.level else []
+            module = ".".join([*base, *([node.module] if node.module else [])])
+            if node.level and not node.module:  # from . import a, b: each a module or a name
+                found.update(f"{module}.{alias.name}" for alias in node.names)
+            found.add(module)
         elif isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
     return found
+
+
+def wrong_imports(folder: Path, allowed: set[str]) -> list[str]:
+    """`folder`'s imports of services.X outside `allowed` (X names a package or module)."""
+    wrong = []
+    for path in sorted(folder.rglob("*.py")):
+        for module in sorted(imports(path)):
+            parts = module.split(".")
+            if parts[0] == "services" and len(parts) > 1 and parts[1] not in allowed:
+                wrong.append(f"{path.relative_to(ROOT)} imports {module}")
+    return wrong
 
 
 def test_services_stand_on_the_shared_floor_only():
     services = ROOT / "services"
     wrong = []
     for package in sorted(SHARED | SERVICES):
-        allowed = {package} | SHARED
-        for path in sorted((services / package).rglob("*.py")):
-            where = path.relative_to(services).as_posix()
-            for module in sorted(imports(path)):
-                parts = module.split(".")
-                if parts[0] != "services" or len(parts) < 2:
-                    continue
-                if parts[1] not in allowed and (where, module) not in EXCEPTIONS:
-                    wrong.append(f"{where} imports {module}")
+        wrong += wrong_imports(services / package, {package} | SHARED)
     assert not wrong, "\n".join(wrong)
-    assert (services / "deploy").is_dir() and all((services / p).is_dir() for p in SERVICES)
+    assert all((services / p).is_dir() for p in SHARED | SERVICES)
+
+
+def test_the_protocol_imports_no_service():
+    assert not wrong_imports(ROOT / "protocol", set())
+
+
+@pytest.mark.parametrize(
+    ("where", "source", "module"),
+    [
+        ("services/speech/node.py", "from . import mock", "services.speech.mock"),
+        ("services/speech/node.py", "from .mock import X", "services.speech.mock"),
+        ("services/speech/node.py", "from ..arbiter import config", "services.arbiter"),
+        ("services/teacher/web/node.py", "from ...sim.task import X", "services.sim.task"),
+        ("services/speech/__init__.py", "from .mock import X", "services.speech.mock"),
+        ("protocol/keys.py", "import services.sim.node as n", "services.sim.node"),
+    ],
+)
+def test_relative_imports_are_read_as_the_modules_they_name(where, source, module):
+    assert module in imported(source, package_of(ROOT / where))
+
+
+def test_a_relative_import_across_services_is_caught(tmp_path, monkeypatch):
+    """What the floors test finds in a service that imports another relatively."""
+    monkeypatch.setattr("tests.test_layout.ROOT", tmp_path)
+    speech = tmp_path / "services" / "speech"
+    speech.mkdir(parents=True)
+    (speech / "node.py").write_text("from ..arbiter.config import ArbiterConfig\n")
+    assert wrong_imports(speech, {"speech"}) == [
+        "services/speech/node.py imports services.arbiter.config"
+    ]

@@ -260,3 +260,7 @@ def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
         profile_from(parser().parse_args(["sim-teacher", "--set", "words_per_robot_minute=-1"]))
     with pytest.raises(ConfigError, match="KEY one of"):
         profile_from(parser().parse_args(["sim-teacher", "--set", "rate=2"]))
+    noisy = profile_from(parser().parse_args(["sim-teacher", "--noise", "0.2"]))
+    assert noisy.noise == 0.2
+    with pytest.raises(ConfigError, match="noise has a flag of its own: --noise"):
+        profile_from(parser().parse_args(["sim-teacher", "--set", "noise=0.2"]))

@@ -1,16 +1,16 @@
-"""Every setting of the arbiter, with its default and the reason for it, and the parsing of the
-per-teacher flags (`ana=0.5:1.2`, `ana=2`)."""
+"""Every setting of the arbiter, with its default and the reason for it (and, for those with a
+flag, its help), and the parsing of the per-teacher flags (`ana=0.5:1.2`, `ana=2`)."""
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Literal, TypeVar
+from typing import Any, Literal, TypeVar
 
-from protocol import ProtocolError, check_id
+from protocol import check_id
 from protocol.messages import MIN_CONFIDENCE
-from services.runtime import ConfigError
+from services.runtime.settings import ConfigError, option
 
 T = TypeVar("T")
 MergePolicy = Literal["sum", "mean", "majority"]
@@ -39,6 +39,9 @@ class DelayWindow:
                 f"delay window ends {self.hi:g} s before the onset: at most 10"
             )
 
+    def __str__(self) -> str:
+        return f"{self.lo:g}:{self.hi:g}"
+
     @property
     def centre(self) -> float:
         return (self.lo + self.hi) / 2
@@ -46,6 +49,40 @@ class DelayWindow:
     @property
     def width(self) -> float:
         return self.hi - self.lo
+
+
+def parse_window(text: str) -> DelayWindow:
+    """`0.2:0.8` -> DelayWindow(0.2, 0.8)."""
+    lo, sep, hi = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError(text)
+        bounds = float(lo), float(hi)
+    except ValueError:
+        raise ArbiterConfigError(
+            f"delay window {text!r} is not LO:HI in seconds before the onset, e.g. 0.2:0.8"
+        ) from None
+    return DelayWindow(*bounds)
+
+
+def per_teacher(help: str, parse: Callable[[str], T], value: str, example: str) -> Any:
+    """A field set by a repeatable flag of `TEACHER=VALUE` items, a dict of each teacher's
+    parse(VALUE); a bad item's error says what is wrong, with `example`."""
+
+    def one(item: str) -> tuple[str, T]:
+        teacher, sep, value = item.partition("=")
+        if not sep:
+            raise ArbiterConfigError(f"not TEACHER=VALUE, e.g. {example}")
+        return check_id(teacher, "teacher"), parse(value)
+
+    return option(
+        help=help,
+        default_factory=dict,
+        repeat=True,
+        metavar=f"TEACHER={value}",
+        parse=one,
+        collect=dict,
+    )
 
 
 @dataclass(frozen=True)
@@ -64,19 +101,45 @@ class DelayLearning:
 
 @dataclass(frozen=True)
 class ArbiterConfig:
-    min_confidence: float = MIN_CONFIDENCE  # below: ignored, the teacher asked to repeat
-    delay: DelayWindow = field(default_factory=DelayWindow)
-    teacher_delay: dict[str, DelayWindow] = field(default_factory=dict)
+    """Its fields with a flag are set by it (`--merge mean`), the others by `--set KEY=VALUE`."""
+
+    min_confidence: float = option(
+        MIN_CONFIDENCE, "ignore utterances recognized with less (the teacher is asked to repeat)"
+    )
+    delay: DelayWindow = option(
+        help="LO:HI seconds before the onset in which teachers saw what they judge, until "
+        "their own delay is learnt",
+        default_factory=DelayWindow,
+        parse=parse_window,
+    )
+    teacher_delay: dict[str, DelayWindow] = per_teacher(
+        "one teacher's window", parse_window, "LO:HI", "ana=0.5:1.2"
+    )
     # Teachers whose delays and rate are in robot seconds, not their own: a simulated teacher
     # watching a simulator that runs faster than real time reacts after as many steps, and
     # says as much per robot second, as at real time (services/teacher/simulated). People react in
     # their own seconds whatever the robot's pace.
-    robot_time: frozenset[str] = frozenset()
+    robot_time: frozenset[str] = option(
+        frozenset(),
+        "a teacher whose delays and rate are robot seconds: a simulated teacher on a simulator "
+        "faster than real time (people react in their own seconds)",
+        env="VOXSHAPE_ROBOT_TIME",
+        repeat=True,
+        metavar="TEACHER",
+        parse=lambda teacher: check_id(teacher, "teacher"),
+        collect=frozenset,
+    )
     learning: DelayLearning = field(default_factory=DelayLearning)
-    merge: MergePolicy = "sum"
+    merge: MergePolicy = option(
+        "sum",
+        "several teachers: sum (at once), mean or majority within merge_window",
+        env="VOXSHAPE_MERGE",
+    )
     merge_window: float = 1.0  # seconds, for mean and majority
     merge_slack_steps: int = 2  # judgements this close in steps are about the same steps
-    teacher_weight: dict[str, float] = field(default_factory=dict)  # default 1
+    teacher_weight: dict[str, float] = per_teacher(
+        "a teacher's weight; the others weigh 1", float, "W", "ana=2"
+    )
     utterances_per_s: float = 4.0  # per teacher, sustained ...
     utterances_at_once: float = 8.0  # ... and at once (a person says at most 2-3 a second)
     remembered_ids: int = 4096  # message ids kept for dropping duplicates
@@ -125,44 +188,3 @@ class ArbiterConfig:
 
     def weight_of(self, teacher: str) -> float:
         return self.teacher_weight.get(teacher, 1.0)
-
-
-def parse_window(text: str) -> DelayWindow:
-    """`0.2:0.8` -> DelayWindow(0.2, 0.8)."""
-    lo, sep, hi = text.partition(":")
-    try:
-        if not sep:
-            raise ValueError(text)
-        bounds = float(lo), float(hi)
-    except ValueError:
-        raise ArbiterConfigError(
-            f"delay window {text!r} is not LO:HI in seconds before the onset, e.g. 0.2:0.8"
-        ) from None
-    return DelayWindow(*bounds)
-
-
-def parse_per_teacher(
-    items: list[str] | None, parse: Callable[[str], T], what: str, example: str
-) -> dict[str, T]:
-    """`["ana=0.5:1.2", ...]` -> {"ana": parse("0.5:1.2")}; names the bad item and the fix."""
-    parsed: dict[str, T] = {}
-    for item in items or []:
-        teacher, sep, value = item.partition("=")
-        try:
-            if not sep:
-                raise ValueError(f"not TEACHER=VALUE, e.g. {example}")
-            check_id(teacher, "teacher")
-            parsed[teacher] = parse(value)
-        except (ProtocolError, ValueError) as e:
-            raise ArbiterConfigError(f"{what} {item!r}: {e}") from None
-    return parsed
-
-
-def parse_teachers(items: list[str] | None, what: str) -> frozenset[str]:
-    """Teacher ids; names the bad one."""
-    for teacher in items or []:
-        try:
-            check_id(teacher, "teacher")
-        except ProtocolError as e:
-            raise ArbiterConfigError(f"{what} {teacher!r}: {e}") from None
-    return frozenset(items or [])

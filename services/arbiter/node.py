@@ -1,14 +1,19 @@
 """`voxshape arbiter`: the feedback arbiter on the bus (the core is arbiter.py).
 
-Inputs:  voxshape/<session>/robot/*/obs               step timing, bumps, goals, episodes
-         voxshape/<session>/robot/*/help              a robot's question: the next word answers it
-         voxshape/<session>/teacher/*/utterance       what teachers said
-         voxshape/<session>/teacher/*/clock           teachers' clock probes
-Outputs: voxshape/<session>/robot/<robot>/feedback    credited rewards and commands -> learner
-         voxshape/<session>/robot/<robot>/teaching    interventions per episode, teacher stats
-         voxshape/<session>/robot/<robot>/answer      who answered a question, with what
-         voxshape/<session>/teacher/<teacher>/notice  understood, or why not -> teacher client
-         voxshape/<session>/teacher/<teacher>/clock-reply
+Inputs:  voxshape/<session>/robot/*/obs            Observation (recovers 30 s)
+         voxshape/<session>/robot/*/help           HelpRequest
+         voxshape/<session>/teacher/*/utterance    Utterance (recovers 30 s)
+         voxshape/<session>/teacher/*/clock        ClockProbe
+Outputs: voxshape/<session>/robot/*/feedback       CreditedFeedback (keeps 1024)
+         voxshape/<session>/robot/*/teaching       TeachingStats
+         voxshape/<session>/robot/*/answer         HelpAnswer
+         voxshape/<session>/teacher/*/notice       TeacherNotice
+         voxshape/<session>/teacher/*/clock-reply  ClockReply
+
+From the robots' observations it takes their step timing, bumps, goals and episodes; a
+robot's question is answered by the next word said to it; teachers' utterances become
+credited rewards and commands for the learners, with interventions per episode and teacher
+statistics, and each teacher hears what was understood, or why not.
 
 Nothing a teacher gives is lost to a restart: utterances are a recovering input (what kept
 teacher outputs published while the router restarted is fetched again; copies are dropped by
@@ -21,17 +26,17 @@ from __future__ import annotations
 import argparse
 import os
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
 
 from protocol import (
     ClockProbe,
-    ClockReply,
     CreditedFeedback,
-    HelpAnswer,
     HelpRequest,
     Message,
     Observation,
     TeacherNotice,
-    TeachingStats,
     Utterance,
     load_vocabulary,
     parse_key,
@@ -39,17 +44,16 @@ from protocol import (
     teacher_key,
 )
 from services.arbiter.arbiter import Arbiter
-from services.arbiter.config import (
-    MERGE_POLICIES,
-    ArbiterConfig,
-    ArbiterConfigError,
-    parse_per_teacher,
-    parse_teachers,
-    parse_window,
-)
-from services.runtime import Input, Node, Output, Tick, add_bus_arguments, bus_config, fields
+from services.arbiter.config import ArbiterConfig
+from services.runtime import Input, Node, Tick, add_bus_arguments, bus_config, fields
 from services.runtime.logs import worth_logging
-from services.runtime.settings import SettingsError, add_settings_argument, replaced
+from services.runtime.settings import (
+    add_options,
+    add_settings_argument,
+    option,
+    read_options,
+    replaced,
+)
 
 TICK = 0.1  # seconds: merge windows and statistics are checked this often
 # A (re)joining arbiter recovers the robots' steps and the utterances of the last 30 s (as
@@ -59,107 +63,32 @@ TICK = 0.1  # seconds: merge windows and statistics are checked this often
 REFETCH_AFTER_S = 1.0
 
 
+@dataclass(frozen=True)
+class ArbiterOptions:
+    """`voxshape arbiter`'s own settings (the arbitration's: ArbiterConfig)."""
+
+    vocabulary: Path | None = option(
+        None, "vocabulary file", env="VOXSHAPE_VOCABULARY", show="built in"
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    env = os.environ.get
-    defaults = ArbiterConfig()
-    parser.add_argument(
-        "--vocabulary",
-        default=env("VOXSHAPE_VOCABULARY"),
-        help="vocabulary file (default: built in)",
-    )
-    parser.add_argument(
-        "--min-confidence",
-        type=float,
-        default=defaults.min_confidence,
-        help="ignore utterances recognized with less (the teacher is asked to repeat)",
-    )
-    parser.add_argument(
-        "--delay",
-        default=f"{defaults.delay.lo:g}:{defaults.delay.hi:g}",
-        help="LO:HI seconds before the onset in which teachers saw what they judge, until "
-        "their own delay is learnt (default: TAMER's 0.2:0.8)",
-    )
-    parser.add_argument(
-        "--teacher-delay",
-        action="append",
-        metavar="TEACHER=LO:HI",
-        help="one teacher's window (repeatable)",
-    )
-    parser.add_argument(
-        "--robot-time",
-        action="append",
-        default=[t for t in os.environ.get("VOXSHAPE_ROBOT_TIME", "").split(",") if t],
-        metavar="TEACHER",
-        help="a teacher whose delays and rate are robot seconds: a simulated teacher on a "
-        "simulator faster than real time (repeatable, or comma-separated in "
-        "VOXSHAPE_ROBOT_TIME; people react in their own seconds)",
-    )
-    parser.add_argument(
-        "--merge",
-        choices=MERGE_POLICIES,
-        default=env("VOXSHAPE_MERGE", defaults.merge),
-        help="several teachers: sum (at once), mean or majority within merge_window "
-        "(VOXSHAPE_MERGE)",
-    )
-    parser.add_argument(
-        "--teacher-weight", action="append", metavar="TEACHER=W", help="(repeatable; default 1)"
-    )
+    add_options(parser, ArbiterOptions)
+    add_options(parser, ArbiterConfig)
     add_settings_argument(parser, "ArbiterConfig (services/arbiter/config.py)", "settle=5")
 
 
-def config_from(args: argparse.Namespace) -> ArbiterConfig:
-    """The flags over ArbiterConfig's defaults, then the --set settings."""
-    flags = ArbiterConfig(
-        min_confidence=args.min_confidence,
-        delay=parse_window(args.delay),
-        teacher_delay=parse_per_teacher(
-            args.teacher_delay, parse_window, "--teacher-delay", "ana=0.5:1.2"
-        ),
-        robot_time=parse_teachers(args.robot_time, "--robot-time"),
-        merge=args.merge,
-        teacher_weight=parse_per_teacher(args.teacher_weight, float, "--teacher-weight", "ana=2"),
-    )
-    try:
-        return replaced(flags, args.set)
-    except SettingsError as e:
-        raise ArbiterConfigError(str(e)) from None
-
-
-class _Publisher:
-    """One output per key, declared on first use (robots and teachers come and go)."""
-
-    def __init__(self, node: Node) -> None:
-        self.node = node
-        self._outputs: dict[str, Output] = {}
-
-    def put(self, message: Message) -> None:
-        session = self.node.session_id
-        match message:
-            case CreditedFeedback():
-                name, key = "feedback", robot_key(session, message.robot, "feedback")
-            case TeachingStats():
-                name, key = "teaching", robot_key(session, message.robot, "teaching")
-            case HelpAnswer():
-                name, key = "answer", robot_key(session, message.robot, "answer")
-            case TeacherNotice():
-                name, key = "notice", teacher_key(session, message.teacher, "notice")
-            case ClockReply():
-                name, key = "clock-reply", teacher_key(session, message.teacher, "clock-reply")
-            case _:
-                raise TypeError(f"the arbiter does not publish {type(message).__name__}")
-        output = self._outputs.get(key)
-        if output is None:
-            output = self._outputs[key] = self.node.output(name, key)  # feedback kept
-        output.put(message)
+def config_from(args: argparse.Namespace, env: Mapping[str, str] = os.environ) -> ArbiterConfig:
+    """ArbiterConfig's defaults, its fields' flags (or variables), then the --set settings."""
+    return replaced(read_options(ArbiterConfig, args, env), args.set)
 
 
 def run(args: argparse.Namespace) -> int:
     config = config_from(args)
-    vocabulary = load_vocabulary(args.vocabulary)
+    vocabulary = load_vocabulary(read_options(ArbiterOptions, args).vocabulary)
     arbiter = Arbiter(config, vocabulary, started_at=time.time())
     with Node("arbiter", bus_config("arbiter", args)) as node:
-        publish = _Publisher(node)
         node.input("obs", robot_key(node.session_id, "*", "obs"))  # recovered
         node.input("utterance", teacher_key(node.session_id, "*", "utterance"))  # recovered
         node.input("clock", teacher_key(node.session_id, "*", "clock"))
@@ -169,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             extra=fields(
                 meanings=len(vocabulary.meanings),
                 min_confidence=config.min_confidence,
-                delay=args.delay,
+                delay=str(config.delay),
                 learning=config.learning.enabled,
                 merge=config.merge,
             ),
@@ -182,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
                 refetch_at = 0.0
             try:
                 for message in _handle(arbiter, event):
-                    publish.put(message)
+                    node.publish(message)
                     _log_outgoing(node, message)
             except Exception as e:  # a bug met by some input: said loudly, the service goes on
                 node.counters["arbiter.errors"] += 1
@@ -191,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
             if isinstance(event, Tick):
                 _copy_counters(arbiter, node)
         for message in arbiter.flush():
-            publish.put(message)
+            node.publish(message)
         _copy_counters(arbiter, node)
     return 0
 

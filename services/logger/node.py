@@ -1,7 +1,11 @@
 """`voxshape logger`: records a whole session.
 
-Inputs:  voxshape/<session>/**                   every message, raw (known types or not)
-         voxshape/<session>/presence/**          nodes joining and leaving
+Inputs:  voxshape/<session>/**  everything in the session
+Outputs: nothing
+
+Every message, raw (known types or not), and the presence tokens of nodes joining and
+leaving (presence/**).
+
 Writes:  runs/<session>/events.msgpack           the durable event log (eventlog.py)
          runs/<session>/session.json             map and settings (run.py)
          runs/<session>/recording.rrd            the rerun recording, by a child process
@@ -21,11 +25,11 @@ Two processes, so that recording never slows the session down:
 from __future__ import annotations
 
 import argparse
-import os
 import subprocess
 import threading
 import time
 from collections import Counter
+from dataclasses import dataclass
 from typing import Any
 
 import zenoh
@@ -33,8 +37,9 @@ import zenoh
 from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
 from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord
 from services.logger.renderer import start_renderer, stop_renderer
-from services.logger.replay import add_thinning_arguments
+from services.logger.replay import ScanThinning, add_thinning_arguments
 from services.logger.run import (
+    DEFAULT_VIEWER_PORT,
     RunDir,
     RunError,
     describe_session,
@@ -51,7 +56,8 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.world.maps import add_task_argument
+from services.runtime.settings import add_options, option, read_options
+from services.world.maps import task_option
 
 # Samples zenoh may hold for this process before it makes the router wait (~20 s of a session)
 RECEIVE_QUEUE = 50_000
@@ -104,54 +110,47 @@ class Receiver:
         }
 
 
+@dataclass(frozen=True)
+class LoggerOptions:
+    """`voxshape logger`'s settings (and ScanThinning's, which its renderer takes)."""
+
+    task: str = task_option("to draw")
+    flush_every: float = option(
+        0.05, "seconds between flushes of the event log (at most this much is lost if killed)"
+    )
+    fsync_every: float = option(
+        1.0, "seconds between fsyncs (what a power cut can lose); 0: only at the end"
+    )
+    serve_port: str | None = option(
+        None,
+        "serve the live recording to viewers on this port (0: do not serve)",
+        env="VOXSHAPE_VIEWER_PORT",
+        show=str(DEFAULT_VIEWER_PORT),
+    )
+    serve_bind: str = option("127.0.0.1", "address to serve viewers on", env="VOXSHAPE_VIEWER_BIND")
+    no_recording: bool = option(False, "write only the event log (no rerun)")
+    render_nice: int = option(
+        5, "CPU niceness of the rendering process (higher: yields more to the session)"
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    env = os.environ.get
-    add_task_argument(parser, "to draw")
-    parser.add_argument(
-        "--flush-every",
-        type=float,
-        default=0.05,
-        help="seconds between flushes of the event log (at most this much is lost if killed)",
-    )
-    parser.add_argument(
-        "--fsync-every",
-        type=float,
-        default=1.0,
-        help="seconds between fsyncs (what a power cut can lose); 0: only at the end",
-    )
-    parser.add_argument(
-        "--serve-port",
-        default=env("VOXSHAPE_VIEWER_PORT"),
-        help="serve the live recording to viewers on this port (VOXSHAPE_VIEWER_PORT, "
-        "default 9876; 0: do not serve)",
-    )
-    parser.add_argument(
-        "--serve-bind",
-        default=env("VOXSHAPE_VIEWER_BIND", "127.0.0.1"),
-        help="address to serve viewers on (VOXSHAPE_VIEWER_BIND)",
-    )
-    parser.add_argument(
-        "--no-recording", action="store_true", help="write only the event log (no rerun)"
-    )
+    add_options(parser, LoggerOptions)
     add_thinning_arguments(parser)
-    parser.add_argument(
-        "--render-nice",
-        type=int,
-        default=5,
-        help="CPU niceness of the rendering process (higher: yields more to the session)",
-    )
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.flush_every <= 0 or args.fsync_every < 0:
+    options = read_options(LoggerOptions, args)
+    thinning = read_options(ScanThinning, args)
+    if options.flush_every <= 0 or options.fsync_every < 0:
         raise ConfigError("--flush-every must be > 0 seconds and --fsync-every >= 0")
     bus = bus_config("logger", args)
-    port = viewer_port(args.serve_port)
+    port = viewer_port(options.serve_port)
     run_dir = RunDir.for_session(bus.session)
-    settings = _settings(args, bus, port)
+    settings = _settings(options, bus, port)
     with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up
-        writer = _open_event_log(node, run_dir, bus.session, args.task, settings)
+        writer = _open_event_log(node, run_dir, bus.session, options.task, settings)
         receiver = Receiver(writer)
         samples = node.zenoh.declare_subscriber(
             session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE)
@@ -163,7 +162,13 @@ def run(args: argparse.Namespace) -> int:
         presence = node.zenoh.liveliness().declare_subscriber(  # rare: a callback will do
             presence_key(bus.session), receiver.record, history=True
         )
-        renderer = None if args.no_recording else start_renderer(args, run_dir, bus.session, port)
+        renderer = (
+            None
+            if options.no_recording
+            else start_renderer(
+                run_dir, bus.session, (options.serve_bind, port), thinning, options.render_nice
+            )
+        )
         node.log.info(
             "logging",
             extra=fields(
@@ -173,7 +178,7 @@ def run(args: argparse.Namespace) -> int:
                 serving=settings["serve"] or "no",
             ),
         )
-        code = _flush_until_stopped(node, args, writer, receiver, renderer, run_dir)
+        code = _flush_until_stopped(node, options, writer, receiver, renderer, run_dir)
         samples.undeclare()  # the drainer records what was queued, then ends
         drainer.join(10)
         presence.undeclare()
@@ -185,13 +190,14 @@ def run(args: argparse.Namespace) -> int:
     return code
 
 
-def _settings(args: argparse.Namespace, bus: BusConfig, port: int) -> dict[str, Any]:
+def _settings(options: LoggerOptions, bus: BusConfig, port: int) -> dict[str, Any]:
     """The logger's settings, as session.json records them."""
+    serving = port and not options.no_recording
     return {
-        "task": args.task,
-        "flush_every": args.flush_every,
-        "fsync_every": args.fsync_every,
-        "serve": f"{args.serve_bind}:{port}" if port and not args.no_recording else None,
+        "task": options.task,
+        "flush_every": options.flush_every,
+        "fsync_every": options.fsync_every,
+        "serve": f"{options.serve_bind}:{port}" if serving else None,
         "bus": {"mode": bus.mode, "connect": list(bus.connect), "listen": list(bus.listen)},
     }
 
@@ -215,7 +221,7 @@ def _open_event_log(
 
 def _flush_until_stopped(
     node: Node,
-    args: argparse.Namespace,
+    options: LoggerOptions,
     writer: EventLogWriter,
     receiver: Receiver,
     renderer: subprocess.Popen | None,
@@ -225,13 +231,13 @@ def _flush_until_stopped(
     renderer once and saves the stats. 1 when the event log cannot be written, else 0."""
     last_sync = last_stats = time.monotonic()
     renderer_reported = False
-    for event in node.events(tick=args.flush_every):
+    for event in node.events(tick=options.flush_every):
         if not isinstance(event, Tick):
             continue
         now = time.monotonic()
         try:
             writer.flush()
-            if args.fsync_every and now - last_sync >= args.fsync_every:
+            if options.fsync_every and now - last_sync >= options.fsync_every:
                 writer.sync()
                 last_sync = now
         except OSError as e:  # disk full, file gone

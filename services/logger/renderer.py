@@ -4,12 +4,12 @@ follows the event log and draws it with rerun; started with the logger, and told
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import os
 import subprocess
 import sys
 
+from services.logger.replay import ScanThinning
 from services.logger.run import RunDir
 from services.runtime import Node, fields
 
@@ -17,10 +17,10 @@ RENDERER_STOP_S = 8.0  # then the renderer finishes on its own (it notices the l
 
 
 def start_renderer(
-    args: argparse.Namespace, run_dir: RunDir, session: str, port: int
+    run_dir: RunDir, session: str, serve: tuple[str, int], thinning: ScanThinning, nice: int
 ) -> subprocess.Popen:
-    """`voxshape replay` following `run_dir`, with the logger's viewer and thinning settings,
-    at CPU niceness --render-nice when this process may set it."""
+    """`voxshape replay` following `run_dir`, serving viewers on `serve` (address, port; 0:
+    not), thinning as the logger says, at CPU niceness `nice` when this process may set it."""
     command = [
         sys.executable,
         "-m",
@@ -32,19 +32,19 @@ def start_renderer(
         "--recording-id",
         session,
         "--serve-port",
-        str(port),
+        str(serve[1]),
         "--serve-bind",
-        args.serve_bind,
+        serve[0],
         "--thin-after",
-        str(args.thin_after),
+        str(thinning.lag_limit),
         "--keep-one-scan-in",
-        str(args.keep_one_scan_in),
+        str(thinning.keep_one_in),
     ]
     # Its stdin is a pipe from here: closed when the event log is complete, or by the kernel
     # if this process dies; either way the renderer draws the rest and closes the recording.
     renderer = subprocess.Popen(command, stdin=subprocess.PIPE)
     with contextlib.suppress(OSError):  # not allowed here: it runs at normal priority
-        os.setpriority(os.PRIO_PROCESS, renderer.pid, args.render_nice)
+        os.setpriority(os.PRIO_PROCESS, renderer.pid, nice)
     return renderer
 
 

@@ -38,6 +38,7 @@ from services.logger.run import (
     write_json_atomically,
 )
 from services.runtime import ConfigError, fields
+from services.runtime.settings import add_options, option, read_options
 from services.world.maps import Map
 
 if TYPE_CHECKING:  # rerun takes half a second to import: only commands that draw load it
@@ -59,8 +60,12 @@ class ScanThinning:
     """When the renderer is more than `lag_limit` seconds behind the bus, it draws only one
     observation's scan and footprint in `keep_one_in`."""
 
-    lag_limit: float = 0.5
-    keep_one_in: int = 10
+    lag_limit: float = option(
+        0.5,
+        "seconds behind the bus after which the recording draws fewer scans",
+        flag="--thin-after",
+    )
+    keep_one_in: int = option(10, "when thinning", flag="--keep-one-scan-in")
     _behind: int = 0
 
     def detail(self, lag: float) -> bool:
@@ -193,13 +198,7 @@ def _wait_for(path: Path, timeout: float) -> None:
 
 def add_thinning_arguments(parser: argparse.ArgumentParser) -> None:
     """How a recording that follows a live session keeps up: fewer scans when behind."""
-    parser.add_argument(
-        "--thin-after",
-        type=float,
-        default=0.5,
-        help="seconds behind the bus after which the recording draws fewer scans",
-    )
-    parser.add_argument("--keep-one-scan-in", type=int, default=10, help="when thinning")
+    add_options(parser, ScanThinning)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -244,7 +243,8 @@ def run(args: argparse.Namespace) -> int:
     output = args.output or (run_dir.recording if args.follow else run_dir.path / "replay.rrd")
     recording_id = args.recording_id or (session if args.follow else f"{session}-replay")
     port = viewer_port(args.serve_port) if args.serve_port is not None else 0
-    if args.keep_one_scan_in < 1 or args.thin_after < 0:
+    thinning = read_options(ScanThinning, args)
+    if thinning.keep_one_in < 1 or thinning.lag_limit < 0:
         raise ConfigError("--keep-one-scan-in must be >= 1 and --thin-after >= 0")
     from services.logger.recording import Recorder
 
@@ -260,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         with EventLogReader(run_dir.events) as reader:
             if args.follow:
-                stats = _follow(args, run_dir, reader, recorder, output, url)
+                stats = _follow(args, thinning, run_dir, reader, recorder, output, url)
             else:
                 t0 = time.perf_counter()
                 n = render((r for batch in iter(reader.poll, []) for r in batch), recorder)
@@ -289,6 +289,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _follow(
     args: argparse.Namespace,
+    thinning: ScanThinning,
     run_dir: RunDir,
     reader: EventLogReader,
     recorder: Recorder,
@@ -314,7 +315,6 @@ def _follow(
         "rendering",
         extra=fields(events=run_dir.events, recording=output, serving=url or "no"),
     )
-    thinning = ScanThinning(args.thin_after, args.keep_one_scan_in)
     try:
         stats = follow(
             reader,

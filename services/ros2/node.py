@@ -9,8 +9,12 @@ default tcp/127.0.0.1:7447). ROS traffic stays on the robot's side, voxshape's o
 (with its own access control); the bridge is the one thing in both. docs/robot.md.
 
 Robot side:  <domain>/<ns>/scan, <domain>/<ns>/odom in; <domain>/<ns>/cmd_vel out
-Bus side:    voxshape/<session>/robot/<robot>/obs, episode out; .../action in;
-             voxshape/<session>/teacher/*/placed in (a teacher placed the robot at its start)
+Bus side (a teacher's placed: the robot is at its start again):
+
+Inputs:  voxshape/<session>/robot/<robot>/action   Action
+         voxshape/<session>/teacher/*/placed       Placed
+Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
+         voxshape/<session>/robot/<robot>/episode  EpisodeEvent
 """
 
 from __future__ import annotations

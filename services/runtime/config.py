@@ -44,6 +44,7 @@ from typing import Literal
 import zenoh
 
 from protocol import ProtocolError, check_id
+from services.runtime.settings import ConfigError, add_options, option, read_options
 
 Mode = Literal["peer", "client", "router"]
 MODES: tuple[Mode, ...] = ("peer", "client", "router")
@@ -51,25 +52,55 @@ LOCAL_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 
 
-class ConfigError(ValueError):
-    """A setting that cannot work; the message names the setting and how to fix it."""
+def _endpoints(value: str) -> tuple[str, ...]:
+    return tuple(e.strip() for e in value.split(",") if e.strip())
 
 
 @dataclass(frozen=True)
 class BusConfig:
-    session: str = "default"
-    node: str | None = None
-    mode: Mode = "peer"
-    connect: tuple[str, ...] = (LOCAL_ROUTER,)
-    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
-    connect_timeout: float = 10.0
-    user: str | None = None
-    password: str | None = None
-    tls_root_ca: Path | None = None
-    tls_cert: Path | None = None
-    tls_key: Path | None = None
-    mtls: bool = False
-    secrets: Path | None = None
+    session: str = option("default", "session id", env="VOXSHAPE_SESSION")
+    node: str | None = option(None, "this node's id", env="VOXSHAPE_NODE", show="role-host-pid")
+    mode: Mode = option("peer", "zenoh mode", env="VOXSHAPE_MODE")
+    connect: tuple[str, ...] = option(
+        (LOCAL_ROUTER,),
+        "comma-separated endpoints of the session's router, e.g. tcp/10.0.0.2:7447",
+        env="VOXSHAPE_CONNECT",
+        parse=_endpoints,
+    )
+    listen: tuple[str, ...] = option(
+        ("tcp/127.0.0.1:0",),
+        "comma-separated endpoints to listen on",
+        env="VOXSHAPE_LISTEN",
+        parse=_endpoints,
+    )
+    connect_timeout: float = option(
+        10.0, "seconds to wait for the router", env="VOXSHAPE_CONNECT_TIMEOUT"
+    )
+    user: str | None = option(
+        None,
+        "user name for the router; its password from VOXSHAPE_PASSWORD, --password-file or, "
+        "for voxshape teach in a terminal, asked for",
+        env="VOXSHAPE_USER",
+    )
+    password: str | None = option(None, "the user's password", env="VOXSHAPE_PASSWORD", flag=None)
+    password_file: Path | None = option(
+        None,
+        "file with the user's password, or user:password lines",
+        env="VOXSHAPE_PASSWORD_FILE",
+    )
+    tls_root_ca: Path | None = option(
+        None, "CA certificate for tls/ endpoints", env="VOXSHAPE_TLS_ROOT_CA"
+    )
+    tls_cert: Path | None = option(
+        None, "this node's certificate (TLS listen, mTLS)", env="VOXSHAPE_TLS_CERT"
+    )
+    tls_key: Path | None = option(None, "this node's private key", env="VOXSHAPE_TLS_KEY")
+    mtls: bool = option(False, "mutual TLS", env="VOXSHAPE_MTLS")
+    secrets: Path | None = option(
+        None,
+        "folder of credentials and certificates (voxshape certs)",
+        env="VOXSHAPE_SECRETS",
+    )
     # zenoh settings a role adds, as (path, JSON5), e.g. the router's access control.
     extra: tuple[tuple[str, str], ...] = ()
 
@@ -194,43 +225,10 @@ def free_loopback_port() -> int:
 def add_bus_arguments(
     parser: argparse.ArgumentParser, renamed: Mapping[str, str] | None = None
 ) -> None:
-    """The flags every service shares; unset flags fall back to VOXSHAPE_* variables.
-    `renamed` gives `mode` and `connect` other flags, for a command whose own flags take
-    those names (`voxshape ros2 --connect ROBOT --mode ros2dds --bus ...`)."""
-    flag = {"mode": "--mode", "connect": "--connect", **(renamed or {})}
-    g = parser.add_argument_group("bus (flags override VOXSHAPE_* variables)")
-    g.add_argument("--session", help="session id (VOXSHAPE_SESSION; default: default)")
-    g.add_argument("--node", help="this node's id (VOXSHAPE_NODE; default: role-host-pid)")
-    g.add_argument(flag["mode"], dest="mode", choices=MODES, help="zenoh mode (VOXSHAPE_MODE)")
-    g.add_argument(
-        flag["connect"],
-        dest="connect",
-        help="comma-separated endpoints of the session's router, e.g. tcp/10.0.0.2:7447 "
-        "(VOXSHAPE_CONNECT)",
-    )
-    g.add_argument("--listen", help="comma-separated endpoints to listen on")
-    g.add_argument("--connect-timeout", type=float, help="seconds to wait for the router")
-    g.add_argument(
-        "--user",
-        help="user name for the router; its password from VOXSHAPE_PASSWORD, --password-file "
-        "or, for voxshape teach in a terminal, asked for",
-    )
-    g.add_argument(
-        "--password-file",
-        type=Path,
-        help="file with the user's password, or user:password lines (VOXSHAPE_PASSWORD_FILE)",
-    )
-    g.add_argument("--tls-root-ca", type=Path, help="CA certificate for tls/ endpoints")
-    g.add_argument("--tls-cert", type=Path, help="this node's certificate (TLS listen, mTLS)")
-    g.add_argument("--tls-key", type=Path, help="this node's private key")
-    g.add_argument("--mtls", action="store_true", default=None, help="mutual TLS")
-    g.add_argument(
-        "--secrets", type=Path, help="folder of credentials and certificates (voxshape certs)"
-    )
-
-
-def _endpoints(value: str) -> tuple[str, ...]:
-    return tuple(e.strip() for e in value.split(",") if e.strip())
+    """The flags every service shares, from BusConfig's fields; unset flags fall back to
+    VOXSHAPE_* variables. `renamed` gives `mode` and `connect` other flags, for a command
+    whose own flags take those names (`voxshape ros2 --connect ROBOT --mode ros2dds --bus ...`)."""
+    add_options(parser, BusConfig, "bus (flags override VOXSHAPE_* variables)", renamed)
 
 
 def bus_config(
@@ -241,45 +239,17 @@ def bus_config(
 ) -> BusConfig:
     """Role defaults, then VOXSHAPE_* variables, then flags; validated. A user given without
     a password is asked for it with `ask` (a prompt), if given."""
-    config = BusConfig.for_role(role)
-    settings: dict = {}
-    for name, parse in (
-        ("session", str),
-        ("node", str),
-        ("mode", str),
-        ("connect", _endpoints),
-        ("listen", _endpoints),
-        ("connect_timeout", float),
-        ("user", str),
-        ("password", str),
-        ("tls_root_ca", Path),
-        ("tls_cert", Path),
-        ("tls_key", Path),
-        ("mtls", lambda v: v.strip().lower() in ("1", "true", "yes", "on")),
-        ("secrets", Path),
-    ):
-        variable = f"VOXSHAPE_{name.upper()}"
-        flag = getattr(args, name, None) if args is not None else None
-        raw = flag if flag is not None else env.get(variable)
-        if raw is None or raw == "":
-            continue
-        try:
-            settings[name] = parse(raw) if isinstance(raw, str) else raw
-        except ValueError:
-            raise ConfigError(
-                f"{variable}={raw!r} is not a valid {name.replace('_', ' ')}"
-            ) from None
-    flag = getattr(args, "password_file", None)
-    password_file, what = (flag, "--password-file") if flag else (None, "")
-    if not password_file and env.get("VOXSHAPE_PASSWORD_FILE"):
-        password_file, what = env["VOXSHAPE_PASSWORD_FILE"], "VOXSHAPE_PASSWORD_FILE"
-    if "password" not in settings and password_file:
-        settings["password"] = _password(Path(password_file), settings.get("user"), what)
-    if settings.get("secrets") is not None:
-        _fill_from_secrets(role, settings)
-    if settings.get("user") is not None and "password" not in settings and ask is not None:
-        settings["password"] = ask(f"password for {settings['user']}: ")
-    return replace(config, **settings).validated()
+    config = read_options(BusConfig, args, env, base=BusConfig.for_role(role))
+    if config.password is None and config.password_file is not None:
+        given = getattr(args, "password_file", None) is not None
+        what = "--password-file" if given else "VOXSHAPE_PASSWORD_FILE"
+        password = _password(config.password_file, config.user, what)
+        config = replace(config, password=password)
+    if config.secrets is not None:
+        config = _fill_from_secrets(role, config)
+    if config.user is not None and config.password is None and ask is not None:
+        config = replace(config, password=ask(f"password for {config.user}: "))
+    return config.validated()
 
 
 def _password(path: Path, user: str | None, what: str) -> str:
@@ -300,29 +270,29 @@ def _password(path: Path, user: str | None, what: str) -> str:
     )
 
 
-def _fill_from_secrets(role: str, settings: dict) -> None:
+def _fill_from_secrets(role: str, config: BusConfig) -> BusConfig:
     """What a folder made by `voxshape certs` provides, where not given explicitly."""
-    folder = Path(settings["secrets"])
+    folder = Path(config.secrets or "")
     if not folder.is_dir():
         raise ConfigError(
             f"VOXSHAPE_SECRETS {str(folder)!r} is not a folder: make one with `voxshape certs "
             f"{folder}`"
         )
+    credentials = folder / "credentials"
+    what = "VOXSHAPE_SECRETS credentials file"
+    user, password = config.user, config.password
     if role == "router":
         identity = "router"
-        if settings.get("user") is not None and "password" not in settings:
-            settings["password"] = _password(  # its login at another site's router
-                folder / "credentials", settings["user"], "VOXSHAPE_SECRETS credentials file"
-            )
+        if user is not None and password is None:  # its login at another site's router
+            password = _password(credentials, user, what)
     else:
-        settings.setdefault("user", role)
-        identity = settings["user"]
-        if "password" not in settings:
-            settings["password"] = _password(
-                folder / "credentials", identity, "VOXSHAPE_SECRETS credentials file"
-            )
-    if "tls_root_ca" not in settings and (folder / "ca.pem").is_file():
-        settings["tls_root_ca"] = folder / "ca.pem"
+        user = identity = user or role
+        if password is None:
+            password = _password(credentials, identity, what)
+    found: dict = {}
+    if config.tls_root_ca is None and (folder / "ca.pem").is_file():
+        found["tls_root_ca"] = folder / "ca.pem"
     cert, key = folder / f"{identity}.pem", folder / f"{identity}.key"
-    if "tls_cert" not in settings and cert.is_file() and key.is_file():
-        settings["tls_cert"], settings["tls_key"] = cert, key
+    if config.tls_cert is None and cert.is_file() and key.is_file():
+        found["tls_cert"], found["tls_key"] = cert, key
+    return replace(config, user=user, password=password, **found)

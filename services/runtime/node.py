@@ -36,8 +36,9 @@ from collections.abc import Callable, Iterator
 import zenoh
 from zenoh.ext import Miss
 
-from protocol import ProtocolError, decode, parse_key, presence_key
+from protocol import Message, ProtocolError, decode, parse_key, presence_key
 from protocol.dataflow import Direction, check, flow_of
+from protocol.keys import message_key
 from services.runtime.config import BusConfig
 from services.runtime.flows import (
     Event,
@@ -81,6 +82,7 @@ class Node:
         self._stopping = threading.Event()
         self._signalled = False  # set by SIGINT/SIGTERM: a plain flag, no lock to take
         self._declared: list = []
+        self._published: dict[str, Output] = {}  # by key: publish()'s outputs
         self._recovering: dict[str, tuple[str, Callable[[zenoh.Sample], None], float]] = {}
         # The keys it publishes and subscribes to, checked against protocol/dataflow.py.
         self.declared: dict[str, set[str]] = {"publishes": set(), "subscribes": set()}
@@ -131,6 +133,16 @@ class Node:
             )
         self._declared.append(publisher)
         return Output(self.id, self.counters, name, key, publisher, kept=keep > 0)
+
+    def publish(self, message: Message) -> None:
+        """Puts `message` on its key (protocol/keys.py: its type's topic, of its robot or
+        teacher), through an output declared on first use, as its role's flow says (robots
+        and teachers come and go)."""
+        key = message_key(self.session_id, message)
+        output = self._published.get(key)
+        if output is None:
+            output = self._published[key] = self.output(parse_key(key).name, key)
+        output.put(message)
 
     def input(self, name: str, key: str, *, recover: float | None = None) -> None:
         """Subscribes to `key` (wildcards allowed); messages arrive as Input(name, ...).

@@ -1,16 +1,229 @@
-"""A service's settings from the command line: `--set KEY=VALUE` over its config dataclass, so
-every default lives in the dataclass and every field can be set the same way."""
+"""A service's settings, each written once: a field of a config dataclass with its default,
+its help, its flag and its environment variable (LeRobot's config dataclasses made into the
+command line, in the small).
+
+    @dataclass(frozen=True)
+    class SimOptions:
+        rtf: float = option(1.0, "simulated seconds per wall second", env="VOXSHAPE_RTF")
+
+    add_options(parser, SimOptions)               # --rtf RTF  (VOXSHAPE_RTF; default 1)
+    options = read_options(SimOptions, args)      # the flag, else the variable, else 1.0
+
+A field made by `option` is set by its flag (and its variable, if it has one) alone; the
+other fields of a config dataclass are set by `--set KEY=VALUE` (`add_settings_argument`,
+`replaced`), which refuses a field that has a flag of its own: one spelling per setting.
+"""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 import json
-from typing import TypeVar
+import os
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+OPTION = "voxshape.option"  # the key of a field's metadata that makes it an option
+NAMED = "--{name}"  # the default flag: the field's name, dashed
+SCALARS: tuple[type, ...] = (str, int, float, Path)
+TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
-class SettingsError(ValueError):
+class ConfigError(ValueError):
+    """A setting that cannot work; the message names the setting and how to fix it."""
+
+
+class SettingsError(ConfigError):
     """A `--set KEY=VALUE` that does not fit the configuration."""
+
+
+@dataclass(frozen=True)
+class Option:
+    """How a field is given: its `flag` (None: by its variable alone), its variable `env`, a
+    `parse` of the text given (of each, for a `repeat`able flag, whose variable is
+    comma-separated, and `collect` makes the field's value of them), `choices`, and `show`,
+    what the help says of the default."""
+
+    help: str
+    flag: str | None = NAMED
+    env: str | None = None
+    parse: Callable[[Any], Any] | None = None
+    choices: tuple[str, ...] | None = None
+    repeat: bool = False
+    collect: Callable[[list], Any] = tuple
+    metavar: str | None = None
+    show: str | None = None
+    group: str | None = None  # an argument group of its own (its title)
+
+
+def option(
+    default: Any = dataclasses.MISSING,
+    help: str = "",
+    *,
+    default_factory: Callable[[], Any] | Any = dataclasses.MISSING,
+    **how: Any,
+) -> Any:
+    """A dataclass field that is a setting of the command line; `how` as Option's fields."""
+    return dataclasses.field(
+        default=default, default_factory=default_factory, metadata={OPTION: Option(help, **how)}
+    )
+
+
+def option_of(field: dataclasses.Field) -> Option | None:
+    return field.metadata.get(OPTION)
+
+
+def _kind(hint: Any) -> tuple[type | None, tuple[str, ...] | None]:
+    """The type a text is parsed into (None: no scalar) and the choices of a Literal; an
+    optional (`X | None`) is its X."""
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if isinstance(hint, types.UnionType) or typing.get_origin(hint) is typing.Union:
+        return _kind(args[0]) if len(args) == 1 else (None, None)
+    if typing.get_origin(hint) is typing.Literal:
+        return str, tuple(str(a) for a in args)
+    return (hint if hint in (*SCALARS, bool) else None), None
+
+
+def options(cls: type) -> list[tuple[dataclasses.Field, Option, type | None, tuple | None]]:
+    """The option fields of a config dataclass: (field, option, kind, choices)."""
+    hints = typing.get_type_hints(cls)
+    found = []
+    for field in dataclasses.fields(cls):
+        how = option_of(field)
+        if how is None:
+            continue
+        hint = hints[field.name]
+        if how.repeat and typing.get_origin(hint) in (tuple, list, frozenset, set):
+            hint = typing.get_args(hint)[0]  # a repeatable flag's items
+        kind, choices = _kind(hint)
+        if kind is None and how.parse is None:
+            raise TypeError(f"{cls.__name__}.{field.name}: its type needs a parse= of the text")
+        found.append((field, how, kind, how.choices or choices))
+    return found
+
+
+def flag_of(field: dataclasses.Field) -> str | None:
+    how = option_of(field)
+    return how.flag.format(name=field.name.replace("_", "-")) if how and how.flag else None
+
+
+def add_options(
+    parser: argparse.ArgumentParser,
+    cls: type,
+    title: str | None = None,
+    flags: Mapping[str, str] | None = None,
+) -> None:
+    """A flag for each option field of `cls` (in an argument group `title`, if given);
+    `flags` renames some (field name -> flag). Each flag's default is None: `read_options`
+    tells a flag given from one that was not, and then takes the variable or the default."""
+    defaults = cls()
+    taken = {action.dest for action in parser._actions}
+    for field, how, kind, choices in options(cls):
+        flag = (flags or {}).get(field.name) or flag_of(field)
+        if flag is None:
+            continue
+        if field.name in taken:
+            raise ValueError(f"{cls.__name__}.{field.name}: the command has that setting twice")
+        extra: dict[str, Any] = {"action": "store_true"} if kind is bool else {}
+        if how.repeat:
+            extra["action"] = "append"
+        elif choices:
+            extra["choices"] = choices
+        if kind is not bool and not (choices and not how.repeat):
+            extra["metavar"] = how.metavar or flag.lstrip("-").replace("-", "_").upper()
+        shown = _help(how, getattr(defaults, field.name))
+        group = _group(parser, how.group or title)
+        group.add_argument(flag, dest=field.name, default=None, help=shown, **extra)
+
+
+def _group(parser: argparse.ArgumentParser, title: str | None) -> Any:
+    """The parser's argument group of that title (made on first use); the parser itself for
+    no title."""
+    if title is None:
+        return parser
+    known = (g for g in parser._action_groups if g.title == title)
+    return next(known, None) or parser.add_argument_group(title)
+
+
+def _help(how: Option, default: Any) -> str:
+    shown = how.show if how.show is not None else _shown(default)
+    env = f"{how.env}, comma-separated" if how.env and how.repeat else how.env
+    repeat = "repeatable" if how.repeat else ""
+    notes = [n for n in (repeat, env, f"default {shown}" if shown else "") if n]
+    text = f"{how.help} ({'; '.join(notes)})" if notes else how.help
+    return text.replace("%", "%%")
+
+
+def _shown(default: Any) -> str:
+    if default is None or default is False or default == () or default == {}:
+        return ""
+    if isinstance(default, tuple | list | frozenset):
+        return ",".join(map(str, default))
+    return f"{default:g}" if isinstance(default, float) else str(default)
+
+
+Config = TypeVar("Config")
+
+
+def read_options(
+    cls: type[Config],
+    args: argparse.Namespace | None = None,
+    env: Mapping[str, str] = os.environ,
+    base: Config | None = None,
+) -> Config:
+    """`base` (by default `cls()`) with each option field given a flag's value, else its
+    variable's (an empty variable is unset); ConfigError names a value that does not parse,
+    and the flag or variable it came from."""
+    changes = {}
+    for field, how, kind, choices in options(cls):
+        given = getattr(args, field.name, None) if how.flag is not None else None
+        if given is not None and given != []:
+            where = flag_of(field) or field.name
+        elif how.env is not None and env.get(how.env):
+            given, where = env[how.env], how.env
+        else:
+            continue
+        changes[field.name] = _parsed(given, how, kind, choices, where)
+    try:
+        return dataclasses.replace(base if base is not None else cls(), **changes)
+    except ConfigError:
+        raise
+    except ValueError as e:  # the dataclass refuses the combination
+        raise ConfigError(str(e)) from None
+
+
+def _parsed(given: Any, how: Option, kind: type | None, choices: tuple | None, where: str) -> Any:
+    """A flag's value or a variable's text as the field's type: a repeatable one's items
+    each parsed, then collected."""
+    if how.repeat:
+        items = given.split(",") if isinstance(given, str) else given  # a variable: a list
+        parsed = [_one(i.strip(), how, kind, choices, where) for i in items if i.strip()]
+        return how.collect(parsed)
+    return _one(given, how, kind, choices, where)
+
+
+def _one(given: Any, how: Option, kind: type | None, choices: tuple | None, where: str) -> Any:
+    said = f"{where}={given!r}" if where.isupper() else f"{where} {given!r}"
+    if kind is bool:
+        if isinstance(given, bool):
+            return given
+        if given.strip().lower() not in (*TRUE, *FALSE):
+            raise ConfigError(f"{said}: say true or false")
+        return given.strip().lower() in TRUE
+    if choices and given not in choices:
+        raise ConfigError(f"{said} is not one of {', '.join(choices)}")
+    try:
+        if how.parse is not None:
+            return how.parse(given)
+        assert kind is not None
+        return kind(given)
+    except ValueError as e:  # ConfigError and ProtocolError too: they say what is wrong
+        why = str(e) if how.parse is not None else f"not a valid {kind.__name__}"
+        raise ConfigError(f"{said}: {why}") from None
 
 
 def add_settings_argument(
@@ -26,22 +239,25 @@ def add_settings_argument(
     )
 
 
-Config = TypeVar("Config")
-
-
-def replaced(config: Config, settings: list[str], flag: str = "--set") -> Config:
+def replaced(
+    config: Config, settings: list[str], flag: str = "--set", taken: type | None = None
+) -> Config:
     """The dataclass `config` with `KEY=VALUE` settings applied (values in JSON: 0.1, true,
     "replacing", [1.0, 2.5]; KEY.FIELD=VALUE sets a field of a nested dataclass); raises
-    SettingsError naming an unknown key, a value of the wrong type or one the dataclass
-    refuses (`flag` names the option in the message)."""
+    SettingsError naming an unknown key, a value of the wrong type, one the dataclass
+    refuses or a field that has a flag of its own, in `config` or among the option fields of
+    the dataclass `taken` (`flag` names the option in the message)."""
     items = []
     for setting in settings:
         key, sep, raw = setting.partition("=")
         items.append((setting, key if sep else "", raw))  # no "=": no key, refused below
-    return _replaced(config, items, flag)
+    flagged = {f.name: flag_of(f) for f in dataclasses.fields(taken)} if taken else {}
+    return _replaced(config, items, flag, {k: v for k, v in flagged.items() if v})
 
 
-def _replaced(config: Config, items: list[tuple[str, str, str]], flag: str) -> Config:
+def _replaced(
+    config: Config, items: list[tuple[str, str, str]], flag: str, flagged: dict[str, str]
+) -> Config:
     """`replaced` over (the setting as given, KEY, VALUE) items."""
     fields = {f.name: f for f in dataclasses.fields(config)}
     changes = {}
@@ -49,39 +265,48 @@ def _replaced(config: Config, items: list[tuple[str, str, str]], flag: str) -> C
         outer, dot, inner = key.partition(".")
         if dot and outer in fields and dataclasses.is_dataclass(getattr(config, outer)):
             nested = changes.get(outer, getattr(config, outer))
-            changes[outer] = _replaced(nested, [(setting, inner, raw)], flag)
+            changes[outer] = _replaced(nested, [(setting, inner, raw)], flag, {})
             continue
         if key not in fields:
             raise SettingsError(
                 f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
             )
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw  # a bare word: a string
-        current = getattr(config, key)
-        if dataclasses.is_dataclass(current):
-            names = ", ".join(f.name for f in dataclasses.fields(current))
-            raise SettingsError(
-                f"{flag} {setting!r}: {key} is not a single value; set its fields as "
-                f"{key}.FIELD=VALUE, FIELD one of {names}"
-            )
-        if isinstance(current, tuple) and isinstance(value, list):
-            value = tuple(value)
-        if type(value) is int and "float" in str(fields[key].type):  # float, float | None
-            value = float(value)
-        ok = (
-            type(value) is type(current)
-            or (current is None and isinstance(value, float))
-            or (value is None and "None" in str(fields[key].type))
-        )
-        if not ok:
-            raise SettingsError(
-                f"{flag} {setting!r}: {key} takes a {type(current).__name__}, "
-                f"like {json.dumps(current)}"
-            )
-        changes[key] = value
+        own = flagged.get(key) or flag_of(fields[key])
+        if own is not None:
+            raise SettingsError(f"{flag} {setting!r}: {key} has a flag of its own: {own}")
+        changes[key] = _value(config, fields[key], setting, raw, flag)
     try:
         return dataclasses.replace(config, **changes)
     except ValueError as e:
         raise SettingsError(f"{flag}: {e}") from None
+
+
+def _value(config: object, field: dataclasses.Field, setting: str, raw: str, flag: str) -> Any:
+    """VALUE (JSON, or a bare word for a string) as the type of `config`'s `field`."""
+    key = field.name
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw  # a bare word: a string
+    current = getattr(config, key)
+    if dataclasses.is_dataclass(current):
+        names = ", ".join(f.name for f in dataclasses.fields(current))
+        raise SettingsError(
+            f"{flag} {setting!r}: {key} is not a single value; set its fields as "
+            f"{key}.FIELD=VALUE, FIELD one of {names}"
+        )
+    if isinstance(current, tuple) and isinstance(value, list):
+        value = tuple(value)
+    if type(value) is int and "float" in str(field.type):  # float, float | None
+        value = float(value)
+    ok = (
+        type(value) is type(current)
+        or (current is None and isinstance(value, float))
+        or (value is None and "None" in str(field.type))
+    )
+    if not ok:
+        raise SettingsError(
+            f"{flag} {setting!r}: {key} takes a {type(current).__name__}, "
+            f"like {json.dumps(current)}"
+        )
+    return value

@@ -1,16 +1,20 @@
-"""`voxshape sim`: the simulator on the bus.
+"""`voxshape sim`: the simulator on the bus, for each robot it simulates.
 
-Inputs:  voxshape/<session>/robot/<robot>/action   for each robot it simulates
-Outputs: voxshape/<session>/robot/<robot>/obs      one per control step (10 Hz of sim time)
-         voxshape/<session>/robot/<robot>/episode  start, goal, collision, timeout
+Inputs:  voxshape/<session>/robot/<robot>/action   Action
+Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
+         voxshape/<session>/robot/<robot>/episode  EpisodeEvent
+
+An observation per control step (10 Hz of sim time), an episode event at each start, goal,
+collision and timeout.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
 import time
+from dataclasses import dataclass
+from typing import Literal
 
 from protocol import Action, EpisodeEvent, check_id, parse_key, robot_key
 from services.runtime import (
@@ -22,10 +26,16 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.runtime.settings import SettingsError, add_settings_argument, replaced
+from services.runtime.settings import (
+    add_options,
+    add_settings_argument,
+    option,
+    read_options,
+    replaced,
+)
 from services.sim.stepper import Stepper
 from services.sim.task import SimConfig, Simulation
-from services.world.maps import add_task_argument, load_map
+from services.world.maps import load_map, task_option
 
 LOCKSTEP_POLL_S = 0.05  # how often a lockstep wait checks its deadline
 # Observations kept per robot for an arbiter that restarts, in wall seconds of paced steps
@@ -35,68 +45,59 @@ OBS_KEPT_S = 60.0
 MAX_OBS_KEPT = 12_000
 
 
+@dataclass(frozen=True)
+class SimOptions:
+    """`voxshape sim`'s settings (the simulation's own: SimConfig, by --set)."""
+
+    task: str = task_option("to run")
+    robots: tuple[str, ...] = option(
+        ("r1",),
+        "robot id, once per robot",
+        flag="--robot",
+        env="VOXSHAPE_ROBOTS",
+        repeat=True,
+        parse=lambda robot: check_id(robot, "robot"),
+    )
+    clock: Literal["paced", "lockstep"] = option(
+        "paced",
+        "paced: wall-clock time for people; lockstep: as fast as the learner answers",
+        env="VOXSHAPE_CLOCK",
+    )
+    rtf: float = option(1.0, "paced: simulated seconds per wall second", env="VOXSHAPE_RTF")
+    action_timeout: float | None = option(
+        None,
+        "lockstep: seconds to wait for an action (default 2); paced: seconds an action stays "
+        "valid (default 0.5)",
+    )
+    seed: int | None = option(None, "random seed of the simulation")
+    max_steps: int | None = option(None, "stop after this many steps")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    env = os.environ.get
-    add_task_argument(parser, "to run")
-    parser.add_argument(
-        "--robot",
-        action="append",
-        dest="robots",
-        help="robot id, once per robot (default: VOXSHAPE_ROBOTS or r1)",
-    )
-    parser.add_argument(
-        "--clock",
-        choices=("paced", "lockstep"),
-        default=env("VOXSHAPE_CLOCK", "paced"),
-        help="paced: wall-clock time for people; lockstep: as fast as the "
-        "learner answers (VOXSHAPE_CLOCK)",
-    )
-    parser.add_argument(
-        "--rtf",
-        type=float,
-        default=float(env("VOXSHAPE_RTF", "1.0")),
-        help="paced: simulated seconds per wall second (VOXSHAPE_RTF)",
-    )
-    parser.add_argument(
-        "--action-timeout",
-        type=float,
-        default=None,
-        help="lockstep: seconds to wait for an action (default 2); paced: "
-        "seconds an action stays valid (default 0.5)",
-    )
-    parser.add_argument(
-        "--collision",
-        choices=("end", "continue"),
-        default=SimConfig.collision,
-        help="a collision costs a penalty and goes on (default), or ends the episode",
-    )
+    add_options(parser, SimOptions)
+    add_options(parser, SimConfig)
     add_settings_argument(
         parser, "SimConfig (services/sim/task.py)", "laser_noise=0.02 or rewards.goal=50"
     )
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--max-steps", type=int, default=None, help="stop after this many steps")
 
 
 def run(args: argparse.Namespace) -> int:
-    robots = tuple(args.robots or os.environ.get("VOXSHAPE_ROBOTS", "r1").split(","))
-    try:
-        config = replaced(SimConfig(collision=args.collision), args.set)
-    except SettingsError as e:
-        raise ConfigError(str(e)) from None
-    timeout = args.action_timeout or (2.0 if args.clock == "lockstep" else 0.5)
-    if args.rtf <= 0 or timeout <= 0:
+    options = read_options(SimOptions, args)
+    robots = options.robots
+    config = replaced(read_options(SimConfig, args), args.set)
+    timeout = options.action_timeout or (2.0 if options.clock == "lockstep" else 0.5)
+    if options.rtf <= 0 or timeout <= 0:
         raise ConfigError("--rtf and --action-timeout must be > 0")
-    for robot in robots:
-        check_id(robot, "robot")
-    m = load_map(args.task)
+    m = load_map(options.task)
     bus = bus_config("sim", args)
-    sim = Simulation(m, robots, config, args.seed)
-    period = config.control_period / args.rtf if args.clock == "paced" else LOCKSTEP_POLL_S
-    kept = min(MAX_OBS_KEPT, math.ceil(OBS_KEPT_S / period)) if args.clock == "paced" else None
+    sim = Simulation(m, robots, config, options.seed)
+    paced = options.clock == "paced"
+    period = config.control_period / options.rtf if paced else LOCKSTEP_POLL_S
+    kept = min(MAX_OBS_KEPT, math.ceil(OBS_KEPT_S / period)) if paced else None
     try:
         with Node("sim", bus) as node:
-            stepper = Stepper(sim, args.clock, timeout, node.counters)
+            stepper = Stepper(sim, options.clock, timeout, node.counters)
             for r in robots:
                 node.input("action", robot_key(node.session_id, r, "action"))
             obs = {
@@ -116,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
             node.log.info(
                 "simulating",
                 extra=fields(
-                    task=sim.map.name, robots=",".join(robots), clock=args.clock, rtf=args.rtf
+                    task=sim.map.name, robots=",".join(robots), clock=options.clock, rtf=options.rtf
                 ),
             )
             publish(stepper.start())
@@ -128,9 +129,9 @@ def run(args: argparse.Namespace) -> int:
                         stepper.on_action(parse_key(key).owner, action)
                     case Tick():
                         ticked = True
-                if ticked if args.clock == "paced" else stepper.ready(now):
+                if ticked if paced else stepper.ready(now):
                     publish(stepper.step(now))
-                    if args.max_steps and stepper.counters["steps"] >= args.max_steps:
+                    if options.max_steps and stepper.counters["steps"] >= options.max_steps:
                         break
     finally:
         sim.close()

@@ -13,6 +13,7 @@ from typing import Literal
 
 import numpy as np
 
+from services.runtime.settings import option
 from services.sim.sensors import Sensors
 from services.sim.world import World
 from services.world.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
@@ -39,7 +40,9 @@ class SimConfig:
     # "continue" (as on the paper's robot): a bump costs the penalty and the robot stays put.
     # "end" also ends the episode; with -1 per step, crashing early then beats a long search
     # for a far goal, and plain SARSA(lambda) learns to crash (measured on tasks 2-4).
-    collision: Literal["end", "continue"] = "continue"
+    collision: Literal["end", "continue"] = option(
+        "continue", "a collision costs a penalty and goes on, or ends the episode"
+    )
     timeout: float | None = None  # seconds of simulated time; None: the map's
     laser_noise: float = 0.0  # standard deviation of Gaussian range noise, metres
     sonar_noise: float = 0.0

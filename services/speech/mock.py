@@ -1,98 +1,33 @@
-"""The mock engine: text in, text out, with the errors a grammar-restricted recognizer makes.
-
-Its input is what a teacher said as text (a `Said` message: a simulated teacher, or
-`voxshape teach --through-speech`). Like the real engines, it only ever outputs whole phrases of
-the vocabulary, so its errors are whole phrases too. With probability `error_rate` an utterance
-is not recognized as said; the kind of error is drawn by weight:
-
-- misheard: another phrase of the same language comes out instead;
-- dropped: nothing comes out (a rejection);
-- inserted: the phrase comes out, and a spurious phrase after it (a false accept).
-
-Text outside the vocabulary is rejected, as a grammar engine would. Each result is published
-`latency_s` (+- `latency_jitter_s`, uniform) after the teacher stopped speaking. Seeded: the
-same seed and inputs give the same results.
-"""
+"""The mock engine: text in (`Said` messages: a simulated teacher, or `voxshape teach
+--through-speech`), text out, with the errors a grammar-restricted recognizer makes. Its core,
+which the simulated teacher shares, is the confusion model of services/recognition/; here is
+what the speech service adds: its `--confusion` weights."""
 
 from __future__ import annotations
 
-import random
-from collections import Counter
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import replace
 
-from protocol.vocabulary import Vocabulary, normalize
-from services.speech.recognizer import written_phrases
+from services.recognition.confusion import ERROR_KINDS, MockRecognizer, MockSettings
+from services.runtime.settings import ConfigError
 
-ErrorKind = Literal["misheard", "dropped", "inserted"]
-ERROR_KINDS: tuple[ErrorKind, ...] = ("misheard", "dropped", "inserted")
+__all__ = ["MockRecognizer", "MockSettings", "confused", "weights_text"]
 
 
-@dataclass(frozen=True)
-class MockSettings:
-    error_rate: float = 0.0
-    misheard: float = 0.6  # relative weights of the kinds of error
-    dropped: float = 0.3
-    inserted: float = 0.1
-    latency_s: float = 0.3
-    latency_jitter_s: float = 0.0
-    seed: int | None = None
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.error_rate <= 1.0:
-            raise ValueError(f"error rate {self.error_rate} is not within [0, 1]")
-        weights = (self.misheard, self.dropped, self.inserted)
-        if min(weights) < 0 or sum(weights) <= 0:
-            raise ValueError("confusion weights must be >= 0 and not all 0")
-        if self.latency_s < 0 or self.latency_jitter_s < 0:
-            raise ValueError("latency and jitter must be >= 0 seconds")
-        if self.latency_jitter_s > self.latency_s:
-            raise ValueError("latency jitter cannot exceed the latency (no negative delays)")
+def weights_text(settings: MockSettings) -> str:
+    """`misheard=0.6,dropped=0.3,inserted=0.1`: the relative weights of the kinds of error."""
+    return ",".join(f"{kind}={getattr(settings, kind):g}" for kind in ERROR_KINDS)
 
 
-@dataclass(frozen=True)
-class Heard:
-    text: str  # a vocabulary phrase as written
-    confidence: float
-    delay_s: float  # after the end of speech
-    error: ErrorKind | None = None  # None: recognized as said
-
-
-class MockRecognizer:
-    engine = "mock"
-
-    def __init__(self, vocabulary: Vocabulary, settings: MockSettings | None = None) -> None:
-        self.settings = settings or MockSettings()
-        self.counters: Counter[str] = Counter()
-        self._written = {lang: written_phrases(vocabulary, lang) for lang in vocabulary.languages}
-        self._rng = random.Random(self.settings.seed)
-
-    def hear(self, text: str, language: str, key: str | None = None) -> list[Heard]:
-        """What the mock recognizes of `text` said in `language`: zero, one or two phrases.
-        With a `key` (the said message's id) the draw depends on it alone, as an engine hears
-        the same audio the same way: a restarted service hears a recovered message as before."""
-        s = self.settings
-        rng = self._rng if key is None else random.Random(f"{s.seed}|{key}")
-        written = self._written.get(language, {})
-        phrase = written.get(normalize(text))
-        if phrase is None:
-            self.counters["mock.out_of_vocabulary"] += 1
-            return []
-        if rng.random() >= s.error_rate:
-            self.counters["mock.correct"] += 1
-            return [Heard(phrase, rng.uniform(0.75, 1.0), self._delay(rng))]
-        kind = rng.choices(ERROR_KINDS, weights=(s.misheard, s.dropped, s.inserted))[0]
-        self.counters[f"mock.{kind}"] += 1
-        others = [p for key, p in written.items() if key != normalize(text)]
-        if kind == "dropped" or not others:
-            return []
-        wrong = rng.choice(others)
-        if kind == "misheard":
-            return [Heard(wrong, rng.uniform(0.4, 0.9), self._delay(rng), "misheard")]
-        first = Heard(phrase, rng.uniform(0.75, 1.0), self._delay(rng))
-        extra = Heard(wrong, rng.uniform(0.3, 0.8), first.delay_s + 0.2, "inserted")
-        return [first, extra]
-
-    def _delay(self, rng: random.Random) -> float:
-        s = self.settings
-        return max(0.0, s.latency_s + rng.uniform(-s.latency_jitter_s, s.latency_jitter_s))
+def confused(settings: MockSettings, weights: str) -> MockSettings:
+    """`settings` with the weights of `misheard=0.6,dropped=0.3,inserted=0.1` (any of them)."""
+    try:
+        given = {k.strip(): float(v) for k, v in (p.split("=") for p in weights.split(","))}
+        unknown = set(given) - set(ERROR_KINDS)
+        if unknown:
+            raise ValueError(f"unknown kind {sorted(unknown)[0]!r}")
+        return replace(settings, **given)
+    except ValueError as e:
+        raise ConfigError(
+            f"mock engine: {e} (e.g. --error-rate 0.2 --confusion "
+            "misheard=0.6,dropped=0.3,inserted=0.1 --latency 0.3)"
+        ) from None

@@ -32,9 +32,10 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol.vocabulary import Vocabulary, normalize
+from protocol.vocabulary import Vocabulary, normalize, written_phrases
+from services.runtime.settings import option
 from services.speech import spanish
-from services.speech.recognizer import EngineError, Recognition, written_phrases
+from services.speech.recognizer import EngineError, Recognition
 
 MODEL_HINT = (
     "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "
@@ -47,6 +48,7 @@ SPANISH_SUFFIX = "-es"  # a Spanish word's name in the English dictionary ("no-e
 # Distractors by language (measured: docs/speech.md#accuracy): Spanish words spelt in English
 # phones match their speech less well than English words theirs, so fewer compete.
 DISTRACTORS = {"en": 1000, "es": 600}
+REJECTION = "pocketsphinx rejection of words outside the vocabulary"  # its flags' group
 # (posterior from, share right): English tuning split, 181/188 from 0.75, 41/51 below
 PRECISION_BY_POSTERIOR = ((0.75, 0.96), (0.0, 0.80))
 
@@ -54,8 +56,16 @@ PRECISION_BY_POSTERIOR = ((0.75, 0.96), (0.0, 0.80))
 @dataclass(frozen=True)
 class PocketsphinxSettings:
     # dictionary words competing with the vocabulary (0: no rejection; None: DISTRACTORS')
-    distractors: int | None = None
-    distractor_weight: float = 1e-4  # their total prior against the vocabulary's 1
+    distractors: int | None = option(
+        None,
+        "dictionary words competing with the vocabulary (0: no rejection; more rejects more "
+        "and loses more of the vocabulary; docs/speech.md#accuracy)",
+        show="by language: " + ", ".join(f"{lang} {n}" for lang, n in DISTRACTORS.items()),
+        group=REJECTION,
+    )
+    distractor_weight: float = option(
+        1e-4, "their total prior against the vocabulary's 1", group=REJECTION
+    )
     distractor_min_distance: int = 2  # phone edits from any vocabulary word, at least
     distractor_max_phones: int = 6
     noise_floor: float = 30.0

@@ -13,7 +13,7 @@ from typing import Protocol
 
 import numpy as np
 
-from protocol.vocabulary import Vocabulary, normalize
+from protocol.vocabulary import written_phrases as written_phrases  # bench.py's
 
 ENGINES = ("cascade", "pocketsphinx", "vosk", "whisper", "mock")
 DEFAULT_ENGINE = "cascade"  # what `voxshape speech` runs unless told otherwise
@@ -37,8 +37,3 @@ class Recognizer(Protocol):
     def recognize(self, samples: np.ndarray) -> Recognition | None:
         """The phrase heard in one utterance, or None (nothing of the vocabulary)."""
         ...
-
-
-def written_phrases(vocabulary: Vocabulary, language: str) -> dict[str, str]:
-    """Normalized phrase -> the phrase as written, for one language."""
-    return {normalize(p): p for p in vocabulary.phrases(language)}

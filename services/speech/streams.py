@@ -23,6 +23,7 @@ import numpy as np
 from protocol import AudioChunk
 from protocol.messages import SAMPLE_RATE
 from services.runtime.audio import AudioError, pcm_to_samples
+from services.runtime.settings import option
 from services.speech.segmenter import Segment, Segmenter, SegmenterConfig
 
 Report = Callable[[str, str], None]  # (problem kind, detail) -> None
@@ -30,8 +31,10 @@ Report = Callable[[str, str], None]  # (problem kind, detail) -> None
 
 @dataclass(frozen=True)
 class StreamLimits:
-    max_streams: int = 64
-    idle_timeout_s: float = 5.0
+    max_streams: int = option(64, "teachers' audio streams at once")
+    idle_timeout_s: float = option(
+        5.0, "seconds after which a stream without its final chunk is ended", flag="--idle-timeout"
+    )
 
 
 @dataclass(frozen=True)

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from protocol.messages import SAMPLE_RATE
-from protocol.vocabulary import Vocabulary, normalize
-from services.speech.recognizer import EngineError, Recognition, written_phrases
+from protocol.vocabulary import Vocabulary, normalize, written_phrases
+from services.speech.recognizer import EngineError, Recognition
 
 MODELS_URL = "https://alphacephei.com/vosk/models"
 SMALL_MODELS = {"en": "vosk-model-small-en-us-0.15", "es": "vosk-model-small-es-0.42"}

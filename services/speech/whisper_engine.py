@@ -31,9 +31,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from protocol.messages import SAMPLE_RATE
-from protocol.vocabulary import Vocabulary, normalize
+from protocol.vocabulary import Vocabulary, normalize, written_phrases
 from services.speech.log_mel import HOP, log_mel
-from services.speech.recognizer import EngineError, Recognition, written_phrases
+from services.speech.recognizer import EngineError, Recognition
 
 if TYPE_CHECKING:
     from ctranslate2 import StorageView

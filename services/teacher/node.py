@@ -1,15 +1,24 @@
 """`voxshape teach`: speak, stream recordings or type words to a robot of a session.
 
-Outputs: voxshape/<session>/teacher/<teacher>/audio      microphone or WAV chunks
-         voxshape/<session>/teacher/<teacher>/utterance  typed words (engine "typed")
-         voxshape/<session>/teacher/<teacher>/said       typed words, with --through-speech
-                                                         (straight out while no speech service)
-Inputs:  voxshape/<session>/teacher/<teacher>/utterance  what was understood
-         voxshape/<session>/teacher/<teacher>/notice     what the arbiter made of it
-         voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
-         voxshape/<session>/robot/<robot>/obs, episode, feedback   the robot's status
-         voxshape/<session>/robot/<robot>/help, answer   its questions ("which way?", with
-                                                         the bell) and who answered them
+Inputs:  voxshape/<session>/teacher/<teacher>/utterance    Utterance
+         voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
+         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
+         voxshape/<session>/robot/*/obs                    Observation
+         voxshape/<session>/robot/*/episode                EpisodeEvent
+         voxshape/<session>/robot/*/feedback               CreditedFeedback
+         voxshape/<session>/robot/*/help                   HelpRequest
+         voxshape/<session>/robot/*/answer                 HelpAnswer
+Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
+         voxshape/<session>/teacher/<teacher>/utterance    Utterance (keeps 256)
+         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
+         voxshape/<session>/teacher/<teacher>/placed       Placed
+
+It sends microphone or WAV chunks as audio, typed words as utterances (engine "typed"), or,
+with --through-speech, as said text (straight out while no speech service). It hears what was
+understood and what the arbiter made of it, the clock exchange (a thread), and of the robot
+it teaches its status, its questions ("which way?", with the bell) and who answered them; a
+placed message is `voxshape placed`'s.
 
     voxshape teach                              type words (a prompt, or a script on stdin)
     voxshape teach --wav good.wav --wav left.wav   stream recordings in real time (--fast)
@@ -24,11 +33,11 @@ from __future__ import annotations
 
 import argparse
 import getpass
-import os
 import queue
 import sys
 import time
 from contextlib import ExitStack
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +45,7 @@ import numpy as np
 from protocol import Utterance, Vocabulary, check_id, load_vocabulary, robot_key
 from services.runtime import ConfigError, Node, Output, add_bus_arguments, bus_config
 from services.runtime.audio import AudioError
+from services.runtime.settings import add_options, option, read_options
 from services.teacher.board import Board, SpeechUse, SpeechWatch
 from services.teacher.screen import Screen, ask_hint, show_event, terminal_board
 from services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
@@ -51,105 +61,102 @@ from services.teacher.sources import (
 TICK_S = 0.02
 
 
+@dataclass(frozen=True)
+class TeachOptions:
+    """`voxshape teach`'s settings."""
+
+    robot: str = option("r1", "the robot taught", env="VOXSHAPE_ROBOT")
+    teacher: str | None = option(
+        None,
+        "your id in the session",
+        env="VOXSHAPE_TEACHER",
+        show="--user if given, else your login name",
+    )
+    language: str = option(
+        "en", "of typing: one of the vocabulary's (en, es)", env="VOXSHAPE_LANGUAGE"
+    )
+    wav: tuple[Path, ...] = option(
+        (), "stream a recording (not with --mic)", repeat=True, metavar="FILE"
+    )
+    mic: bool = option(False, "speak into the microphone (not with --wav)")
+    device: str | None = option(None, "--mic: input device name or number")
+    fast: bool = option(False, "--wav: send at once, not paced")
+    through_speech: bool = option(
+        False, "typed words go to the speech service's mock engine (said), not straight out"
+    )
+    linger: float = option(3.0, "seconds to wait for what was understood")
+    status_every: float = option(2.0, "seconds between status")
+    wait_speech: float = option(5.0, "seconds to wait for a speech service before sending audio")
+    vocabulary: Path | None = option(None, "vocabulary file", show="built in")
+    json: bool = option(False, "one JSON object per line")
+    arrows: bool = option(
+        False, "typing at a terminal: the arrow keys send forward, back, left, right at once"
+    )
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    env = os.environ.get
-    parser.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="(VOXSHAPE_ROBOT)")
-    parser.add_argument(
-        "--teacher",
-        default=env("VOXSHAPE_TEACHER"),
-        help="your id in the session (VOXSHAPE_TEACHER; default: --user if given, else your "
-        "login name)",
-    )
-    parser.add_argument(
-        "--language",
-        default=env("VOXSHAPE_LANGUAGE", "en"),
-        help="of typing: one of the vocabulary's (en, es; VOXSHAPE_LANGUAGE)",
-    )
-    source = parser.add_mutually_exclusive_group()
-    source.add_argument(
-        "--wav", type=Path, action="append", metavar="FILE", help="stream a recording (repeat)"
-    )
-    source.add_argument("--mic", action="store_true", help="speak into the microphone")
-    parser.add_argument("--device", help="--mic: input device name or number")
-    parser.add_argument("--fast", action="store_true", help="--wav: send at once, not paced")
-    parser.add_argument(
-        "--through-speech",
-        action="store_true",
-        help="typed words go to the speech service's mock engine (said), not straight out",
-    )
-    parser.add_argument(
-        "--linger", type=float, default=3.0, help="seconds to wait for what was understood"
-    )
-    parser.add_argument("--status-every", type=float, default=2.0, help="seconds between status")
-    parser.add_argument(
-        "--wait-speech",
-        type=float,
-        default=5.0,
-        help="seconds to wait for a speech service before sending audio",
-    )
-    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
-    parser.add_argument("--json", action="store_true", help="one JSON object per line")
-    parser.add_argument(
-        "--arrows",
-        action="store_true",
-        help="typing at a terminal: the arrow keys send forward, back, left, right at once",
-    )
+    add_options(parser, TeachOptions)
 
 
 def run(args: argparse.Namespace) -> int:
+    options = read_options(TeachOptions, args)
     # A person joining a secured session with --user alone is asked for the password.
     bus = bus_config("teacher", args, ask=getpass.getpass if sys.stdin.isatty() else None)
-    teacher = check_id(args.teacher or bus.user or default_teacher_id(), "teacher")
-    robot = check_id(args.robot, "robot")
-    vocabulary = _check_arguments(args)
-    screen = Screen(args.json)
-    hint = ask_hint(vocabulary, args.language)
-    board = terminal_board(bus, teacher, robot, args.status_every, screen, hint)
+    teacher = check_id(options.teacher or bus.user or default_teacher_id(), "teacher")
+    robot = check_id(options.robot, "robot")
+    vocabulary = _check_arguments(options)
+    screen = Screen(options.json)
+    hint = ask_hint(vocabulary, options.language)
+    board = terminal_board(bus, teacher, robot, options.status_every, screen, hint)
     mic_chunks: queue.SimpleQueue = queue.SimpleQueue()
     try:
-        recordings = read_recordings(args.wav or [])
+        recordings = read_recordings(list(options.wav))
     except AudioError as e:
         raise ConfigError(str(e)) from None
     with ExitStack() as stack:
-        if args.mic:
+        if options.mic:
             try:
                 stack.enter_context(
-                    microphone(lambda s, t: mic_chunks.put((s, t)), device=args.device)
+                    microphone(lambda s, t: mic_chunks.put((s, t)), device=options.device)
                 )
             except TeachError as e:
                 raise ConfigError(str(e)) from None
         node = stack.enter_context(Node("teacher", bus, quiet=True))
-        outputs = _join(node, stack, teacher, args, screen)
+        outputs = _join(node, stack, teacher, options, screen)
         for topic in ("obs", "episode", "feedback", "help", "answer"):
             node.input(topic, robot_key(node.session_id, robot, topic))
-        speech = SpeechWatch(_speech_use(args))
+        speech = SpeechWatch(_speech_use(options))
         node.watch_presence(role="speech")
-        if args.wav or args.mic or args.through_speech:
-            _wait_for_speech(node, speech, board, screen, args.wait_speech)
-        sender = _sender(args, teacher, robot, recordings, mic_chunks, speech, vocabulary, screen)
-        _loop(node, outputs, sender, speech, board, screen, args.linger)
+        if options.wav or options.mic or options.through_speech:
+            _wait_for_speech(node, speech, board, screen, options.wait_speech)
+        sender = _sender(
+            options, teacher, robot, recordings, mic_chunks, speech, vocabulary, screen
+        )
+        _loop(node, outputs, sender, speech, board, screen, options.linger)
     return 0
 
 
-def _check_arguments(args: argparse.Namespace) -> Vocabulary:
+def _check_arguments(options: TeachOptions) -> Vocabulary:
     """Refuses arguments that cannot work; returns the vocabulary (typing needs --language)."""
-    if min(args.linger, args.status_every, args.wait_speech) < 0:
+    if options.wav and options.mic:
+        raise ConfigError("--wav and --mic: give one of them (recordings, or the microphone)")
+    if min(options.linger, options.status_every, options.wait_speech) < 0:
         raise ConfigError("--linger, --status-every and --wait-speech must be >= 0")
-    vocabulary = load_vocabulary(args.vocabulary)
-    if not (args.wav or args.mic) and args.language not in vocabulary.languages:
+    vocabulary = load_vocabulary(options.vocabulary)
+    if not (options.wav or options.mic) and options.language not in vocabulary.languages:
         known = ", ".join(vocabulary.languages)  # typing needs phrases in its language
-        raise ConfigError(f"--language {args.language}: the vocabulary has {known} only")
+        raise ConfigError(f"--language {options.language}: the vocabulary has {known} only")
     return vocabulary
 
 
 def _join(
-    node: Node, stack: ExitStack, teacher: str, args: argparse.Namespace, screen: Screen
+    node: Node, stack: ExitStack, teacher: str, options: TeachOptions, screen: Screen
 ) -> dict[type, Output]:
     """Joins as `teacher`, saying audio or typed words (and `said` with --through-speech);
     the clock exchange's result and problems go to the screen."""
-    says = ("audio",) if args.wav or args.mic else ("utterance",)
-    says += ("said",) if args.through_speech else ()
+    says = ("audio",) if options.wav or options.mic else ("utterance",)
+    says += ("said",) if options.through_speech else ()
     return join_as_teacher(
         node,
         stack,
@@ -168,15 +175,15 @@ def _join(
     )
 
 
-def _speech_use(args: argparse.Namespace) -> SpeechUse:
+def _speech_use(options: TeachOptions) -> SpeechUse:
     """How this teacher's words travel, which decides what losing speech means to it."""
-    if args.wav or args.mic:
+    if options.wav or options.mic:
         return "audio"
-    return "through_speech" if args.through_speech else "typed"
+    return "through_speech" if options.through_speech else "typed"
 
 
 def _sender(
-    args: argparse.Namespace,
+    options: TeachOptions,
     teacher: str,
     robot: str,
     recordings: list[np.ndarray],
@@ -186,25 +193,27 @@ def _sender(
     screen: Screen,
 ) -> Sender:
     """What sends: the recordings (--wav), the microphone (--mic) or the typed words."""
-    if args.wav:
+    if options.wav:
         start = time.time()
-        sender: Sender = ScheduledSender(wav_stream(recordings, teacher, robot, start, args.fast))
+        sender: Sender = ScheduledSender(
+            wav_stream(recordings, teacher, robot, start, options.fast)
+        )
         screen.note(
             "streaming",
-            f"streaming {len(args.wav)} file(s) to robot {robot}",
-            files=[str(f) for f in args.wav],
+            f"streaming {len(options.wav)} file(s) to robot {robot}",
+            files=[str(f) for f in options.wav],
             start_time=start,
         )
         return sender
-    if args.mic:
+    if options.mic:
         sender = MicrophoneSender(mic_chunks, teacher, robot)
         screen.note("listening", f"speak to robot {robot} (Ctrl-C to stop)")
         return sender
 
     def via_speech() -> bool:
-        return args.through_speech and speech.available
+        return options.through_speech and speech.available
 
-    return TypedSender(teacher, robot, args.language, via_speech, vocabulary, args.arrows)
+    return TypedSender(teacher, robot, options.language, via_speech, vocabulary, options.arrows)
 
 
 def _wait_for_speech(

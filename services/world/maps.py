@@ -4,8 +4,8 @@ A map file's format is in docs/simulator.md#your-own-map (examples: `services/wo
 
 The loader checks every key and value, that the start (with its jitter) leaves the robot
 clear of walls and obstacles, and that the goal can be reached by a robot of the given size.
-This module is pure (numpy only): the simulator, the renderer and the simulated teacher all
-build on the same `Map`.
+This module is pure (numpy; `--task` is a setting of services/runtime): the simulator, the
+renderer and the simulated teacher all build on the same `Map`.
 """
 
 from __future__ import annotations
@@ -19,8 +19,11 @@ import tomllib
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+
+from services.runtime.settings import option, option_of
 
 MAPS_DIR = Path(__file__).with_name("maps")
 TASKS = {str(i): MAPS_DIR / f"task{i}.toml" for i in range(1, 5)}
@@ -390,11 +393,21 @@ def _check_layout(m: Map) -> None:
         )
 
 
-def add_task_argument(parser: argparse.ArgumentParser, why: str) -> None:
-    """`--task`: the session's map, as the simulator runs it (VOXSHAPE_TASK, default 1)."""
-    parser.add_argument(
-        "--task",
-        default=os.environ.get("VOXSHAPE_TASK", "1"),
-        help=f"the simulator's map: task number ({', '.join(TASKS)}) or map file, {why} "
-        "(VOXSHAPE_TASK)",
+def task_option(why: str) -> Any:
+    """`--task`, a field of a command's options: the session's map, as the simulator runs it
+    (VOXSHAPE_TASK, default 1)."""
+    return option(
+        "1",
+        f"the simulator's map: task number ({', '.join(TASKS)}) or map file, {why}",
+        env="VOXSHAPE_TASK",
     )
+
+
+def add_task_argument(parser: argparse.ArgumentParser, why: str) -> None:
+    """`--task` for a command that reads `args.task` itself: task_option's flag, its value
+    (the flag, else VOXSHAPE_TASK, else 1) there at once."""
+    task = task_option(why)
+    how = option_of(task)
+    assert how is not None and how.env is not None
+    default = os.environ.get(how.env) or task.default
+    parser.add_argument("--task", default=default, help=f"{how.help} ({how.env})")

@@ -1,13 +1,17 @@
 """`voxshape sim-teacher`: the simulated teacher on the bus, speaking through the normal path.
 
-Inputs:  voxshape/<session>/robot/<robot>/obs              what it watches
-         voxshape/<session>/robot/<robot>/help             the robot's questions (it answers)
-         voxshape/<session>/teacher/<teacher>/notice       what the arbiter made of it (counted)
-         voxshape/<session>/teacher/<teacher>/clock-reply  the clock exchange (a thread)
-Outputs: voxshape/<session>/teacher/<teacher>/said     its words, for the mock speech engine
-         voxshape/<session>/teacher/<teacher>/audio    or its words synthesized (--audio), for
-                                                       pocketsphinx: recognition errors are real
-         voxshape/<session>/teacher/<teacher>/clock    clock probes (services/runtime/clock.py)
+Inputs:  voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
+         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
+         voxshape/<session>/robot/*/obs                    Observation
+         voxshape/<session>/robot/*/help                   HelpRequest
+Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
+         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
+
+It watches its robot's observations and answers its questions; the arbiter's notices are
+counted, the clock exchange is a thread (services/runtime/clock.py). Its words go out as said
+text, for the mock speech engine, or synthesized (--audio) for pocketsphinx: recognition
+errors are then real.
 
 It sends what a person's `voxshape teach` client sends, nothing more: the speech service hears
 it, the arbiter credits it, the learner takes it.
@@ -27,12 +31,11 @@ refuses the fast-forwarded words as a flood and credits them with a person's del
 from __future__ import annotations
 
 import argparse
-import os
 import random
 import time
 from collections.abc import Callable
 from contextlib import ExitStack
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from protocol import (
     HelpRequest,
@@ -53,7 +56,13 @@ from services.runtime import (
     bus_config,
     fields,
 )
-from services.runtime.settings import add_settings_argument, replaced
+from services.runtime.settings import (
+    add_options,
+    add_settings_argument,
+    option,
+    read_options,
+    replaced,
+)
 from services.teacher.session import join_as_teacher
 from services.teacher.simulated.display import DisplayTeacher, Spoken
 from services.teacher.simulated.synthesis import LEAD_S, VOICE, Voice
@@ -66,65 +75,61 @@ from services.teacher.simulated.teacher import (
     TeacherProfile,
 )
 from services.teacher.sources import wav_stream
-from services.world.maps import add_task_argument, load_map
+from services.world.maps import load_map, task_option
+
+
+@dataclass(frozen=True)
+class SimTeacherOptions:
+    """`voxshape sim-teacher`'s settings (its profile's others: --set)."""
+
+    robot: str = option("r1", "the robot it watches", env="VOXSHAPE_ROBOT")
+    teacher: str = option("simteacher", "its id in the session", env="VOXSHAPE_TEACHER")
+    task: str = task_option("for the true distance to the goal")
+    noise: float | None = option(
+        None,
+        "share of its judgements it gets wrong (the opposite qualifier); recognition errors "
+        "are the speech service's",
+        show="the profile's",
+    )
+    teacher_profile: str = option(
+        "person",
+        f"person: {PERSON.describe()}; tireless: {TIRELESS.describe()} (about 50 words a "
+        "minute); --set changes it",
+        choices=tuple(PROFILES),
+    )
+    traces: int = option(
+        0, "dictate the first N episodes it sees start: commands along the shortest path"
+    )
+    max_words_per_robot_s: float = option(
+        DisplayTeacher.MAX_WORDS_PER_ROBOT_S,
+        "at most this many words a robot second, whatever the profile (the arbiter takes 4)",
+    )
+    audio: bool = option(
+        False,
+        "speak synthesized audio (espeak-ng and sox) to a pocketsphinx speech service "
+        "instead of text to the mock engine",
+    )
+    voice: str = option(VOICE, "--audio: espeak-ng voice")
+    clock_skew: float = option(0.0, "its own clock runs this many seconds off")
+    seed: int | None = option(None, "random seed", show="drawn, and logged")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    env = os.environ.get
-    parser.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="(VOXSHAPE_ROBOT)")
-    parser.add_argument(
-        "--teacher", default=env("VOXSHAPE_TEACHER", "simteacher"), help="(VOXSHAPE_TEACHER)"
-    )
-    add_task_argument(parser, "for the true distance to the goal")
-    parser.add_argument(
-        "--noise",
-        type=float,
-        help="share of its judgements it gets wrong (the opposite qualifier); recognition "
-        "errors are the speech service's",
-    )
-    parser.add_argument(
-        "--teacher-profile",
-        choices=tuple(PROFILES),
-        default="person",
-        help=f"person: {PERSON.describe()}; tireless: {TIRELESS.describe()} (about 50 words "
-        "a minute); --set changes it",
-    )
+    add_options(parser, SimTeacherOptions)
     add_settings_argument(
         parser, "TeacherProfile (services/teacher/simulated/teacher.py)", "words_per_robot_minute=2"
     )
-    parser.add_argument(
-        "--traces",
-        type=int,
-        default=0,
-        help="dictate the first N episodes it sees start: commands along the shortest path",
-    )
-    parser.add_argument(
-        "--max-words-per-robot-s",
-        type=float,
-        default=DisplayTeacher.MAX_WORDS_PER_ROBOT_S,
-        help="at most this many words a robot second, whatever the profile (the arbiter takes 4)",
-    )
-    parser.add_argument(
-        "--audio",
-        action="store_true",
-        help="speak synthesized audio (espeak-ng and sox) to a pocketsphinx speech service "
-        "instead of text to the mock engine",
-    )
-    parser.add_argument("--voice", default=VOICE, help="--audio: espeak-ng voice")
-    parser.add_argument(
-        "--clock-skew", type=float, default=0.0, help="its own clock runs this many seconds off"
-    )
-    parser.add_argument("--seed", type=int, default=None, help="(default: drawn, and logged)")
 
 
 def profile_from(args: argparse.Namespace) -> TeacherProfile:
     """The --teacher-profile with --noise and the --set settings applied."""
-    profile = PROFILES[args.teacher_profile]
-    if args.noise is not None:
-        profile = replace(profile, noise=args.noise)
+    options = read_options(SimTeacherOptions, args)
+    profile = PROFILES[options.teacher_profile]
+    if options.noise is not None:
+        profile = replace(profile, noise=options.noise)
     try:
-        profile = replaced(profile, args.set)
+        profile = replaced(profile, args.set, taken=SimTeacherOptions)
         # Over the bus the speech service mishears: the teacher's own errors are slips.
         return replace(profile, confusion=Confusion(wrong_qualifier=1.0, misheard=0.0))
     except ValueError as e:
@@ -179,15 +184,16 @@ def _join(
 
 
 def run(args: argparse.Namespace) -> int:
-    robot = check_id(args.robot, "robot")
-    teacher_id = check_id(args.teacher, "teacher")
-    if args.traces < 0 or args.max_words_per_robot_s <= 0:
+    options = read_options(SimTeacherOptions, args)
+    robot = check_id(options.robot, "robot")
+    teacher_id = check_id(options.teacher, "teacher")
+    if options.traces < 0 or options.max_words_per_robot_s <= 0:
         raise ConfigError("--traces must be >= 0 and --max-words-per-robot-s > 0")
     profile = profile_from(args)
-    m = load_map(args.task)
-    seed = args.seed if args.seed is not None else random.SystemRandom().randrange(2**31)
-    voice = _voice(args.voice) if args.audio else None
-    skew = args.clock_skew
+    m = load_map(options.task)
+    seed = options.seed if options.seed is not None else random.SystemRandom().randrange(2**31)
+    voice = _voice(options.voice) if options.audio else None
+    skew = options.clock_skew
 
     def clock() -> float:
         return time.time() + skew
@@ -195,7 +201,7 @@ def run(args: argparse.Namespace) -> int:
     with Node("simteacher", bus_config("simteacher", args)) as node, ExitStack() as stack:
         core = SimulatedTeacher(m, load_vocabulary(), profile, seed=seed)
         teacher = DisplayTeacher(
-            core, args.traces, args.max_words_per_robot_s, counters=node.counters
+            core, options.traces, options.max_words_per_robot_s, counters=node.counters
         )
         node.input("obs", robot_key(node.session_id, robot, "obs"))
         if profile.answers:
@@ -210,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
                 task=m.name,
                 speaks=topic,
                 seed=seed,
-                traces=args.traces,
+                traces=options.traces,
                 profile=profile.describe(),
                 noise=profile.noise,
             ),

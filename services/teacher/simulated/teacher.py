@@ -39,7 +39,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from protocol.vocabulary import Vocabulary
-from services.speech.mock import MockRecognizer, MockSettings
+from services.recognition.confusion import MockRecognizer, MockSettings
 from services.world.maps import PASSAGE_RADIUS, Map
 
 # Metres kept between the robot's centre and the walls when dictating a path: the widest

@@ -3,12 +3,20 @@
     GET /        the page (services/teacher/web/static/index.html) and its files
     GET /ws      the WebSocket of docs/web.md: login, then JSON and audio frames
 
-Inputs (its own node, role "web"): voxshape/<session>/robot/*/obs, episode, feedback,
-teaching, help (a robot's question) and answer (who answered it). Each logged-in browser gets
-a teacher node of its own (role "teacher", the browser's user and password on a secured
-session, so the router's access control applies to it as to `voxshape teach`): outputs
-teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its notices and
-utterances, and the clock exchange with the arbiter. The server is
+Its own node, role "web":
+
+Inputs:  voxshape/<session>/robot/*/obs       Observation
+         voxshape/<session>/robot/*/episode   EpisodeEvent
+         voxshape/<session>/robot/*/feedback  CreditedFeedback
+         voxshape/<session>/robot/*/teaching  TeachingStats
+         voxshape/<session>/robot/*/help      HelpRequest
+         voxshape/<session>/robot/*/answer    HelpAnswer
+Outputs: nothing
+
+Each logged-in browser gets a teacher node of its own (role "teacher", the browser's user and
+password on a secured session, so the router's access control applies to it as to `voxshape
+teach`): outputs teacher/<t>/utterance (typed words, kept) and teacher/<t>/audio, inputs its
+notices and utterances, and the clock exchange with the arbiter. The server is
 services/teacher/web/server.py.
 
 On a secured session its teachers come from the access file (--access, VOXSHAPE_ACCESS), which
@@ -20,9 +28,9 @@ from __future__ import annotations
 
 import argparse
 import asyncio
-import os
 import socket
 import ssl
+from dataclasses import dataclass
 from pathlib import Path
 
 from protocol import (
@@ -35,6 +43,7 @@ from services.runtime import (
     add_bus_arguments,
     bus_config,
 )
+from services.runtime.settings import add_options, option, read_options
 from services.teacher.web.admission import (
     AdmissionError,
     Origins,
@@ -42,124 +51,110 @@ from services.teacher.web.admission import (
 )
 from services.teacher.web.page_json import SessionView, map_json, vocabulary_json
 from services.teacher.web.server import PageServer
-from services.world.maps import add_task_argument, load_map
+from services.world.maps import load_map, task_option
 
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 8080
 DEFAULT_MAX_CLIENTS = 20
+HTTPS = "HTTPS (a certificate and its key, e.g. the router's of `voxshape certs DIR`)"
+
+
+@dataclass(frozen=True)
+class WebOptions:
+    """`voxshape web`'s settings: what the page shows, and where and to whom it is served."""
+
+    task: str = task_option("to draw")
+    viewer_url: str | None = option(
+        None, "the rerun web viewer's address, linked from the page", env="VOXSHAPE_VIEWER_URL"
+    )
+    language: str = option(
+        "en", "the page's first language", env="VOXSHAPE_LANGUAGE", choices=LANGUAGES
+    )
+    vocabulary: Path | None = option(None, "vocabulary file", show="built in")
+    static: Path = option(STATIC, "folder of the page", show="the packaged page")
+    address: str = option(
+        "127.0.0.1",
+        "address to serve the page on (127.0.0.1: this host only; 0.0.0.0 for every interface)",
+        env="VOXSHAPE_WEB_ADDRESS",
+    )
+    port: int = option(DEFAULT_PORT, "port to serve the page on", env="VOXSHAPE_WEB_PORT")
+    https_cert: Path | None = option(
+        None,
+        "the page's certificate (PEM), e.g. DIR/router.pem",
+        env="VOXSHAPE_WEB_CERT",
+        group=HTTPS,
+    )
+    https_key: Path | None = option(
+        None, "its private key, e.g. DIR/router.key", env="VOXSHAPE_WEB_KEY", group=HTTPS
+    )
+    max_clients: int = option(
+        DEFAULT_MAX_CLIENTS, "browsers at once", env="VOXSHAPE_WEB_MAX_CLIENTS"
+    )
+    public_origin: str | None = option(
+        None,
+        "the address teachers open, e.g. https://lab.example:8443: its host is let in besides "
+        "loopback names, IP addresses and this machine's names",
+        env="VOXSHAPE_WEB_ORIGIN",
+    )
+    access: Path | None = option(
+        None,
+        "access file whose teachers may log in on a secured session: the router's own, which "
+        "it checks at start",
+        env="VOXSHAPE_ACCESS",
+        show="deploy/access.toml",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    _serving_arguments(parser)
-    env = os.environ.get
-    add_task_argument(parser, "to draw")
-    parser.add_argument(
-        "--viewer-url",
-        default=env("VOXSHAPE_VIEWER_URL") or None,
-        help="the rerun web viewer's address, linked from the page (VOXSHAPE_VIEWER_URL)",
-    )
-    parser.add_argument(
-        "--language",
-        choices=LANGUAGES,
-        default=env("VOXSHAPE_LANGUAGE", "en"),
-        help="the page's first language (VOXSHAPE_LANGUAGE)",
-    )
-    parser.add_argument("--vocabulary", type=Path, help="vocabulary file (default: built in)")
-    parser.add_argument("--static", type=Path, default=STATIC, help="folder of the page")
-
-
-def _serving_arguments(parser: argparse.ArgumentParser) -> None:
-    """Where and how the page is served, and to whom."""
-    env = os.environ.get
-    parser.add_argument(
-        "--address",
-        default=env("VOXSHAPE_WEB_ADDRESS", "127.0.0.1"),
-        help="address to serve the page on (VOXSHAPE_WEB_ADDRESS; default 127.0.0.1: this "
-        "host only; 0.0.0.0 for every interface)",
-    )
-    parser.add_argument(
-        "--port",
-        type=int,
-        default=int(env("VOXSHAPE_WEB_PORT") or DEFAULT_PORT),
-        help=f"(VOXSHAPE_WEB_PORT; default {DEFAULT_PORT})",
-    )
-    parser.add_argument(
-        "--https-cert",
-        type=Path,
-        default=env("VOXSHAPE_WEB_CERT") or None,
-        help="serve HTTPS with this certificate (PEM; VOXSHAPE_WEB_CERT), e.g. the router's "
-        "of `voxshape certs DIR`: DIR/router.pem",
-    )
-    parser.add_argument(
-        "--https-key",
-        type=Path,
-        default=env("VOXSHAPE_WEB_KEY") or None,
-        help="its private key (VOXSHAPE_WEB_KEY), e.g. DIR/router.key",
-    )
-    parser.add_argument(
-        "--max-clients",
-        type=int,
-        default=int(env("VOXSHAPE_WEB_MAX_CLIENTS") or DEFAULT_MAX_CLIENTS),
-        help=f"browsers at once (VOXSHAPE_WEB_MAX_CLIENTS; default {DEFAULT_MAX_CLIENTS})",
-    )
-    parser.add_argument(
-        "--public-origin",
-        default=env("VOXSHAPE_WEB_ORIGIN") or None,
-        help="the address teachers open, e.g. https://lab.example:8443 (VOXSHAPE_WEB_ORIGIN): "
-        "its host is let in besides loopback names, IP addresses and this machine's names",
-    )
-    parser.add_argument(
-        "--access",
-        type=Path,
-        default=env("VOXSHAPE_ACCESS") or None,
-        help="access file whose teachers may log in on a secured session (VOXSHAPE_ACCESS; "
-        "default deploy/access.toml): the router's own, which it checks at start",
-    )
+    add_options(parser, WebOptions)
 
 
 def run(args: argparse.Namespace) -> int:
+    options = read_options(WebOptions, args)
     bus = bus_config("web", args)
-    if not 0 <= args.port <= 65535:
-        raise ConfigError(f"--port {args.port} is outside 0-65535 (VOXSHAPE_WEB_PORT)")
-    if args.max_clients < 1:
+    if not 0 <= options.port <= 65535:
+        raise ConfigError(f"--port {options.port} is outside 0-65535 (VOXSHAPE_WEB_PORT)")
+    if options.max_clients < 1:
         raise ConfigError("--max-clients must be at least 1")
-    if (args.https_cert is None) != (args.https_key is None):
+    if (options.https_cert is None) != (options.https_key is None):
         raise ConfigError("--https-cert and --https-key go together")
     tls = None
-    if args.https_cert is not None:
+    if options.https_cert is not None:
         tls = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
         try:
-            tls.load_cert_chain(args.https_cert, args.https_key)
+            tls.load_cert_chain(options.https_cert, options.https_key)
         except (OSError, ssl.SSLError) as e:
             raise ConfigError(
-                f"cannot use {args.https_cert} / {args.https_key} for HTTPS: {e}"
+                f"cannot use {options.https_cert} / {options.https_key} for HTTPS: {e}"
             ) from None
     view = SessionView(
         session=bus.session,
         secured=bus.user is not None,
-        language=args.language,
-        vocabulary=vocabulary_json(load_vocabulary(args.vocabulary)),
-        map=map_json(load_map(args.task)),
-        viewer=args.viewer_url,
+        language=options.language,
+        vocabulary=vocabulary_json(load_vocabulary(options.vocabulary)),
+        map=map_json(load_map(options.task)),
+        viewer=options.viewer_url,
     )
-    if not (args.static / "index.html").is_file():
-        raise ConfigError(f"no page to serve: {args.static}/index.html is missing")
+    if not (options.static / "index.html").is_file():
+        raise ConfigError(f"no page to serve: {options.static}/index.html is missing")
     try:
         origins = Origins(
-            public_origin(args.public_origin) if args.public_origin else None,
+            public_origin(options.public_origin) if options.public_origin else None,
             frozenset(n.lower() for n in (socket.gethostname(), socket.getfqdn()) if n),
         )
-        access = (args.access or find_access_file()) if view.secured else None
+        access = (options.access or find_access_file()) if view.secured else None
         teachers = _teachers(access) if access is not None else None
         digest = access_digest(access) if access is not None else None
     except (AdmissionError, AccessError) as e:
         raise ConfigError(str(e)) from None
-    gateway = PageServer(bus, view, args.static, args.address, tls, args.max_clients, origins)
+    gateway = PageServer(
+        bus, view, options.static, options.address, tls, options.max_clients, origins
+    )
     gateway.teachers = teachers
     if access is not None and digest is not None:
         gateway.access = (access, digest)
-    asyncio.run(gateway.serve(args.port))
+    asyncio.run(gateway.serve(options.port))
     return 0
 
 
