@@ -1,10 +1,14 @@
 """Fixtures for tests on a real bus: free loopback ports, a real router process, and child
-processes that are always ended (by pid) when the test is over."""
+processes that are always ended (by pid) when the test is over. The suite runs in parallel
+(pytest-xdist): each worker takes its ports from a range of its own, and every test its own
+session id and folders."""
 
 from __future__ import annotations
 
 import os
+import random
 import re
+import socket
 import subprocess
 import sys
 import time
@@ -18,13 +22,58 @@ import pytest
 from services.deploy.access import load_access
 from services.deploy.certs import make_all
 from services.launcher import router_command
-from services.runtime import BusConfig, Input, Node, Presence, bus_config
-from services.runtime import free_loopback_port as free_port
+from services.runtime import BusConfig, Input, Node, Presence, bus_config, free_loopback_port
 from services.runtime.config import wait_for_loopback_port as wait_for_port
 from services.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
+
+LOWEST_PORT = 10000  # the tests' ports lie between this and the kernel's ephemeral range
+_given: set[int] = set()  # ports this process handed out: never twice
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        low, high = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(low), int(high)
+    except (OSError, ValueError):
+        return 32768, 60999  # Linux's default
+
+
+def _worker_ports() -> range:
+    """This xdist worker's share of the ports below the ephemeral range (all of them when
+    the suite runs in one process)."""
+    top = _ephemeral_range()[0]
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    index = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+    share = (top - LOWEST_PORT) // max(workers, 1)
+    start = LOWEST_PORT + (index % max(workers, 1)) * share
+    return range(start, start + share)
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now and that no other worker of this
+    run is given: from this worker's range, below the kernel's ephemeral ports, so that no
+    outgoing connection or bind(0) takes it before the child that was given it listens."""
+    ports = _worker_ports()
+    if len(ports) < 200:  # an unusual ephemeral range: any free port
+        return free_loopback_port()
+    for _ in range(200):
+        port = random.choice(ports)
+        if port not in _given and _bindable(port):
+            _given.add(port)
+            return port
+    raise RuntimeError(f"no free port among 200 tries in {ports}")
+
+
+def _bindable(port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 def read_until(
@@ -51,6 +100,12 @@ def read_until(
         else:
             time.sleep(0.05)
     pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
+
+
+def web_log_path(port: int) -> Path:
+    """Where a test's `voxshape web` on `port` writes its output: named by the port and this
+    process, so that no other test or concurrent run writes the same file."""
+    return Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}-{os.getpid()}.log"
 
 
 @pytest.fixture

@@ -45,8 +45,8 @@ from protocol import (
 )
 from services.arbiter.scripted import utterance
 from services.launcher import router_command
-from services.runtime import Input, Node, bus_config, free_loopback_port
-from tests.conftest import VOXSHAPE, bus_args, collect, wait_for_port, wait_present
+from services.runtime import Input, Node, bus_config
+from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
 from tests.strategies import messages
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
@@ -229,7 +229,7 @@ def start_router(spawn, session_id: str, endpoint: str) -> subprocess.Popen:
 def test_after_a_router_restart_everyone_reconnects_and_nothing_typed_is_lost(
     spawn, session_id, tmp_path
 ):
-    endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = start_router(spawn, session_id, endpoint)
     paced_sim(spawn, endpoint, session_id)
     arbiter = service(spawn, "arbiter", endpoint, session_id, "arbiter", cwd=tmp_path)
