@@ -7,7 +7,7 @@ figures as one `FAULT-FIGURES {json}` line (`benchmarks/faults.py` gathers them)
 - the speech service killed: the teacher is told, typed words still reach the arbiter;
 - malformed messages on every topic: no service crashes, each is counted;
 - a teacher flooding utterances: rate-limited, another teacher unaffected;
-- a logger stopped (SIGSTOP) or absent: the learner keeps its pace.
+- a logger stopped (SIGSTOP) or absent: the learner keeps its pace (it does not yet: xfail).
 
 Assertions are on events and counts; durations are printed (a loose bound at most).
 """
@@ -26,6 +26,7 @@ from pathlib import Path
 
 import msgpack
 import numpy as np
+import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -720,33 +721,46 @@ def steps_per_second(node: Node, seconds: float) -> float:
     return steps / (time.monotonic() - started)
 
 
+def paces(node: Node, windows: int, seconds: float = 0.5) -> list[float]:
+    """The learner's pace in consecutive windows: a stall shows as windows of ~0 steps."""
+    return [steps_per_second(node, seconds) for _ in range(windows)]
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured 2026-11-27: about 1.2 s after the logger is stopped (SIGSTOP), the router's "
+    "queue to it is full and the BLOCK publishers stall the learner at 0 steps/s until SIGCONT "
+    "(docs/reliability.md)",
+)
 def test_a_stopped_or_absent_logger_never_slows_the_learner(
     spawn, router, session_id, client_config, tmp_path
 ):
+    """No 0.5 s window of a 4 s stop slower than a quarter of the slowest window without a
+    logger: each is measured in the same run (a loaded machine slows both), and a stall is 0."""
     service(spawn, "sim", router, session_id, "sim", "--clock", "lockstep", "--seed", "0")
     learner(spawn, router, session_id, tmp_path / "learner.npz", 5.0)
-    pace: dict[str, float] = {}
+    pace: dict[str, list[float]] = {}
     with Node("test", client_config("watch")) as node:
         node.watch_presence()
         wait_present(node, {"sim", "learner"})
         node.input("obs", robot_key(session_id, "r1", "obs"))
         steps_per_second(node, 1)  # warming up
-        pace["absent"] = steps_per_second(node, 2)
+        pace["absent"] = paces(node, 4)
         logger = service(
             spawn, "logger", router, session_id, "logger", "--serve-port", "0", cwd=tmp_path
         )
         wait_present(node, {"logger"})
-        pace["running"] = steps_per_second(node, 2)
+        pace["running"] = paces(node, 4)
         logger.send_signal(signal.SIGSTOP)
-        pace["stopped"] = steps_per_second(node, 4)
+        pace["stopped"] = paces(node, 8)
         logger.send_signal(signal.SIGCONT)
-        pace["continued"] = steps_per_second(node, 1)
+        pace["continued"] = paces(node, 4)
     code, counters, _ = stop(logger)
     figures(
         "logger stopped",
-        learner_steps_per_s={k: round(v, 1) for k, v in pace.items()},
+        learner_steps_per_s={k: [round(v) for v in windows] for k, windows in pace.items()},
         logger_exit=code,
         logger_received=sum(v for k, v in counters.items() if k.startswith("received")),
     )
     assert code == 0
-    assert pace["stopped"] > pace["absent"] / 4  # a stall would be ~0 (loose: a busy machine)
+    assert min(pace["stopped"]) > min(pace["absent"]) / 4, pace
