@@ -29,7 +29,9 @@ from services.runtime.processes import end_process
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
 
-LOWEST_PORT = 10000  # the tests' ports lie between this and the kernel's ephemeral range
+# The tests' ports lie between this and the kernel's ephemeral range: above the well-known
+# ports, zenoh's 7447, the page's 8080, the viewer's 9876 and Ray's workers (10002-19999).
+LOWEST_PORT = 20000
 _given: set[int] = set()  # ports this process handed out: never twice
 
 
@@ -74,6 +76,12 @@ def _bindable(port: int) -> bool:
         except OSError:
             return False
     return True
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The long tests first (in their order, then the others in theirs): a parallel run
+    spreads them over its workers from the start instead of ending on one of them."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)
 
 
 def read_until(

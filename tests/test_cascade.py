@@ -157,6 +157,7 @@ def test_the_suites_good_clip_is_understood_through_teach(
 
 
 @needs_whisper
+@pytest.mark.long
 def test_the_speech_benchmark_measures_the_default_engine():
     argv = [sys.executable, "-m", "benchmarks.speech", "--engine", "default", "--language", "en"]
     root = FIXTURES.parents[2]

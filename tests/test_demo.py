@@ -23,6 +23,7 @@ DEMO_TIMEOUT_S = 600  # measured: 28 episodes in 97 s at 20x (task 1, 2 loaded c
 
 
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 30)
+@pytest.mark.long
 def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(session_id, tmp_path):
     port = str(free_port())
     argv = [VOXSHAPE, "demo", "--speech", "mock", "--rtf", "20", "--max-episodes", "100"]

@@ -227,6 +227,7 @@ def start_router(spawn, session_id: str, endpoint: str) -> subprocess.Popen:
     return proc
 
 
+@pytest.mark.long
 def test_after_a_router_restart_everyone_reconnects_and_nothing_typed_is_lost(
     spawn, session_id, tmp_path
 ):
@@ -387,6 +388,7 @@ def test_when_speech_dies_the_teacher_is_told_and_typed_words_still_work(
 OUTAGE_S = 10.0  # how long a service stays down in the outage tests
 
 
+@pytest.mark.long
 def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
     spawn, router, session_id, client_config, tmp_path
 ):
@@ -430,6 +432,7 @@ def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
     assert heard.text == "turn left" and heard.teacher == "ana"
 
 
+@pytest.mark.long
 def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
     spawn, router, session_id, client_config, tmp_path
 ):
@@ -631,6 +634,7 @@ SUBSCRIBED = {
 }
 
 
+@pytest.mark.long
 def test_malformed_messages_on_every_topic_crash_nothing_and_each_is_counted(
     spawn, router, session_id, client_config, tmp_path
 ):

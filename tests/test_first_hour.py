@@ -67,6 +67,7 @@ def checkpoint_meta(path: Path) -> dict:
 
 
 @pytest.mark.timeout(400)
+@pytest.mark.long
 def test_the_first_hour_of_a_new_user(tmp_path, session_id):
     env = session_env(session_id, free_port())
     run_dir = tmp_path / "runs" / session_id
@@ -222,6 +223,7 @@ def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.long
 def test_the_demo_on_a_map_file_converges_and_says_so(tmp_path, session_id):
     shutil.copy(MAPS / "long-room.toml", tmp_path / "mine.toml")
     env = session_env(session_id, free_port())

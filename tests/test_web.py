@@ -561,6 +561,7 @@ def test_voxshape_web_stops_cleanly_on_sigterm(spawn, router, session_id):
     assert taken.returncode == 2 and "cannot serve the page on 127.0.0.1:" in taken.stderr
 
 
+@pytest.mark.long
 def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
     spawn, session_id, tmp_path
 ):

@@ -91,6 +91,7 @@ def session(spawn, secured):
     assert "Traceback" not in web_log(port)
 
 
+@pytest.mark.long
 def test_strangers_cannot_lock_out_guess_or_outrun_a_teacher(session):
     port, password = session
     asyncio.run(attacks(port, password))
@@ -317,6 +318,7 @@ async def no_websockets(port: int, password: dict[str, str]) -> None:
     print("WEB-NO-WEBSOCKET-FIGURES", json.dumps({k: round(v, 3) for k, v in took.items()}))
 
 
+@pytest.mark.long
 def test_a_stranger_failing_as_a_teacher_never_locks_her_out(session):
     port, password = session
     asyncio.run(stranger_fails_as_cy(port, password))

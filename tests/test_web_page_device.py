@@ -85,6 +85,7 @@ def log_in(page, url: str, password: str) -> None:
     page.click("#login-button")
 
 
+@pytest.mark.long
 def test_the_browser_keeps_its_device_cookie_and_gets_in_while_strangers_guess(secured_page):
     url, passwords, log = secured_page
     port = int(url.rsplit(":", 1)[1].strip("/"))
