@@ -132,6 +132,14 @@ def web_log_path(port: int) -> Path:
     return Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}-{os.getpid()}.log"
 
 
+def seconds_to_start(env: dict[str, str]) -> float:
+    """How long `voxshape teach` takes to start and parse its arguments on this machine now:
+    the reference for a test that times a client from its start, on a loaded machine too."""
+    started = time.monotonic()
+    subprocess.run([VOXSHAPE, "teach", "--help"], env=env, capture_output=True, check=True)
+    return time.monotonic() - started
+
+
 @pytest.fixture
 def session_id() -> str:
     return f"t{uuid.uuid4().hex[:10]}"

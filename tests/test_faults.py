@@ -457,6 +457,7 @@ def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
             stdout=subprocess.PIPE,
             cwd=tmp_path,
         )
+        wait_present(node, {"teach"})  # on the bus (a loaded machine starts it slowly)
         teach.stdin.write("good\n")
         teach.stdin.flush()
         before = collect(node, 1, CreditedFeedback, timeout=20)
@@ -730,8 +731,11 @@ def paces(node: Node, windows: int, seconds: float = 0.5) -> list[float]:
     return [steps_per_second(node, seconds) for _ in range(windows)]
 
 
+# Not strict: on a machine so loaded that the learner takes fewer than ~1500 steps in the 4 s
+# stop, the router's queue to the logger never fills and the test passes (seen with 8 xdist
+# workers on 2 cores: 74-414 steps/s).
 @pytest.mark.xfail(
-    strict=True,
+    strict=False,
     reason="measured 2026-11-27: about 1.2 s after the logger is stopped (SIGSTOP), the router's "
     "queue to it is full and the BLOCK publishers stall the learner at 0 steps/s until SIGCONT "
     "(docs/reliability.md)",

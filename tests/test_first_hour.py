@@ -23,7 +23,7 @@ import pexpect
 import pytest
 
 from services.launcher import router_command
-from tests.conftest import ROOT, VOXSHAPE, free_port
+from tests.conftest import ROOT, VOXSHAPE, free_port, seconds_to_start
 
 README = (ROOT / "README.md").read_text()
 MAPS = ROOT / "tests" / "fixtures" / "maps"
@@ -135,7 +135,7 @@ def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
     )
     try:
         router.expect("joined the bus")
-        python_start = _seconds_to_start(env)
+        python_start = seconds_to_start(env)
         teach = pexpect.spawn(
             VOXSHAPE,
             ["teach", "--user", "ana"],
@@ -199,13 +199,6 @@ def test_a_remote_teacher_joins_a_secured_session_as_the_readme_says(tmp_path, s
     finally:
         stopped = stop(up)
     assert up.exitstatus == 0, stopped[-3000:]
-
-
-def _seconds_to_start(env: dict[str, str]) -> float:
-    """How long the client takes to start and parse its arguments on this machine now."""
-    started = time.monotonic()
-    subprocess.run([VOXSHAPE, "teach", "--help"], env=env, capture_output=True, check=True)
-    return time.monotonic() - started
 
 
 def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
