@@ -18,7 +18,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
-from _pytest.nodeid import NodeId
 
 from services.deploy.access import load_access
 from services.deploy.certs import make_all
@@ -97,6 +96,8 @@ def _name_xdist_group(item: pytest.Item) -> None:
     names = {str(m.args[0] if m.args else m.kwargs.get("name", "default"))
              for m in item.iter_markers("xdist_group")}  # fmt: skip
     if names and "@" not in item.nodeid and hasattr(item, "_id"):
+        from _pytest.nodeid import NodeId  # pytest 9.2's, as item._id is
+
         item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(sorted(names))}")
 
 
