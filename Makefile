@@ -5,6 +5,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+# the suite's parallel workers: its tests mostly wait on real time (routers, child processes,
+# timeouts), so more workers than the 2 cores; each takes its own ports (tests/conftest.py)
+TEST_WORKERS ?= 4
 APT_PACKAGES := $(shell grep -v '^\s*\#' deploy/apt-packages.txt)
 
 .PHONY: demo test lint setup system-packages clean
@@ -14,7 +17,7 @@ demo: setup system-packages
 
 test: setup system-packages
 	$(BIN)/ruff check .
-	$(BIN)/pytest
+	$(BIN)/pytest -n $(TEST_WORKERS) --dist loadgroup
 
 lint: setup
 	$(BIN)/ruff check .

@@ -1,10 +1,14 @@
 """Fixtures for tests on a real bus: free loopback ports, a real router process, and child
-processes that are always ended (by pid) when the test is over."""
+processes that are always ended (by pid) when the test is over. The suite runs in parallel
+(pytest-xdist): each worker takes its ports from a range of its own, and every test its own
+session id and folders."""
 
 from __future__ import annotations
 
 import os
+import random
 import re
+import socket
 import subprocess
 import sys
 import time
@@ -18,13 +22,83 @@ import pytest
 from services.deploy.access import load_access
 from services.deploy.certs import make_all
 from services.launcher import router_command
-from services.runtime import BusConfig, Input, Node, Presence, bus_config
-from services.runtime import free_loopback_port as free_port
+from services.runtime import BusConfig, Input, Node, Presence, bus_config, free_loopback_port
 from services.runtime.config import wait_for_loopback_port as wait_for_port
 from services.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
+
+# The tests' ports lie between this and the kernel's ephemeral range: above the well-known
+# ports, zenoh's 7447, the page's 8080, the viewer's 9876 and Ray's workers (10002-19999).
+LOWEST_PORT = 20000
+_given: set[int] = set()  # ports this process handed out: never twice
+
+
+def _ephemeral_range() -> tuple[int, int]:
+    try:
+        low, high = Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()
+        return int(low), int(high)
+    except (OSError, ValueError):
+        return 32768, 60999  # Linux's default
+
+
+def _worker_ports() -> range:
+    """This xdist worker's share of the ports below the ephemeral range (all of them when
+    the suite runs in one process)."""
+    top = _ephemeral_range()[0]
+    workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    index = int(os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw") or 0)
+    share = (top - LOWEST_PORT) // max(workers, 1)
+    start = LOWEST_PORT + (index % max(workers, 1)) * share
+    return range(start, start + share)
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that nothing listens on now and that no other worker of this
+    run is given: from this worker's range, below the kernel's ephemeral ports, so that no
+    outgoing connection or bind(0) takes it before the child that was given it listens."""
+    ports = _worker_ports()
+    if len(ports) < 200:  # an unusual ephemeral range: any free port
+        return free_loopback_port()
+    for _ in range(200):
+        port = random.choice(ports)
+        if port not in _given and _bindable(port):
+            _given.add(port)
+            return port
+    raise RuntimeError(f"no free port among 200 tries in {ports}")
+
+
+def _bindable(port: int) -> bool:
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The long tests first (in their order, then the others in theirs): a parallel run
+    spreads them over its workers from the start instead of ending on one of them."""
+    items.sort(key=lambda item: item.get_closest_marker("long") is None)
+    if getattr(config.option, "loadgroup", False):  # an xdist worker of `--dist loadgroup`
+        for item in items:
+            _name_xdist_group(item)
+
+
+def _name_xdist_group(item: pytest.Item) -> None:
+    """What pytest-xdist 3.8 does for `--dist loadgroup`: the item's xdist_group appended to
+    its node id ("...::test_x@cluster"), which the scheduler keeps on one worker. xdist sets
+    `item._nodeid`, which pytest 9.2 no longer reads (its ids are `item._id`), so its groups
+    are lost; done here unless xdist did it."""
+    names = {str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+             for m in item.iter_markers("xdist_group")}  # fmt: skip
+    if names and "@" not in item.nodeid and hasattr(item, "_id"):
+        from _pytest.nodeid import NodeId  # pytest 9.2's, as item._id is
+
+        item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(sorted(names))}")
 
 
 def read_until(
@@ -51,6 +125,20 @@ def read_until(
         else:
             time.sleep(0.05)
     pytest.fail(f"no line matching {pattern!r} within {timeout} s:\n" + "\n".join(lines))
+
+
+def web_log_path(port: int) -> Path:
+    """Where a test's `voxshape web` on `port` writes its output: named by the port and this
+    process, so that no other test or concurrent run writes the same file."""
+    return Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}-{os.getpid()}.log"
+
+
+def seconds_to_start(env: dict[str, str]) -> float:
+    """How long `voxshape teach` takes to start and parse its arguments on this machine now:
+    the reference for a test that times a client from its start, on a loaded machine too."""
+    started = time.monotonic()
+    subprocess.run([VOXSHAPE, "teach", "--help"], env=env, capture_output=True, check=True)
+    return time.monotonic() - started
 
 
 @pytest.fixture

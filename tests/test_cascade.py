@@ -91,11 +91,17 @@ def cascade() -> CascadeRecognizer:
     return recognizer
 
 
+# Clips whose verdict is the same on every CPU: CTranslate2's int8 kernels differ by
+# instruction set (AVX2, AVX-512, AVX, generic), and a clip whose phrase and "something else"
+# are a few hundredths of a nat apart is heard on one and refused on another. The suite's
+# "good" clip, streamed with quiet and noise around it, is one (-0.11 to +0.11 nats; its
+# plain recording through `voxshape teach` below is heard at 0.94 on all four).
 @needs_whisper
 @pytest.mark.parametrize(
     "name",
     [
-        "en-voc-good-en-us.wav",  # neither engine alone heard it
+        "en-voc-wrong-kal-diphone.wav",  # pocketsphinx refuses it, Whisper hears it
+        "en-voc-stop-en-us-klatt.wav",  # pocketsphinx unsure (0.80), Whisper agrees
         "en-voc-goal-en-us.wav",
         "en-voc-back-cmu-us-slt-arctic-hts.wav",
         "en-voc-terrible-kal-diphone.wav",
@@ -151,6 +157,7 @@ def test_the_suites_good_clip_is_understood_through_teach(
 
 
 @needs_whisper
+@pytest.mark.long
 def test_the_speech_benchmark_measures_the_default_engine():
     argv = [sys.executable, "-m", "benchmarks.speech", "--engine", "default", "--language", "en"]
     root = FIXTURES.parents[2]

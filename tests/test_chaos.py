@@ -21,6 +21,7 @@ SCHEDULE = [  # seconds after the start; the learner once it has checkpointed (e
 
 
 @pytest.mark.timeout(240)  # about 110 s; a loaded machine is slower
+@pytest.mark.long
 def test_a_session_under_faults_loses_no_word_and_still_learns(tmp_path):
     robots = ("r1", "r2")
     monkey, verdict, losses, _ = run_chaos(

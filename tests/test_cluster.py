@@ -21,6 +21,8 @@ from services.experiment import cluster, runner
 from services.experiment.inprocess import RunSpec, run
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
+# one worker of a parallel run takes the module: its Ray cluster and local runs are made once
+pytestmark = pytest.mark.xdist_group("cluster")
 
 
 def paper_args(out: Path, *extra: str, tasks: str = "1", seeds: int = 2, episodes: int = 3):

@@ -3,8 +3,10 @@ with an error naming the field and the problem."""
 
 from __future__ import annotations
 
+import ast
 import contextlib
 import dataclasses
+import inspect
 import math
 
 import msgpack
@@ -12,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import protocol.messages
 from protocol import (
     MAX_PAYLOAD_BYTES,
     MESSAGE_TYPES,
@@ -247,16 +250,24 @@ def test_any_value_in_any_field_is_either_valid_or_rejected(base, field, value):
         assert encode(message)  # whatever was accepted is a valid message
 
 
-# Fields named by the `check()` rules that relate several fields.
-CROSS_FIELD_RULES = {
-    "Action.discrete",
-    "Action.v",
-    "Utterance.end",
-    "CreditedFeedback.reward",
-    "CreditedFeedback.command",
-    "CreditedFeedback.credits",
-    "AudioChunk.pcm",
-}
+def cross_field_rules() -> set[str]:
+    """Fields named by the `check()` rules that relate several fields, read from
+    protocol/messages.py, so that a new rule cannot be missing from this list."""
+    tree = ast.parse(inspect.getsource(protocol.messages))
+    checks = [f for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "check"]
+    return {
+        call.args[0].value
+        for check in checks
+        for call in ast.walk(check)
+        if isinstance(call, ast.Call) and getattr(call.func, "id", None) == "ProtocolError"
+    }
+
+
+CROSS_FIELD_RULES = cross_field_rules()
+
+
+def test_the_cross_field_rules_are_read_from_the_messages():
+    assert {"Action.v", "CreditedFeedback.credits", "ClockProbe.offset"} <= CROSS_FIELD_RULES
 
 
 def test_decode_is_strict_about_bool_versus_number():

@@ -15,17 +15,17 @@ from protocol import EpisodeEvent, TeachingStats
 from services.demo import FINAL_WAIT_S, ConvergenceWatch, StallWatch, demo_table, task_title
 from services.report.counts import count_episodes
 from services.report.summary import RobotSummary
-from services.runtime import free_loopback_port
 from services.world.maps import load_map
-from tests.conftest import VOXSHAPE
+from tests.conftest import VOXSHAPE, free_port
 from tests.logger_support import LONG_ROOM
 
 DEMO_TIMEOUT_S = 600  # measured: 28 episodes in 97 s at 20x (task 1, 2 loaded cores)
 
 
 @pytest.mark.timeout(DEMO_TIMEOUT_S + 30)
+@pytest.mark.long
 def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(session_id, tmp_path):
-    port = str(free_loopback_port())
+    port = str(free_port())
     argv = [VOXSHAPE, "demo", "--speech", "mock", "--rtf", "20", "--max-episodes", "100"]
     result = subprocess.run(
         [*argv, "--port", port],

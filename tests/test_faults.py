@@ -7,7 +7,7 @@ figures as one `FAULT-FIGURES {json}` line (`benchmarks/faults.py` gathers them)
 - the speech service killed: the teacher is told, typed words still reach the arbiter;
 - malformed messages on every topic: no service crashes, each is counted;
 - a teacher flooding utterances: rate-limited, another teacher unaffected;
-- a logger stopped (SIGSTOP) or absent: the learner keeps its pace.
+- a logger stopped (SIGSTOP) or absent: the learner keeps its pace (it does not yet: xfail).
 
 Assertions are on events and counts; durations are printed (a loose bound at most).
 """
@@ -26,6 +26,7 @@ from pathlib import Path
 
 import msgpack
 import numpy as np
+import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -45,8 +46,8 @@ from protocol import (
 )
 from services.arbiter.scripted import utterance
 from services.launcher import router_command
-from services.runtime import Input, Node, bus_config, free_loopback_port
-from tests.conftest import VOXSHAPE, bus_args, collect, wait_for_port, wait_present
+from services.runtime import Input, Node, bus_config
+from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
 from tests.strategies import messages
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
@@ -226,10 +227,11 @@ def start_router(spawn, session_id: str, endpoint: str) -> subprocess.Popen:
     return proc
 
 
+@pytest.mark.long
 def test_after_a_router_restart_everyone_reconnects_and_nothing_typed_is_lost(
     spawn, session_id, tmp_path
 ):
-    endpoint = f"tcp/127.0.0.1:{free_loopback_port()}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = start_router(spawn, session_id, endpoint)
     paced_sim(spawn, endpoint, session_id)
     arbiter = service(spawn, "arbiter", endpoint, session_id, "arbiter", cwd=tmp_path)
@@ -386,6 +388,7 @@ def test_when_speech_dies_the_teacher_is_told_and_typed_words_still_work(
 OUTAGE_S = 10.0  # how long a service stays down in the outage tests
 
 
+@pytest.mark.long
 def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
     spawn, router, session_id, client_config, tmp_path
 ):
@@ -429,6 +432,7 @@ def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
     assert heard.text == "turn left" and heard.teacher == "ana"
 
 
+@pytest.mark.long
 def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
     spawn, router, session_id, client_config, tmp_path
 ):
@@ -453,6 +457,7 @@ def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
             stdout=subprocess.PIPE,
             cwd=tmp_path,
         )
+        wait_present(node, {"teach"})  # on the bus (a loaded machine starts it slowly)
         teach.stdin.write("good\n")
         teach.stdin.flush()
         before = collect(node, 1, CreditedFeedback, timeout=20)
@@ -630,6 +635,7 @@ SUBSCRIBED = {
 }
 
 
+@pytest.mark.long
 def test_malformed_messages_on_every_topic_crash_nothing_and_each_is_counted(
     spawn, router, session_id, client_config, tmp_path
 ):
@@ -720,33 +726,49 @@ def steps_per_second(node: Node, seconds: float) -> float:
     return steps / (time.monotonic() - started)
 
 
+def paces(node: Node, windows: int, seconds: float = 0.5) -> list[float]:
+    """The learner's pace in consecutive windows: a stall shows as windows of ~0 steps."""
+    return [steps_per_second(node, seconds) for _ in range(windows)]
+
+
+# Not strict: on a machine so loaded that the learner takes fewer than ~1500 steps in the 4 s
+# stop, the router's queue to the logger never fills and the test passes (seen with 8 xdist
+# workers on 2 cores: 74-414 steps/s).
+@pytest.mark.xfail(
+    strict=False,
+    reason="measured 2026-11-27: about 1.2 s after the logger is stopped (SIGSTOP), the router's "
+    "queue to it is full and the BLOCK publishers stall the learner at 0 steps/s until SIGCONT "
+    "(docs/reliability.md)",
+)
 def test_a_stopped_or_absent_logger_never_slows_the_learner(
     spawn, router, session_id, client_config, tmp_path
 ):
+    """No 0.5 s window of a 4 s stop slower than a quarter of the slowest window without a
+    logger: each is measured in the same run (a loaded machine slows both), and a stall is 0."""
     service(spawn, "sim", router, session_id, "sim", "--clock", "lockstep", "--seed", "0")
     learner(spawn, router, session_id, tmp_path / "learner.npz", 5.0)
-    pace: dict[str, float] = {}
+    pace: dict[str, list[float]] = {}
     with Node("test", client_config("watch")) as node:
         node.watch_presence()
         wait_present(node, {"sim", "learner"})
         node.input("obs", robot_key(session_id, "r1", "obs"))
         steps_per_second(node, 1)  # warming up
-        pace["absent"] = steps_per_second(node, 2)
+        pace["absent"] = paces(node, 4)
         logger = service(
             spawn, "logger", router, session_id, "logger", "--serve-port", "0", cwd=tmp_path
         )
         wait_present(node, {"logger"})
-        pace["running"] = steps_per_second(node, 2)
+        pace["running"] = paces(node, 4)
         logger.send_signal(signal.SIGSTOP)
-        pace["stopped"] = steps_per_second(node, 4)
+        pace["stopped"] = paces(node, 8)
         logger.send_signal(signal.SIGCONT)
-        pace["continued"] = steps_per_second(node, 1)
+        pace["continued"] = paces(node, 4)
     code, counters, _ = stop(logger)
     figures(
         "logger stopped",
-        learner_steps_per_s={k: round(v, 1) for k, v in pace.items()},
+        learner_steps_per_s={k: [round(v) for v in windows] for k, windows in pace.items()},
         logger_exit=code,
         logger_received=sum(v for k, v in counters.items() if k.startswith("received")),
     )
     assert code == 0
-    assert pace["stopped"] > pace["absent"] / 4  # a stall would be ~0 (loose: a busy machine)
+    assert min(pace["stopped"]) > min(pace["absent"]) / 4, pace

@@ -23,8 +23,7 @@ import pexpect
 import pytest
 
 from services.launcher import router_command
-from services.runtime import free_loopback_port
-from tests.conftest import ROOT, VOXSHAPE
+from tests.conftest import ROOT, VOXSHAPE, free_port, seconds_to_start
 
 README = (ROOT / "README.md").read_text()
 MAPS = ROOT / "tests" / "fixtures" / "maps"
@@ -38,7 +37,7 @@ def session_env(session: str, port: int) -> dict[str, str]:
         "VOXSHAPE_ROUTER": router,  # where `voxshape up`'s services connect
         "VOXSHAPE_ROUTER_LISTEN": router,
         "VOXSHAPE_CONNECT": router,  # where `voxshape teach` and `status` connect
-        "VOXSHAPE_VIEWER_PORT": str(free_loopback_port()),  # the logger's live recording
+        "VOXSHAPE_VIEWER_PORT": str(free_port()),  # the logger's live recording
         "TERM": "dumb",
     }
 
@@ -68,8 +67,9 @@ def checkpoint_meta(path: Path) -> dict:
 
 
 @pytest.mark.timeout(400)
+@pytest.mark.long
 def test_the_first_hour_of_a_new_user(tmp_path, session_id):
-    env = session_env(session_id, free_loopback_port())
+    env = session_env(session_id, free_port())
     run_dir = tmp_path / "runs" / session_id
 
     # terminal 1: the session; terminal 2: a teacher typing good, bad, left
@@ -121,7 +121,7 @@ def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
     a wrong password: one line naming her and the router, within 2 s of the client's start."""
     secrets = tmp_path / "secrets"
     subprocess.run([VOXSHAPE, "certs", str(secrets)], check=True, capture_output=True)
-    port = free_loopback_port()
+    port = free_port()
     env = session_env(session_id, port)
     router_env = {k: v for k, v in env.items() if k != "VOXSHAPE_CONNECT"}
     access = str(ROOT / "deploy" / "access.toml")
@@ -135,7 +135,7 @@ def test_a_wrong_password_is_told_within_2_s(tmp_path, session_id):
     )
     try:
         router.expect("joined the bus")
-        python_start = _seconds_to_start(env)
+        python_start = seconds_to_start(env)
         teach = pexpect.spawn(
             VOXSHAPE,
             ["teach", "--user", "ana"],
@@ -167,7 +167,7 @@ def test_a_remote_teacher_joins_a_secured_session_as_the_readme_says(tmp_path, s
         line.split(":", 1)[1] for line in (secrets / "credentials").read_text().splitlines()
         if line.startswith("ana:")
     ]  # fmt: skip
-    tcp, tls = free_loopback_port(), free_loopback_port()
+    tcp, tls = free_port(), free_port()
     env = session_env(session_id, tcp)
     up_env = {
         **env,
@@ -201,13 +201,6 @@ def test_a_remote_teacher_joins_a_secured_session_as_the_readme_says(tmp_path, s
     assert up.exitstatus == 0, stopped[-3000:]
 
 
-def _seconds_to_start(env: dict[str, str]) -> float:
-    """How long the client takes to start and parse its arguments on this machine now."""
-    started = time.monotonic()
-    subprocess.run([VOXSHAPE, "teach", "--help"], env=env, capture_output=True, check=True)
-    return time.monotonic() - started
-
-
 def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
     (line,) = re.findall(r'`(gym\.make\("[^`]+\))`', README)
     child = pexpect.spawn(
@@ -223,9 +216,10 @@ def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.long
 def test_the_demo_on_a_map_file_converges_and_says_so(tmp_path, session_id):
     shutil.copy(MAPS / "long-room.toml", tmp_path / "mine.toml")
-    env = session_env(session_id, free_loopback_port())
+    env = session_env(session_id, free_port())
     demo = pexpect.spawn(
         VOXSHAPE,
         ["demo", "--task", "mine.toml", "--speech", "mock", "--rtf", "20"],

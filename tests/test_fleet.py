@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.long
 def test_fleet_measures_one_robot_and_one_teacher_and_counts_every_word(tmp_path):
     argv = [sys.executable, "-m", "benchmarks.fleet", "--points", "1x1", "--json"]
     argv += ["--seconds", "8", "--warmup", "1", "--word-every", "0.5", "--profile-seconds", "0"]

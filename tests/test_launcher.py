@@ -277,6 +277,7 @@ def test_the_flags_set_the_compose_variables(monkeypatch):
     assert (demo.task, demo.rtf, demo.robots) == ("1", 7.0, ("a", "b"))
 
 
+@pytest.mark.long
 def test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes(
     spawn, session_id, tmp_path
 ):
@@ -366,6 +367,7 @@ def test_with_no_restart_a_killed_service_stops_the_session(spawn, session_id, t
     assert "error: service 'learner' was killed by SIGKILL; stopping the session" in out
 
 
+@pytest.mark.long
 def test_a_service_that_keeps_dying_is_given_up_after_its_restarts(spawn, session_id, tmp_path):
     compose = compose_with(
         tmp_path,
@@ -398,6 +400,7 @@ def test_restart_policies_come_from_compose(tmp_path):
 
 
 @pytest.mark.timeout(240)
+@pytest.mark.long
 def test_up_with_the_simulated_teacher_profile_teaches_through_pocketsphinx(
     spawn, session_id, tmp_path
 ):

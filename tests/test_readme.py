@@ -223,7 +223,7 @@ def test_the_make_targets_run_what_the_readme_says():
     """`make -n` prints each target's commands without running them."""
     expected = {
         "demo": [".venv/bin/voxshape demo"],
-        "test": [".venv/bin/ruff check .", ".venv/bin/pytest"],
+        "test": [".venv/bin/ruff check .", ".venv/bin/pytest -n 4 --dist loadgroup"],
         "lint": [".venv/bin/ruff check .", ".venv/bin/ruff format --check ."],
     }
     for target, lines in expected.items():

@@ -47,6 +47,7 @@ def services(session: LoopbackSession, robot_router: str, log: str) -> list[Serv
 
 
 @pytest.mark.timeout(TIMEOUT_S + 60)
+@pytest.mark.long
 def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, session_id):
     robot_router = f"tcp/127.0.0.1:{free_port()}"
     log = tmp_path / "cmd_vel.jsonl"

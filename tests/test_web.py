@@ -14,7 +14,6 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable
-from pathlib import Path
 from typing import Any
 
 import aiohttp
@@ -50,6 +49,7 @@ from tests.conftest import (
     read_until,
     wait_for_port,
     wait_present,
+    web_log_path,
 )
 
 # -- the pure core -----------------------------------------------------------------------------
@@ -334,7 +334,7 @@ def test_the_welcome_draws_the_map_and_lists_the_vocabulary():
 def start_web(spawn: Callable, argv: list[str], env: dict[str, str] | None = None) -> int:
     """`voxshape web` on a free port; returns the port once it listens."""
     port = free_port()
-    log = Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}.log"
+    log = web_log_path(port)
     with log.open("w") as out:  # a file: a full pipe would block it
         spawn(
             [VOXSHAPE, "web", *argv, "--port", str(port)],
@@ -561,6 +561,7 @@ def test_voxshape_web_stops_cleanly_on_sigterm(spawn, router, session_id):
     assert taken.returncode == 2 and "cannot serve the page on 127.0.0.1:" in taken.stderr
 
 
+@pytest.mark.long
 def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
     spawn, session_id, tmp_path
 ):

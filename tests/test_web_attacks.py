@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from services.runtime import Node, bus_config
 from services.teacher.web.gateway import AUDIO_HEADER
 from services.teacher.web.server import REFUSED
-from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present
+from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present, web_log_path
 from tests.test_web import Robot, open_page, until
 from tests.web_strangers import (
     STRANGERS,
@@ -44,7 +44,7 @@ def passwords(secrets: Path) -> dict[str, str]:
 
 
 def web_log(port: int) -> str:
-    return (Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}.log").read_text()
+    return (web_log_path(port)).read_text()
 
 
 @pytest.fixture
@@ -58,7 +58,7 @@ def session(spawn, secured):
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     spawn([VOXSHAPE, "arbiter", *bus, "--node", "arbiter"], env=env, **quiet)
     port = free_port()
-    log = Path(os.environ.get("TMPDIR", "/tmp")) / f"voxshape-web-{port}.log"
+    log = web_log_path(port)
     with log.open("w") as out:
         spawn(
             [VOXSHAPE, "web", *bus, "--node", "web", "--port", str(port)],
@@ -91,6 +91,7 @@ def session(spawn, secured):
     assert "Traceback" not in web_log(port)
 
 
+@pytest.mark.long
 def test_strangers_cannot_lock_out_guess_or_outrun_a_teacher(session):
     port, password = session
     asyncio.run(attacks(port, password))
@@ -317,6 +318,7 @@ async def no_websockets(port: int, password: dict[str, str]) -> None:
     print("WEB-NO-WEBSOCKET-FIGURES", json.dumps({k: round(v, 3) for k, v in took.items()}))
 
 
+@pytest.mark.long
 def test_a_stranger_failing_as_a_teacher_never_locks_her_out(session):
     port, password = session
     asyncio.run(stranger_fails_as_cy(port, password))

@@ -57,6 +57,7 @@ class Board:
         self.last_feedback: CreditedFeedback | None = None
         self._pending: dict[str, _Pending] = {}
         self._late: OrderedDict[str, _Pending] = OrderedDict()
+        self._early: OrderedDict[str, tuple[TeacherNotice, float]] = OrderedDict()
         self._rate_limited_at = float("-inf")
 
     def observation(self, obs: Observation, now: float) -> list[Shown]:
@@ -163,12 +164,25 @@ class Board:
 
     def recognized(self, u: Utterance, now: float) -> list[Shown]:
         """What the speech service made of this teacher's speech (or the echo of a typed one):
-        nothing is shown until the arbiter says what it made of it."""
-        return self.sent(u, now)
+        nothing is shown until the arbiter says what it made of it, unless it already has (the
+        verdict overtook the utterance: zenoh orders messages per key only)."""
+        self.sent(u, now)
+        early = self._early.pop(u.id, None)
+        return [] if early is None else self.notice(early[0], now)
 
     def notice(self, n: TeacherNotice, now: float) -> list[Shown]:
         """The verdict on one utterance: understood, or why not (from the arbiter), or speech
-        that the speech service rejected."""
+        that the speech service rejected. A verdict on an utterance not seen yet waits for it
+        (shown with what was heard), `answer_within_s` at most."""
+        known = n.utterance in self._pending or n.utterance in self._late
+        if not known and n.kind != "not_recognized":  # speech's rejections have no utterance
+            self._early[n.utterance] = (n, now)
+            if len(self._early) > MAX_REMEMBERED:
+                self._early.popitem(last=False)
+            return []
+        return self._verdict(n, now)
+
+    def _verdict(self, n: TeacherNotice, now: float) -> list[Shown]:
         if n.kind == "rate_limited":
             self._rate_limited_at = now
         late = n.utterance in self._late
@@ -197,6 +211,10 @@ class Board:
         ):
             self._robot_missing_told = True
             out.append(Shown("robot", self.robot_missing, {"message": self.robot_missing}))
+        for id_, (n, since) in list(self._early.items()):
+            if now - since >= self.answer_within_s:  # its utterance never came: shown as is
+                del self._early[id_]
+                out += self._verdict(n, now)
         for id_, pending in list(self._pending.items()):
             if now - pending.since < self.answer_within_s:
                 continue

@@ -193,13 +193,14 @@ class Teaching:
     def notice(self, notice: TeacherNotice, now_mono: float) -> list[dict[str, Any]]:
         return [notice_json(s) for s in self.board.notice(notice, now_mono)]
 
-    def recognized(self, utterance: Utterance, now_mono: float) -> None:
+    def recognized(self, utterance: Utterance, now_mono: float) -> list[dict[str, Any]]:
         """This teacher's utterance as the bus carried it (speech's, or the echo of a typed
-        one): its notice is awaited."""
-        self.board.recognized(utterance, now_mono)
+        one): its notice is awaited, or shown now if it came first."""
+        return [notice_json(s) for s in self.board.recognized(utterance, now_mono)]
 
     def tick(self, now_mono: float) -> list[dict[str, Any]]:
-        return [notice_json(s) for s in self.board.tick(now_mono) if s.event == "no_answer"]
+        shown = self.board.tick(now_mono)
+        return [notice_json(s) for s in shown if s.event in ("notice", "no_answer")]
 
     def stats(self, stats: TeachingStats) -> dict[str, Any]:
         return stats_json(stats, self.teacher)

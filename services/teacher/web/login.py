@@ -176,11 +176,13 @@ class LoginFlow:
         if browser.teaching is None or not isinstance(event, Input):
             return
         now = time.monotonic()
+        lines = []
         if isinstance(event.message, TeacherNotice):
-            for line in browser.teaching.notice(event.message, now):
-                browser.send(line)
+            lines = browser.teaching.notice(event.message, now)
         elif isinstance(event.message, Utterance):
-            browser.teaching.recognized(event.message, now)
+            lines = browser.teaching.recognized(event.message, now)
+        for line in lines:
+            browser.send(line)
 
     async def _refuse(self, browser: Browser, reason: str) -> bool:
         """Says why, then closes the socket. Always False (not logged in)."""
