@@ -268,6 +268,7 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
 NODE_MODULES = {
     "sim": "services.sim.node",
     "ros2": "services.ros2.node",
+    "learner": "services.learner.node",
     "arbiter": "services.arbiter.node",
     "speech": "services.speech.node",
     "teacher": "services.teacher.node",

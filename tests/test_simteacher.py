@@ -264,3 +264,33 @@ def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
     assert noisy.noise == 0.2
     with pytest.raises(ConfigError, match="noise has a flag of its own: --noise"):
         profile_from(parser().parse_args(["sim-teacher", "--set", "noise=0.2"]))
+
+
+def said_along(t: SimulatedTeacher, start: float, step: float, heading: float) -> list[list[str]]:
+    """What t says, a look a second for 9 s, of a robot driving diagonally from (start, start)."""
+    return [meanings(t.watch(look(s, start + step * s, start + step * s, heading=heading)))
+            for s in range(9)]  # fmt: skip
+
+
+def test_a_steering_person_turns_back_a_robot_that_keeps_heading_away():
+    steering = replace(QUIET, steer_after=2.0, stuck_after=0.0)  # task 1: the goal at (5, 5)
+    away, toward = math.atan2(-1, -1), math.atan2(1, 1)
+    # off the way from its second look (1 s) on: the turn back 2 s later, then every 2 s
+    said = said_along(teacher(steering), 2.5, -0.1, away)
+    assert said[:7] == [[], ["bad"], ["bad"], ["left"], ["bad"], ["left"], ["bad"]]
+    for t, start, step, heading in [
+        (teacher(steering), 1.0, 0.1, toward),  # along the way: never steered
+        (teacher(replace(steering, steer_after=0.0)), 2.5, -0.1, away),  # a judging person
+    ]:
+        assert not {"left", "right"} & {
+            m for said in said_along(t, start, step, heading) for m in said
+        }
+
+
+def test_a_steering_person_says_the_way_round_at_a_bump_facing_away_else_terrible():
+    t = teacher(replace(QUIET, steer_at_bumps=True))
+    away, toward = math.atan2(-1, -1), math.atan2(1, 1)
+    t.watch(look(0.0, 2.0, 2.0, heading=away))
+    assert meanings(t.watch(look(1.0, 2.0, 2.0, heading=away, collided=True))) == ["left"]
+    t.watch(look(2.0, 2.0, 2.0, heading=toward))
+    assert meanings(t.watch(look(3.0, 2.0, 2.0, heading=toward, collided=True))) == ["terrible"]

@@ -1,11 +1,14 @@
 """`voxshape learner`: the learners on the bus, one per robot, in one process.
 
-Inputs:  voxshape/<session>/robot/<robot>/obs        the simulator's observations
-         voxshape/<session>/robot/<robot>/feedback   credited rewards and commands (arbiter)
-Outputs: voxshape/<session>/robot/<robot>/action     one per observation that is not terminal
-         voxshape/<session>/robot/<robot>/learning   a summary per step (for the logger)
-         voxshape/<session>/robot/<robot>/help       "which way?" when it is lost (asking.py)
-for each robot it drives (`--robot`, once per robot, or VOXSHAPE_ROBOTS, as the simulator).
+Inputs:  voxshape/<session>/robot/<robot>/obs       Observation
+         voxshape/<session>/robot/<robot>/feedback  CreditedFeedback (recovers 60 s)
+Outputs: voxshape/<session>/robot/<robot>/action    Action
+         voxshape/<session>/robot/<robot>/learning  LearningSummary
+         voxshape/<session>/robot/<robot>/help      HelpRequest
+
+For each robot it drives (`--robot`, once per robot, or VOXSHAPE_ROBOTS, as the simulator):
+an action per observation that is not terminal, a summary per step (for the logger), and
+"which way?" when it is lost (asking.py).
 Each robot has its own SARSA(lambda) learner and checkpoint, saved every
 `--checkpoint-every` seconds and on shutdown, restored on start.
 
@@ -39,34 +42,40 @@ from services.runtime import (
     fields,
 )
 from services.runtime.logs import worth_logging
-from services.world.maps import add_task_argument, load_map
+from services.runtime.settings import add_options, option, read_options
+from services.world.maps import load_map, task_option
 
 MAX_PENDING = 100_000  # messages looked through for feedback when stopping
 ROBOT_FIELD = "{robot}"  # in --checkpoint: the robot's id
 
 
+@dataclass(frozen=True)
+class LearnerOptions:
+    """`voxshape learner`'s settings (the learner's own: LearnerConfig, by --set)."""
+
+    robots: tuple[str, ...] = option(
+        (),
+        "a robot it drives, once per robot (default: VOXSHAPE_ROBOTS, a comma list as the "
+        "simulator's, else VOXSHAPE_ROBOT, else r1)",
+        flag="--robot",
+        repeat=True,
+    )
+    checkpoint: Path | None = option(
+        None,
+        f"checkpoint file, {ROBOT_FIELD} standing for the robot (default: "
+        f"runs/<session>/learner-{ROBOT_FIELD}.npz)",
+        parse=Path,
+    )
+    checkpoint_every: float = option(10.0, "seconds between checkpoints")
+    fresh: bool = option(False, "ignore existing checkpoints")
+    traces: Path | None = option(None, "initial traces to learn from first", parse=Path)
+    seed: int | None = option(None, "random seed (the n-th robot's learner: seed + n)")
+    task: str = task_option("for its episodes' timeout (when the robot asks for help)")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
-    parser.add_argument(
-        "--robot",
-        action="append",
-        dest="robots",
-        help="a robot it drives, once per robot (default: VOXSHAPE_ROBOTS, a comma list as "
-        "the simulator's, else VOXSHAPE_ROBOT, else r1)",
-    )
-    parser.add_argument(
-        "--checkpoint",
-        type=Path,
-        help=f"checkpoint file, {ROBOT_FIELD} standing for the robot (default: "
-        f"runs/<session>/learner-{ROBOT_FIELD}.npz)",
-    )
-    parser.add_argument("--checkpoint-every", type=float, default=10.0, help="seconds")
-    parser.add_argument("--fresh", action="store_true", help="ignore existing checkpoints")
-    parser.add_argument("--traces", type=Path, help="initial traces to learn from first")
-    parser.add_argument(
-        "--seed", type=int, default=None, help="random seed (the n-th robot's learner: seed + n)"
-    )
-    add_task_argument(parser, "for its episodes' timeout (when the robot asks for help)")
+    add_options(parser, LearnerOptions)
     add_settings_argument(parser)
 
 
@@ -107,6 +116,31 @@ class Driven:
     def save(self) -> None:
         checkpoint.save(self.learner, self.path, self.bookmark)
 
+    def observe(self, obs: Observation) -> None:
+        """Learns from the step, then publishes the next action, the summary and a
+        question, if any."""
+        action, learnt, question = self.online.observe(obs)
+        if action is not None:
+            self.act.put(action)
+        self.summary.put(learnt)
+        if question is not None:
+            self.ask.put(question)
+
+    def take(self, node: Node, feedback: CreditedFeedback) -> None:
+        """A credited word: the learner takes it (once), then what it could not credit (its
+        steps had left the window) is logged."""
+        dropped = self.online.take(feedback)
+        if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
+            node.log.warning(
+                "feedback for steps outside the window dropped",
+                extra=fields(
+                    robot=feedback.robot,
+                    steps=f"{min(dropped)}..{max(dropped)}",
+                    of_credits=f"{len(dropped)}/{len(feedback.credits)}",
+                    teachers=",".join(feedback.teachers),
+                ),
+            )
+
 
 def restore(
     path: Path, config: LearnerConfig, seed: int | None, fresh: bool
@@ -120,42 +154,32 @@ def restore(
 
 
 def run(args: argparse.Namespace) -> int:
-    robots = robots_of(args.robots)
+    options = read_options(LearnerOptions, args)
+    robots = robots_of(list(options.robots) or None)
     bus = bus_config("learner", args)
-    paths = {r: checkpoint_path(args.checkpoint, bus.session, r, len(robots)) for r in robots}
+    paths = {r: checkpoint_path(options.checkpoint, bus.session, r, len(robots)) for r in robots}
     config = with_settings(args.set)
-    restored = {
-        r: restore(paths[r], config, None if args.seed is None else args.seed + i, args.fresh)
-        for i, r in enumerate(robots)
-    }
+    seeds = {r: None if options.seed is None else options.seed + i for i, r in enumerate(robots)}
+    restored = {r: restore(paths[r], config, seeds[r], options.fresh) for r in robots}
     with Node("learner", bus) as node:
-        timeout_s = load_map(args.task).timeout
-        driven = {r: drive(node, r, paths[r], *restored[r], args.traces, timeout_s) for r in robots}
+        timeout_s = load_map(options.task).timeout
+        driven = {
+            r: drive(node, r, paths[r], *restored[r], options.traces, timeout_s) for r in robots
+        }
         last_save = time.monotonic()
         for event in node.events(tick=1.0):
             match event:
                 case Input(message=Observation() as obs, key=key):
-                    one = driven[parse_key(key).owner]
-                    action, learnt, question = one.online.observe(obs)
-                    if action is not None:
-                        one.act.put(action)
-                    one.summary.put(learnt)
-                    if question is not None:
-                        one.ask.put(question)
+                    driven[parse_key(key).owner].observe(obs)
                 case Input(message=CreditedFeedback() as feedback, key=key):
-                    one = driven[parse_key(key).owner]
-                    _log_dropped(node, feedback, one.online.take(feedback))
-            if time.monotonic() - last_save >= args.checkpoint_every:
+                    driven[parse_key(key).owner].take(node, feedback)
+            if time.monotonic() - last_save >= options.checkpoint_every:
                 for one in driven.values():
                     one.save()
                 last_save = time.monotonic()
-        for _ in range(MAX_PENDING):  # feedback that arrived before the stop is taken too
-            match node.poll(0):
-                case None:
-                    break
-                case Input(message=CreditedFeedback() as feedback, key=key):
-                    one = driven[parse_key(key).owner]
-                    _log_dropped(node, feedback, one.online.take(feedback))
+        for event in node.pending(MAX_PENDING):  # feedback that came before the stop, too
+            if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
+                driven[parse_key(event.key).owner].take(node, event.message)
         for one in driven.values():
             one.save()
             if one.online.book.episodes:
@@ -206,16 +230,3 @@ def drive(
     )
     ask = node.output("help", robot_key(node.session_id, robot, "help"))
     return Driven(robot, path, learner, bookmark, online, act, summary, ask)
-
-
-def _log_dropped(node: Node, feedback: CreditedFeedback, dropped: list[int]) -> None:
-    if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
-        node.log.warning(
-            "feedback for steps outside the window dropped",
-            extra=fields(
-                robot=feedback.robot,
-                steps=f"{min(dropped)}..{max(dropped)}",
-                of_credits=f"{len(dropped)}/{len(feedback.credits)}",
-                teachers=",".join(feedback.teachers),
-            ),
-        )

@@ -29,10 +29,9 @@ Q, H and Phi are linear over the state's binary features (features.py): Q(s, .) 
 of the rows of Q of s's active features, and e has a row per feature, so the update reads as
 the table's (a table is one feature per state) and moves every state sharing a feature.
 
-That is shaping="additive", the paper's. The default, shaping="action_bias" (TAMER+RL's
-action biasing), sends g's f and h's bonus to a table H of their own instead of r: the
-policy ranks Q + beta H and Q learns from R_RL alone, on the robot's own steps (a replayed
-trace, `replay=True`, teaches H alone). H(s) is the mean of the rows of H of the state's
+Where g's f and h's bonus go is the shaping rule the learner is given (shaping.py): into r
+and Q (shaping="additive", the paper's), or, by default, into a table H of their own that the
+policy adds to Q (TAMER+RL's action biasing). H(s) is the mean of the rows of H of the state's
 advice features, so what was said in a state also speaks for the states sharing one.
 """
 
@@ -46,9 +45,10 @@ import numpy as np
 
 from protocol import ACTION_NAMES, CreditedFeedback
 from services.learner.actions import N_ACTIONS, ActionSet, Decision
-from services.learner.advice import Advice, add_rows
+from services.learner.advice import Advice
 from services.learner.config import LearnerConfig
 from services.learner.features import PosePercept, State, representation
+from services.learner.shaping import SHAPINGS
 
 
 class LearnerPercept(PosePercept, Protocol):
@@ -76,8 +76,10 @@ class Learner:
         self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per feature
         self.e = np.zeros((0, N_ACTIONS))  # eligibility traces, a row per feature of Q
         self.taught = Advice(c)  # H, the teacher's action bias, and Phi, the words' potential
+        self.shaping = SHAPINGS[c.shaping](c, self.taught)  # where g's f and h's bonus go
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
+        self.goals = 0  # of them, those that reached the goal
         self.s: State | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
         self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
@@ -107,11 +109,11 @@ class Learner:
         terminal = ended and p.outcome != "timeout"  # a timeout truncates: s' has a future
         # choose a' (on a timeout too: the update bootstraps from Q(s', a'), then a' is dropped)
         a_next = None if terminal else (forced or self._select(s_next))
-        if self.s is not None and (not replay or self.config.shaping == "additive"):
+        if self.s is not None and (not replay or self.shaping.replays_learn_q):
             self._update(s_next, a_next)
         self.G, self.discount, self.held = 0.0, 1.0, 0
         if ended:
-            self._end_episode()
+            self._end_episode(p.outcome)
             return None
         self.recent.append(Visit(p.step, p.step, self.episode, s_next, a_next.weights))
         self.s, self.a = s_next, a_next
@@ -159,29 +161,26 @@ class Learner:
         )
 
     def _select(self, s: State) -> Decision:
-        """a' from s': a pending command, else epsilon-greedy (or the blend) over Q, plus
-        beta H with the action bias, never the turn that undoes the policy's own turn."""
+        """a' from s': a pending command, else epsilon-greedy (or the blend) over Q (plus
+        beta H with the action bias: the shaping rule's ranking), never the turn that undoes
+        the policy's own turn."""
         if self.commands:
             return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
-        q = self.q(s)
-        if self.config.shaping == "action_bias":
-            q = q + self.config.bias_weight * self.advice(s)
+        q = self.shaping.ranked(self.q(s), s)
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        epsilon = self.config.epsilon(self.episode, self.goals)
+        return self.actions.choose(q, epsilon, self.rng, barred)
 
     def _h(self, r: float, s: State, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
-        bonus = float(
-            np.clip(
-                self.config.command_reward, -self.config.feedback_bound, self.config.feedback_bound
-            )
-        )
-        if self.config.shaping == "action_bias":
-            self.taught.advise([s], (self.config.alpha * bonus * a.weights)[None, :])
-            return r
-        return r + bonus
+        return self.shaping.chosen(r, s, a.weights, self._bonus())
+
+    def _bonus(self) -> float:
+        """h's bonus for a teacher's action, bounded like g's f."""
+        bound = self.config.feedback_bound
+        return float(np.clip(self.config.command_reward, -bound, bound))
 
     # -- late credit --------------------------------------------------------------------
     def credit(self, step: int, weight: float, f: float) -> bool:
@@ -200,11 +199,7 @@ class Learner:
         if c.potential_rate:
             self.taught.toward(states, e_k, weight, f)
         scale = c.alpha * weight * f
-        changes = np.array([scale * t for t in e_k])[:, None] * weights
-        if c.shaping == "action_bias":
-            self.taught.advise(states, changes)
-        else:  # in order, as one update after another
-            add_rows(self.Q, [s.q for s in states], changes)
+        self.shaping.credit(self.Q, states, np.array(e_k)[:, None] * scale * weights)
         self.counters["feedback_credited"] += 1
         return True
 
@@ -262,14 +257,9 @@ class Learner:
         k = self._decision_at(step)
         if k is None:
             return False
-        c, asked = self.config, self.recent[k].state
-        bonus = float(np.clip(c.command_reward, -c.feedback_bound, c.feedback_bound))
+        asked = self.recent[k].state
         weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
-        change = (c.alpha * bonus * weights)[None, :]
-        if c.shaping == "action_bias":
-            self.taught.advise([asked], change)
-        else:
-            add_rows(self.Q, [asked.q], change)
+        self.shaping.credit(self.Q, [asked], (self.config.alpha * self._bonus() * weights)[None])
         if self.s is not None and self.s.view == asked.view:
             self.command(action, "steer")
         self.counters["answers"] += 1
@@ -304,9 +294,10 @@ class Learner:
         self.taught.grow(n_advice, n_place)
         return s
 
-    def _end_episode(self) -> None:
+    def _end_episode(self, outcome: str) -> None:
         self.interrupt()
         self.episode += 1
+        self.goals += outcome == "goal"  # exploration settles as the goal is found
 
     def interrupt(self) -> None:
         """Forgets the episode in progress without counting it (a gap in the observations,

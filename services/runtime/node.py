@@ -260,6 +260,15 @@ class Node:
             return None
         return item
 
+    def pending(self, limit: int) -> Iterator[Input | Presence]:
+        """What arrived and was not taken yet, at most `limit` events, without waiting (after
+        events() stopped: what came before the stop)."""
+        for _ in range(limit):
+            item = self.poll(0)
+            if item is None:
+                return
+            yield item
+
     def deliver(self, event: object) -> None:
         """Puts an event of another source into this node's loop, after what came before it
         (a second zenoh session's samples: `voxshape ros2`'s robot); events() yields it."""
