@@ -733,7 +733,7 @@ def test_an_answer_frees_the_view_it_was_asked_in_not_the_robots_view_now():
 
 
 def test_exploration_settles_with_every_goal_reached_not_with_a_timeout(tmp_path):
-    config = replace(EXACT, epsilon_start=0.2, epsilon_end=0.2, settle=0.5)
+    config = replace(EXACT, epsilon_start=0.2, epsilon_end=0.2, epsilon_per_goal=0.5)
     learner = Learner(config, seed=0)
     for outcome in ("goal", "timeout", "goal"):
         learner.step(P(WALL_LEFT, step=0))

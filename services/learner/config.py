@@ -98,7 +98,7 @@ class LearnerConfig:
     epsilon_start: float = 0.05
     epsilon_end: float = 0.01
     epsilon_episodes: int = 60
-    settle: float = 1.0  # and multiplied by this for every goal reached: it settles (1: off)
+    epsilon_per_goal: float = 1.0  # and multiplied by this for every goal reached (1: off)
 
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
     # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
@@ -152,7 +152,7 @@ class LearnerConfig:
         """The chance of a random action after `episode` episodes, `goals` of them reached."""
         done = min(1.0, episode / max(1, self.epsilon_episodes))
         start, end = self.epsilon_start, self.epsilon_end
-        return (start + done * (end - start)) * self.settle**goals
+        return (start + done * (end - start)) * self.epsilon_per_goal**goals
 
 
 def add_settings_argument(parser: argparse.ArgumentParser) -> None:
