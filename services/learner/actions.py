@@ -19,6 +19,7 @@ class Decision:
     v: float
     omega: float
     chooser: str  # "policy" or "teacher"
+    explored: bool = False  # a random (exploratory) choice of the policy
 
     @property
     def discrete(self) -> int:
@@ -61,7 +62,8 @@ class ActionSet:
         the `barred` one. (A random pick among n is rng.integers(n), as rng.choice draws.)"""
         allowed = self._allowed[barred]
         if rng.random() < epsilon:
-            return self.one_hot(int(allowed[rng.integers(len(allowed))]))
+            explored = self.one_hot(int(allowed[rng.integers(len(allowed))]))
+            return Decision(explored.weights, explored.v, explored.omega, "policy", True)
         q_allowed = q[allowed]
         if not self.config.blend:
             best = allowed[q_allowed == q_allowed.max()]

@@ -50,6 +50,8 @@ REPRESENTATION = (
     "near_range",
     "near_sectors",
     "goal_sectors",
+    "place_distance_edges",
+    "place_sectors",
 )
 PARTS = ("q", "advice", "place", "view")  # a state's features, for Q, H and Phi, its key
 # The recent visits: their steps, episode and action weights, and their state's features.
@@ -94,6 +96,7 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
     meta = {
         "version": VERSION,
         "episode": learner.episode,
+        "goals": learner.goals,
         "counters": dict(learner.counters),
         "config": config,
         "rng": learner.rng.bit_generator.state,
@@ -166,6 +169,7 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     learner.Q, learner.e = q.copy(), np.zeros_like(q)
     learner.taught.H, learner.taught.Phi = h.copy(), phi.copy()
     learner.episode = int(meta["episode"])
+    learner.goals = int(meta.get("goals", 0))
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]

@@ -57,6 +57,14 @@ class LearnerConfig:
     # Which side of the goal the robot is on: sectors of the world-frame direction from the
     # goal to the robot (heading + bearing). 0: off.
     goal_sectors: int = 8
+    # Where the robot is, for Q alone (not the advice nor the potential: words speak through
+    # the key): rings at these distances (metres) from the goal, cut into place_sectors
+    # sectors; 0 sectors: off.
+    place_distance_edges: tuple[float, ...] = ()
+    place_sectors: int = 0
+    # Where the robot is (the goal sector: radians; the distance bin: metres) changes only
+    # once it is this far past the bin's edge: a robot on an edge does not flip between keys.
+    hysteresis: float = 0.0
     # Which of the laser's near_sectors (right to left) has something nearer than this
     # (metres): Pearson's correlation ignores scale. None: off.
     near_range: float | None = 0.6
@@ -64,6 +72,13 @@ class LearnerConfig:
     # A new state starts with its nearest state's Q (a Pearson prototype's), a new tile with
     # the value its state has from its other features.
     init_from_neighbour: bool = True
+    # A new state's values: "zero" (optimistic, as R_RL is negative a step) or
+    # "goal_distance": what reaching the goal in a straight line from where the state was
+    # first seen would be worth, with R_RL as below (an optimistic bound that knows where the
+    # goal is: untried actions far from it are less attractive than near it).
+    q_init: Literal["zero", "goal_distance"] = "zero"
+    step_reward: float = -1.0  # R_RL of a step and of the goal, as services/sim/task.py's
+    goal_reward: float = 100.0
     # Readings with nothing nearer than this (metres) share one "clear" prototype. None: off.
     clear_range: float | None = 1.0
 
@@ -98,6 +113,10 @@ class LearnerConfig:
     epsilon_start: float = 0.05
     epsilon_end: float = 0.01
     epsilon_episodes: int = 60
+    # The policy ranks an action this much lower for every time it was chosen on entering the
+    # same state in the episode (a loop breaks after a few laps); 0: off.
+    revisit_penalty: float = 0.0
+    settle: float = 1.0  # epsilon is multiplied by this for every goal reached (1: off)
 
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
     # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
@@ -106,6 +125,9 @@ class LearnerConfig:
     feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
+    # A live command: h's bonus on each step it is taken ("steps"), or advised once in the
+    # state it was said in and then steered without h ("demonstration").
+    command_as: Literal["steps", "demonstration"] = "steps"
     feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
     bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
     # With "keys": fields of the key the advice generalizes over, one coarse tiling per
@@ -116,6 +138,24 @@ class LearnerConfig:
     # towards each word's reward at this rate (0: off); every update's reward
     # gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum).
     potential_rate: float = 0.25
+
+    # A qualifier also credits the decisions after the one it judged, while the robot keeps
+    # doing what was judged, at most this many (sarsa.py, `_stretch_after`); 0: off.
+    stretch_decisions: int = 0
+
+    # Advise (policy shaping): where the words net at least advise_min for an action, it is
+    # taken with the probability a teacher of this consistency implies; 0: off.
+    advise_consistency: float = 0.0
+    advise_min: int = 2
+    undo_exploration: bool = False  # an exploratory turn may be undone at the next decision
+
+    # -- planning over a learned model (planning.py) -------------------------------------------
+    # Prioritized-sweeping backups of Q after each decision (Dyna-Q); 0: none, the paper's.
+    planning_steps: int = 0
+    planning_threshold: float = 0.01  # a pair is queued if its Q would move by more than this
+    # V(s') in a backup: the best of the actions "tried" in s', or of "all" (an untried
+    # action's optimistic start then draws the robot to where it has not tried everything).
+    planning_value: Literal["tried", "all"] = "tried"
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
@@ -135,6 +175,13 @@ class LearnerConfig:
             raise ValueError(f"representation {self.representation!r}: one of tiles, keys, pearson")
         if self.tilings < 1 or self.tile_width <= 0 or self.heading_tiles < 1:
             raise ValueError("need tilings >= 1, tile_width > 0 metres, heading_tiles >= 1")
+        if self.planning_steps and self.representation == "tiles":
+            raise ValueError(
+                "planning_steps needs a table of states (representation keys or pearson): "
+                "a tiled state has no one row to back up"
+            )
+        if self.planning_steps < 0 or self.planning_threshold <= 0:
+            raise ValueError("need planning_steps >= 0 and planning_threshold > 0")
         unknown = set(self.advice_generalization) - set(KEY_FIELDS)
         if unknown:
             raise ValueError(

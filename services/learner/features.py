@@ -87,6 +87,9 @@ class Representation(Protocol):
 
     def restore(self, saved: dict[str, list]) -> None: ...
 
+    def forget(self) -> None:
+        """A new episode (no key to stick to: states.py's hysteresis)."""
+
 
 class Tiles:
     """Tile coding of the pose (x, y, heading) plus the key of states.py, `key_tilings`
@@ -118,6 +121,9 @@ class Tiles:
         keys = [("key", k, *key) for k in range(c.key_tilings)]
         x = self.numbering([*pose, *keys])
         return State(x, x, x, view=int(x[-1])), None
+
+    def forget(self) -> None:
+        self.keys.forget()
 
     def coordinates(self) -> dict[str, list]:
         return {"features": [list(c) for c in self.numbering.index]}
@@ -157,13 +163,22 @@ class Keys:
 
     def _state(self, s: int) -> State:
         key = self.space.key_of[s]
-        coarse = [(t, *key[:i], *key[i + 1 :]) for t, i in enumerate(self.ignored)]
+        words = key[: len(KEY_FIELDS)]  # what words speak through: the key without its place
+        coarse = [(t, *words[:i], *words[i + 1 :]) for t, i in enumerate(self.ignored)]
+        own = ("key", *words) if self.config.place_sectors else ("state", s)
         return State(
             np.array([s], dtype=np.int64),
-            self.advice([("state", s), *coarse]),
+            self.advice([own, *coarse]),
             self.places([(key[3], key[4])]),
             view=s,
         )
+
+    def forget(self) -> None:
+        self.space.forget()
+
+    def state(self, index: int) -> State:
+        """The state of a table row (planning backs up rows)."""
+        return self.states[index]
 
     def coordinates(self) -> dict[str, list]:
         return {

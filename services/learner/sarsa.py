@@ -49,12 +49,27 @@ from services.learner.actions import N_ACTIONS, ActionSet, Decision
 from services.learner.advice import Advice, add_rows
 from services.learner.config import LearnerConfig
 from services.learner.features import PosePercept, State, representation
+from services.learner.planning import Model, Sweeper
+from services.world.robot import CONTROL_PERIOD_S
 
 
 class LearnerPercept(PosePercept, Protocol):
     reward: float  # R_RL of the step that led here
     outcome: str  # "running" unless the episode ended here
     step: int  # the observation's step id (feedback is credited to these)
+    collided: bool  # touched something during the step that led here
+
+
+@dataclass
+class Stretch:
+    """A word still crediting the decisions that follow the one it judged."""
+
+    action: int  # what was judged: it goes on while the robot keeps doing it
+    episode: int
+    weight: float
+    f: float
+    credited: int = 0
+    trace: float = 1.0
 
 
 @dataclass
@@ -78,15 +93,22 @@ class Learner:
         self.taught = Advice(c)  # H, the teacher's action bias, and Phi, the words' potential
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
+        self.goals = 0  # episodes that reached the goal
         self.s: State | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
         self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
         self.commands: deque[int] = deque()  # teacher's actions still to take
+        self.stretch: Stretch | None = None  # the last word, crediting what follows it
+        self.votes: dict[int, np.ndarray] = {}  # net words for each action, by view (Advise)
+        self.laps: dict[int, np.ndarray] = {}  # actions chosen entering each view, this episode
+        self._no_laps = np.zeros(N_ACTIONS)
         self.command_chooser = "teacher"
         self.counters: Counter[str] = Counter()
         self.td_error = 0.0
         self.G, self.discount, self.held = 0.0, 1.0, 0  # the action in progress
         self.episode_return = 0.0
+        self.model = Model()  # what its decisions did, planned over (planning.py)
+        self.sweeper = Sweeper(self.model, c.planning_threshold)
 
     # -- Algorithm 1 ----------------------------------------------------------------------
     def step(
@@ -97,6 +119,8 @@ class Learner:
         trace replayed, not the robot's own (with the action bias it teaches H alone)."""
         s_next = self._state_of(p)  # observe s'
         ended = p.outcome != "running"
+        if p.collided:
+            self.stretch = None  # a bump ends what a word said about the way there
         if self.s is None:  # the first step of an episode: nothing to learn yet
             self.episode_return = 0.0
         else:
@@ -109,11 +133,18 @@ class Learner:
         a_next = None if terminal else (forced or self._select(s_next))
         if self.s is not None and (not replay or self.config.shaping == "additive"):
             self._update(s_next, a_next)
+        elif self.s is not None and self.config.planning_steps:  # a trace: the model learns it
+            self._plan(None if a_next is None else s_next)
         self.G, self.discount, self.held = 0.0, 1.0, 0
         if ended:
+            self.goals += p.outcome == "goal"
             self._end_episode()
             return None
+        if self.s is None or s_next.view != self.s.view:  # entered s'
+            self.laps.setdefault(s_next.view, np.zeros(N_ACTIONS))[a_next.discrete] += 1
         self.recent.append(Visit(p.step, p.step, self.episode, s_next, a_next.weights))
+        if self.stretch is not None:
+            self._stretch_on(self.recent[-1])
         self.s, self.a = s_next, a_next
         self.counters["decisions"] += 1
         return a_next
@@ -132,6 +163,49 @@ class Learner:
         self.Q += c.alpha * delta * self.e
         self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
         self.td_error = float(delta)
+        if c.planning_steps:
+            self._plan(s_next if a_next is not None else None)
+
+    # -- planning (planning.py) ---------------------------------------------------------
+    def _plan(self, s_next: State | None) -> None:
+        """Dyna: the decision just learnt from goes into the model, then prioritized
+        sweeping backs up the pairs whose values it changed, and those upstream of them."""
+        s, a = self.s.view, self.a.discrete
+        self.model.add(s, a, self.G, self.discount, None if s_next is None else s_next.view)
+        self.sweeper.consider(s, a, self._backup(s, a) - self.Q[s, a])
+        self.sweeper.sweep(self.config.planning_steps, self._backup, self._q_of, self._set_q)
+
+    def _teach_model(self, visits: list[Visit], traces: list[float], f: float) -> None:
+        """Additive shaping with planning: g's f joins the model's return of each credited
+        pair, and the pairs upstream are backed up again."""
+        for visit, trace in zip(visits, traces, strict=True):
+            s, a = visit.state.view, int(visit.weights.argmax())
+            if self.model.teach(s, a, f * trace):
+                self.sweeper.consider(s, a, self._backup(s, a) - self.Q[s, a])
+        self.sweeper.sweep(self.config.planning_steps, self._backup, self._q_of, self._set_q)
+
+    def _backup(self, s: int, a: int) -> float:
+        """The model's expected return of a in s on R_RL + F (planning.py)."""
+        return self.model.expected(s, a, self._planned_future) - self._phi_of(s)
+
+    def _planned_future(self, s: int) -> float:
+        """Phi(s) + V(s), V over the policy's actions already tried in s (all of them if
+        none was): an untried action's optimism is not spread upstream."""
+        allowed = self.actions.allowed
+        tried = []
+        if self.config.planning_value == "tried":
+            tried = [a for a in self.model.tried.get(s, ()) if allowed[a]]
+        q = self.Q[s]
+        return self._phi_of(s) + float(q[tried].max() if tried else q[allowed].max())
+
+    def _phi_of(self, s: int) -> float:
+        return self.taught.phi(self.features.state(s))
+
+    def _q_of(self, s: int, a: int) -> float:
+        return float(self.Q[s, a])
+
+    def _set_q(self, s: int, a: int, value: float) -> None:
+        self.Q[s, a] = value
 
     def _accumulate(self, r: float) -> None:
         """Adds the step's reward r (with h's bonus if the teacher chose a) to the return G
@@ -166,10 +240,48 @@ class Learner:
         q = self.q(s)
         if self.config.shaping == "action_bias":
             q = q + self.config.bias_weight * self.advice(s)
+        if self.config.revisit_penalty:
+            q = q - self.config.revisit_penalty * self._entered(s)
+        advised = self._advised(s) if self.config.advise_consistency else None
+        if advised is not None:
+            return advised
         barred = None
-        if self.a is not None and self.a.chooser == "policy":
+        undoable = self.config.undo_exploration and self.a is not None and self.a.explored
+        if self.a is not None and self.a.chooser == "policy" and not undoable:
             barred = self.actions.undoing.get(self.a.discrete)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        return self.actions.choose(q, self.epsilon(), self.rng, barred)
+
+    def _advised(self, s: State) -> Decision | None:
+        """Policy shaping (Advise, Griffith et al. 2013): where the words net Delta >=
+        `advise_min` for one action, it is taken with probability C^Delta / (C^Delta +
+        (1 - C)^Delta), C the teacher's consistency; otherwise (None) the usual choice."""
+        c, votes = self.config, self.votes.get(s.view)
+        if votes is None:
+            return None
+        a = int(votes.argmax())
+        delta = float(votes[a])
+        if delta < c.advise_min or not self.actions.allowed[a]:
+            return None
+        C = c.advise_consistency
+        if self.rng.random() >= C**delta / (C**delta + (1 - C) ** delta):
+            return None
+        self.counters["advised"] += 1
+        return self.actions.one_hot(a)
+
+    def _vote(self, visit: Visit, action: int, sign: float) -> None:
+        """A word for (+1) or against (-1) the action taken on a visit (Advise's Delta)."""
+        votes = self.votes.setdefault(visit.state.view, np.zeros(N_ACTIONS))
+        votes[action] += sign
+
+    def _entered(self, s: State) -> np.ndarray:
+        """How often each action was chosen on entering s this episode (a state entered
+        again and again is a loop: each lap makes the way taken there look worse)."""
+        return self.laps.get(s.view, self._no_laps)
+
+    def epsilon(self) -> float:
+        """The chance of a random action now: the schedule's, times `settle` for every goal
+        reached (exploration fades once the way is found)."""
+        return self.config.epsilon(self.episode) * self.config.settle**self.goals
 
     def _h(self, r: float, s: State, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
@@ -196,16 +308,53 @@ class Learner:
         if k is None:
             return False
         visits, e_k = self._traces_back_from(k)
+        self._teach(visits, e_k, weight, f)
+        self.counters["feedback_credited"] += 1
+        return True
+
+    def _teach(self, visits: list[Visit], traces: list[float], weight: float, f: float) -> None:
+        """g's f credited to these decisions by their traces: to H with the action bias (to Q
+        with additive shaping), and Phi moved towards f."""
+        c = self.config
         states, weights = [v.state for v in visits], np.array([v.weights for v in visits])
         if c.potential_rate:
-            self.taught.toward(states, e_k, weight, f)
+            self.taught.toward(states, traces, weight, f)
         scale = c.alpha * weight * f
-        changes = np.array([scale * t for t in e_k])[:, None] * weights
+        changes = np.array([scale * t for t in traces])[:, None] * weights
         if c.shaping == "action_bias":
             self.taught.advise(states, changes)
         else:  # in order, as one update after another
             add_rows(self.Q, [s.q for s in states], changes)
-        self.counters["feedback_credited"] += 1
+            if c.planning_steps:
+                self._teach_model(visits, traces, weight * f)
+
+    # -- a word credits the stretch it sums up ---------------------------------------------
+    def _stretch_after(self, k: int, weight: float, f: float) -> None:
+        """A qualifier goes on crediting the decisions after the one it judged (k), those
+        taken since and those to come, while the robot keeps doing what was judged: each by
+        (gamma lambda)^i less; the next word, a bump, another action or `stretch_decisions`
+        decisions end it (the silence after a word means "go on": Loftin et al. 2016)."""
+        judged = self.recent[k]
+        self.stretch = Stretch(judged.weights.argmax(), judged.episode, weight, f)
+        for visit in list(self.recent)[k + 1 :]:
+            if not self._stretch_on(visit):
+                return
+
+    def _stretch_on(self, visit: Visit) -> bool:
+        """Credits one more decision of the stretch; False once the stretch has ended."""
+        stretch, c = self.stretch, self.config
+        if (
+            stretch is None
+            or visit.episode != stretch.episode
+            or visit.weights.argmax() != stretch.action
+            or stretch.credited >= c.stretch_decisions
+        ):
+            self.stretch = None
+            return False
+        stretch.credited += 1
+        stretch.trace *= c.gamma * c.lam
+        self._teach([visit], [stretch.trace], stretch.weight, stretch.f)
+        self.counters["stretch_credited"] += 1
         return True
 
     def _decision_at(self, step: int) -> int | None:
@@ -239,16 +388,35 @@ class Learner:
         """The arbiter's credited feedback: a command, or a reward credited to its steps;
         returns the steps that had left the window (dropped, counted)."""
         if feedback.kind == "command":
-            self.command(feedback.command)
+            k = self._decision_at(feedback.credits[-1].step) if feedback.credits else None
+            if self.config.command_as == "demonstration" and k is not None:
+                # what to do where it was said: advised there, then steered without h
+                self._advise_at(self.recent[k].state, feedback.command)
+                self.command(feedback.command, "steer")
+            else:
+                self.command(feedback.command)
+            if k is not None:
+                self._vote(self.recent[k], ACTION_NAMES.index(feedback.command), 1.0)
             return []
-        return [
+        dropped = [
             c.step for c in feedback.credits if not self.credit(c.step, c.weight, feedback.reward)
         ]
+        if len(dropped) == len(feedback.credits):
+            return dropped
+        last = self._decision_at(max(c.step for c in feedback.credits if c.step not in dropped))
+        judged = self.recent[last]
+        self._vote(judged, int(judged.weights.argmax()), float(np.sign(feedback.reward)))
+        if self.config.stretch_decisions:
+            weight = sum(c.weight for c in feedback.credits if c.step not in dropped)
+            bound = self.config.feedback_bound
+            self._stretch_after(last, weight, float(np.clip(feedback.reward, -bound, bound)))
+        return dropped
 
     def command(self, action: str, chooser: str = "teacher") -> None:
         """A teacher's command: the next `command_steps` actions are this one (`chooser`:
         "teacher" earns h's bonus, "steer" does not)."""
         index = ACTION_NAMES.index(action)
+        self.stretch = None  # a new word: what the last one said has ended
         self.command_chooser = chooser
         self.commands.clear()
         self.commands.extend([index] * self.config.command_steps)
@@ -262,18 +430,23 @@ class Learner:
         k = self._decision_at(step)
         if k is None:
             return False
-        c, asked = self.config, self.recent[k].state
-        bonus = float(np.clip(c.command_reward, -c.feedback_bound, c.feedback_bound))
-        weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
-        change = (c.alpha * bonus * weights)[None, :]
-        if c.shaping == "action_bias":
-            self.taught.advise([asked], change)
-        else:
-            add_rows(self.Q, [asked.q], change)
+        asked = self.recent[k].state
+        self._advise_at(asked, action)
         if self.s is not None and self.s.view == asked.view:
             self.command(action, "steer")
         self.counters["answers"] += 1
         return True
+
+    def _advise_at(self, s: State, action: str) -> None:
+        """h's bonus for `action` in s, as if the teacher had chosen it there."""
+        c = self.config
+        bonus = float(np.clip(c.command_reward, -c.feedback_bound, c.feedback_bound))
+        weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
+        change = (c.alpha * bonus * weights)[None, :]
+        if c.shaping == "action_bias":
+            self.taught.advise([s], change)
+        else:
+            add_rows(self.Q, [s.q], change)
 
     # -- the values, linear over the state's features ---------------------------------------
     def q(self, s: State) -> np.ndarray:
@@ -295,7 +468,9 @@ class Learner:
         if n_q > len(self.Q):  # new features: new rows, from what is known, if asked
             known = s.q[s.q < len(self.Q)]
             row = 0.0
-            if self.config.init_from_neighbour and parent is not None:
+            if self.config.q_init == "goal_distance":
+                row = self.reachable(p.goal_distance)
+            elif self.config.init_from_neighbour and parent is not None:
                 row = self.Q[parent]  # a new state: its nearest state's values
             elif self.config.init_from_neighbour and len(known):
                 row = self.Q[known].sum(axis=0) / len(known)  # the state's other features'
@@ -303,6 +478,14 @@ class Learner:
             self.e = np.vstack([self.e, np.zeros((n_q - len(self.e), N_ACTIONS))])
         self.taught.grow(n_advice, n_place)
         return s
+
+    def reachable(self, distance: float) -> float:
+        """What reaching the goal from `distance` metres would be worth at best: a straight
+        line at top speed, R_RL's step reward each step and its goal reward at the end
+        (an optimistic start: Sutton & Barto 2.6, informed by where the goal is)."""
+        c = self.config
+        k = distance / (c.top_speed * CONTROL_PERIOD_S)
+        return c.step_reward * (1 - c.gamma**k) / (1 - c.gamma) + c.goal_reward * c.gamma**k
 
     def _end_episode(self) -> None:
         self.interrupt()
@@ -312,6 +495,9 @@ class Learner:
         """Forgets the episode in progress without counting it (a gap in the observations,
         a replay that stops mid-episode)."""
         self.e[:] = 0.0
+        self.stretch = None
+        self.laps.clear()
+        self.features.forget()
         self.s = self.a = None
         self.commands.clear()
         self.G, self.discount, self.held = 0.0, 1.0, 0

@@ -43,6 +43,20 @@ def _bin(angle: float, n: int) -> int:
     return math.floor((angle + math.pi / n) / (2 * math.pi / n)) % n
 
 
+def _sticky_bin(angle: float, n: int, last: int | None, margin: float) -> int:
+    """`_bin`, but the `last` sector is kept until the angle is `margin` radians past its
+    edge (hysteresis: on an edge the key would flip at every step); 0 when n is 0."""
+    if not n:
+        return 0
+    if (
+        last is not None
+        and margin
+        and abs(math.remainder(angle - last * math.tau / n, math.tau)) <= math.pi / n + margin
+    ):
+        return last
+    return _bin(angle, n)
+
+
 class Percept(Protocol):
     """What the learner reads of an observation (protocol.Observation or a sim Reading)."""
 
@@ -57,10 +71,11 @@ class StateSpace:
     def __init__(self, config: LearnerConfig) -> None:
         self.config = config
         self.prototypes: list[np.ndarray] = []  # centred, unit-norm sensor vectors
-        # (prototype, near, bearing, distance, sector)
-        self.keys: dict[tuple[int, int, int, int, int], int] = {}
-        self.key_of: list[tuple[int, int, int, int, int]] = []  # each state's key
+        # (prototype, near, bearing, distance, sector, place)
+        self.keys: dict[tuple[int, ...], int] = {}
+        self.key_of: list[tuple[int, ...]] = []  # each state's key
         self._matrix = np.zeros((0, 0))
+        self._last_bins: tuple[int, int, int] | None = None  # (hysteresis)
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -94,10 +109,32 @@ class StateSpace:
         c = self.config
         if not c.goal_features:
             return 0, 0, 0
-        bearing = _bin(p.goal_bearing, c.bearing_bins)
+        side = p.theta + p.goal_bearing + math.pi
+        last = self._last_bins
+        bearing = _bin(p.goal_bearing, c.bearing_bins)  # turning must see the goal at once
         distance = bisect_right(c.distance_edges, p.goal_distance)
-        sector = _bin(p.theta + p.goal_bearing + math.pi, c.goal_sectors) if c.goal_sectors else 0
-        return bearing, distance, sector
+        if last is not None and distance != last[1]:
+            lo = c.distance_edges[last[1] - 1] if last[1] else -math.inf
+            hi = c.distance_edges[last[1]] if last[1] < len(c.distance_edges) else math.inf
+            if lo - c.hysteresis <= p.goal_distance < hi + c.hysteresis:
+                distance = last[1]
+        sector = _sticky_bin(side, c.goal_sectors, last and last[2], c.hysteresis)
+        self._last_bins = (bearing, distance, sector)
+        return self._last_bins
+
+    def forget(self) -> None:
+        """A new episode: no bin to stick to."""
+        self._last_bins = None
+
+    def place(self, p: Percept) -> int:
+        """Where the robot is, finer than the goal bins (for Q alone): the ring of
+        `place_distance_edges` and the sector of `place_sectors` around the goal it is in;
+        0 when off."""
+        c = self.config
+        if not c.place_sectors:
+            return 0
+        ring = bisect_right(c.place_distance_edges, p.goal_distance)
+        return ring * c.place_sectors + _bin(p.theta + p.goal_bearing + math.pi, c.place_sectors)
 
     def classify(self, p: Percept) -> tuple[int, int | None]:
         """The state of a percept, and the state it was born from (None if not new)."""
@@ -112,7 +149,7 @@ class StateSpace:
                 norm = np.linalg.norm(centred)
                 unit = centred / norm if norm > 1e-9 else centred
                 prototype, neighbour_prototype = self._match(unit)
-        key = (prototype, self.near_bits(p), *self.goal_bins(p))
+        key = (prototype, self.near_bits(p), *self.goal_bins(p), self.place(p))
         if key in self.keys:
             return self.keys[key], None
         self.keys[key] = len(self.keys)

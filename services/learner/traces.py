@@ -32,6 +32,7 @@ class TracePercept:
     theta: float  # the pose: heading (goal sectors) and position (tiles)
     x: float
     y: float
+    collided: bool = False  # not kept in trace files: a dictated trace bumps rarely
 
 
 @dataclass
@@ -57,6 +58,7 @@ class TraceBook:
                     float(p.theta),
                     float(p.x),
                     float(p.y),
+                    bool(p.collided),
                 ),
                 decision,
             )
@@ -85,14 +87,14 @@ class TraceBook:
     def replay(self, learner: Learner) -> int:
         """Learns from every recorded episode; returns the number of steps replayed. The
         replays do not count as the learner's own episodes."""
-        episode, steps = learner.episode, 0
+        episode, goals, steps = learner.episode, learner.goals, 0
         for recorded in self.episodes:
             learner.interrupt()
             for percept, decision in recorded:
                 learner.step(percept, forced=decision, replay=True)
                 steps += 1
             learner.interrupt()
-        learner.episode = episode
+        learner.episode, learner.goals = episode, goals
         return steps
 
     def replay_if_due(self, learner: Learner) -> int:

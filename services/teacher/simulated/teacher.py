@@ -115,6 +115,12 @@ class TeacherProfile:
     salient: bool = True
     near_goal: float = 1.5
     answers: bool = True  # answers the robot's "which way?" (within the word budget)
+    # Steers as well as judges: once the robot has headed more than `off_route` radians away
+    # from the way to the goal for `steer_after` seconds, says the command that turns it back
+    # ("left", "right"), within the same budget; 0 seconds: never steers.
+    steer_after: float = 0.0
+    off_route: float = math.radians(45)
+    steer_at_bumps: bool = False  # at a bump, the turn towards the way instead of "terrible"
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -255,6 +261,8 @@ class SimulatedTeacher:
         self._judged = (0.0, -math.inf)  # (sign of the last judgement said, when it was said)
         self._budget = (profile.words_at_once, 0.0)  # (words left, when counted): a token bucket
         self._trend, self._stuck_said, self._neared = 0, False, False  # salient moments
+        # When (and how far from the goal) the robot turned away from the way.
+        self._off_route_since: tuple[float, float] | None = None
 
     def phrase(self, meaning: str) -> str:
         """The teacher's words for a meaning: its first English phrase in the vocabulary."""
@@ -270,6 +278,7 @@ class SimulatedTeacher:
         self._bumping = look.collided
         if new_episode:
             self._trend, self._stuck_said, self._neared = 0, False, False
+            self._off_route_since = None
         if new_episode or distance <= self._progress[0] - p.small_change:
             self._progress = (distance, look.time)
         looks = not new_episode and look.time - previous.time >= p.interval - 1e-9
@@ -277,8 +286,11 @@ class SimulatedTeacher:
         if look.outcome == "goal":
             meaning = "goal"
         elif bump:
-            meaning = "terrible"
+            # A bump: the way round it, if the person steers and the robot faces away.
+            meaning = (self._way_back(look) if p.steer_at_bumps else None) or "terrible"
         elif looks:
+            meaning = self._steer(look, distance)
+        if meaning is None and looks:  # no command: a judgement, if anything
             stuck = bool(p.stuck_after) and look.time - self._progress[1] >= p.stuck_after
             progress = self._last_distance - distance
             meaning = (self._salient if p.salient else self._every_look)(progress, distance, stuck)
@@ -290,6 +302,36 @@ class SimulatedTeacher:
             return []
         self._judged = (self._valence(meaning), look.time)
         return [self._say(meaning, look.time + self._reaction())]
+
+    def _steer(self, look: Look, distance: float) -> str | None:
+        """The command back to the way, once the robot has headed away from it for
+        `steer_after` seconds, moving away from the goal (not turning on the spot) (None: no
+        command now)."""
+        p = self.profile
+        if not p.steer_after:
+            return None
+        command = self._way_back(look)
+        if command is None:
+            self._off_route_since = None
+            return None
+        if self._off_route_since is None:
+            self._off_route_since = (look.time, distance)
+        since, then = self._off_route_since
+        if look.time - since < p.steer_after or distance < then + p.small_change:
+            return None
+        self._off_route_since = (look.time, distance)  # said: the next after as long again
+        return command
+
+    def _way_back(self, look: Look) -> str | None:
+        """The turn towards the way to the goal when the robot heads more than `off_route`
+        away from it (None: it heads along the way)."""
+        way = downhill_heading(self.map, look.x, look.y)
+        if (
+            way is None
+            or abs(math.remainder(way - look.heading, math.tau)) <= self.profile.off_route
+        ):
+            return None
+        return path_command(self.map, look.x, look.y, look.heading)
 
     def _every_look(self, progress: float, distance: float, stuck: bool) -> str | None:
         """The tireless teacher: its judgement of every look's progress, "bad" when stuck."""
