@@ -40,7 +40,7 @@ from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts
 from services.report.summary import STEP_SECONDS, RobotSummary
 from services.runtime import BusError, Input, Tick
 from services.speech.recognizer import DEFAULT_ENGINE
-from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS
+from services.teacher.simulated.teacher import PROFILES
 from services.topology import ServiceSpec
 from services.world.maps import Map, load_map
 
@@ -83,8 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--teacher-profile",
         choices=tuple(PROFILES),
         default="person",
-        help=f"the simulated teacher: person ({PERSON.describe()}) or tireless "
-        f"({TIRELESS.describe()})",
+        help="the simulated teacher: "
+        + "; ".join(f"{name} ({profile.describe()})" for name, profile in PROFILES.items()),
     )
     parser.add_argument(
         "--stall-timeout",

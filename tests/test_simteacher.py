@@ -294,3 +294,9 @@ def test_a_steering_person_says_the_way_round_at_a_bump_facing_away_else_terribl
     assert meanings(t.watch(look(1.0, 2.0, 2.0, heading=away, collided=True))) == ["left"]
     t.watch(look(2.0, 2.0, 2.0, heading=toward))
     assert meanings(t.watch(look(3.0, 2.0, 2.0, heading=toward, collided=True))) == ["terrible"]
+
+
+def test_the_steering_person_is_a_named_profile_the_judging_person_the_default():
+    assert PROFILES["steering"].steer_after and PROFILES["steering"].steer_at_bumps
+    assert not PERSON.steer_after and not PERSON.steer_at_bumps
+    assert "steering" in PROFILES["steering"].describe()

@@ -18,7 +18,7 @@ from services.experiment.runner import ResumeError, RunsFailed
 from services.experiment.sweep import sweep
 from services.learner.config import add_settings_argument, with_settings
 from services.runtime.settings import SettingsError, replaced
-from services.teacher.simulated.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
+from services.teacher.simulated.teacher import PROFILES, TeacherProfile
 from services.world.maps import MapError, load_map
 
 
@@ -100,8 +100,9 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         "--teacher-profile",
         choices=tuple(PROFILES),
         default="person",
-        help=f"the simulated teacher: person ({PERSON.describe()}) or tireless "
-        f"({TIRELESS.describe()}, the teacher of earlier experiments)",
+        help="the simulated teacher: "
+        + "; ".join(f"{name} ({profile.describe()})" for name, profile in PROFILES.items())
+        + " (tireless: the teacher of earlier experiments)",
     )
     parser.add_argument(
         "--teacher",

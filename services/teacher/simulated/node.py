@@ -67,9 +67,7 @@ from services.teacher.session import join_as_teacher
 from services.teacher.simulated.display import DisplayTeacher, Spoken
 from services.teacher.simulated.synthesis import LEAD_S, VOICE, Voice
 from services.teacher.simulated.teacher import (
-    PERSON,
     PROFILES,
-    TIRELESS,
     Confusion,
     SimulatedTeacher,
     TeacherProfile,
@@ -93,8 +91,8 @@ class SimTeacherOptions:
     )
     teacher_profile: str = option(
         "person",
-        f"person: {PERSON.describe()}; tireless: {TIRELESS.describe()} (about 50 words a "
-        "minute); --set changes it",
+        "; ".join(f"{name}: {profile.describe()}" for name, profile in PROFILES.items())
+        + " (the tireless teacher: about 50 words a minute); --set changes it",
         choices=tuple(PROFILES),
     )
     traces: int = option(

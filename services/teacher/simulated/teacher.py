@@ -147,13 +147,17 @@ class TeacherProfile:
         when = "at salient moments" if self.salient else f"judging every {self.interval:g} s"
         rate = self.words_per_robot_minute
         budget = f"at most {rate:g} words a robot minute" if rate else "no budget"
-        return f"{budget}, {when}"
+        steers = ", steering when the robot heads away" if self.steer_after else ""
+        return f"{budget}, {when}{steers}"
 
 
 PERSON = TeacherProfile()
+# The person who also steers: the turn back after 8 s headed away, and at a bump facing away
+# (measured slower than the judging person: docs/decisions.md).
+STEERING = TeacherProfile(steer_after=8.0, steer_at_bumps=True)
 # Judges every look, with the paper's fading schedule: about 50 words a robot minute.
 TIRELESS = TeacherProfile(words_per_robot_minute=0.0, salient=False, schedule=FeedbackSchedule())
-PROFILES = {"person": PERSON, "tireless": TIRELESS}
+PROFILES = {"person": PERSON, "steering": STEERING, "tireless": TIRELESS}
 
 
 @dataclass(frozen=True)
