@@ -730,16 +730,3 @@ def test_an_answer_frees_the_view_it_was_asked_in_not_the_robots_view_now():
     asker.after_step(p, episode=0)
     assert asker.take(_answer(question.step)) == []
     assert asked_in not in asker._asked_views  # it may ask there again
-
-
-def test_exploration_settles_with_every_goal_reached_not_with_a_timeout(tmp_path):
-    config = replace(EXACT, epsilon_start=0.2, epsilon_end=0.2, epsilon_per_goal=0.5)
-    learner = Learner(config, seed=0)
-    for outcome in ("goal", "timeout", "goal"):
-        learner.step(P(WALL_LEFT, step=0))
-        learner.step(P(WALL_RIGHT, step=1, outcome=outcome))
-    assert (learner.episode, learner.goals) == (3, 2)
-    assert config.epsilon(learner.episode, learner.goals) == pytest.approx(0.2 * 0.5**2)
-    assert LearnerConfig().epsilon(200, 50) == LearnerConfig().epsilon(200, 0)  # off: 1
-    checkpoint.save(learner, tmp_path / "c.npz")
-    assert checkpoint.resume(tmp_path / "c.npz", config, None)[0].goals == 2

@@ -94,7 +94,6 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
     meta = {
         "version": VERSION,
         "episode": learner.episode,
-        "goals": learner.goals,
         "counters": dict(learner.counters),
         "config": config,
         "rng": learner.rng.bit_generator.state,
@@ -167,7 +166,6 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
     learner.Q, learner.e = q.copy(), np.zeros_like(q)
     learner.taught.H, learner.taught.Phi = h.copy(), phi.copy()
     learner.episode = int(meta["episode"])
-    learner.goals = int(meta.get("goals", 0))
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]

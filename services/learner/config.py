@@ -98,7 +98,6 @@ class LearnerConfig:
     epsilon_start: float = 0.05
     epsilon_end: float = 0.01
     epsilon_episodes: int = 60
-    epsilon_per_goal: float = 1.0  # and multiplied by this for every goal reached (1: off)
 
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
     # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
@@ -148,11 +147,10 @@ class LearnerConfig:
         """m/s of the fastest action."""
         return max(abs(v) for v, _ in self.velocities.values())
 
-    def epsilon(self, episode: int, goals: int = 0) -> float:
-        """The chance of a random action after `episode` episodes, `goals` of them reached."""
+    def epsilon(self, episode: int) -> float:
+        """The chance of a random action after `episode` episodes."""
         done = min(1.0, episode / max(1, self.epsilon_episodes))
-        start, end = self.epsilon_start, self.epsilon_end
-        return (start + done * (end - start)) * self.epsilon_per_goal**goals
+        return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)
 
 
 def add_settings_argument(parser: argparse.ArgumentParser) -> None:

@@ -80,7 +80,7 @@ class OnlineLearner:
             states=len(learner.features),
             q_values=tuple(float(q) for q in learner.q(s)) if s is not None else (),
             td_error=learner.td_error,
-            epsilon=learner.config.epsilon(learner.episode, learner.goals),
+            epsilon=learner.config.epsilon(learner.episode),
             reward=obs.reward,
             episode_return=learner.episode_return,
         )

@@ -79,7 +79,6 @@ class Learner:
         self.shaping = SHAPINGS[c.shaping](c, self.taught)  # where g's f and h's bonus go
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
-        self.goals = 0  # of them, those that reached the goal
         self.s: State | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
         self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
@@ -113,7 +112,7 @@ class Learner:
             self._update(s_next, a_next)
         self.G, self.discount, self.held = 0.0, 1.0, 0
         if ended:
-            self._end_episode(p.outcome)
+            self._end_episode()
             return None
         self.recent.append(Visit(p.step, p.step, self.episode, s_next, a_next.weights))
         self.s, self.a = s_next, a_next
@@ -170,8 +169,7 @@ class Learner:
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
-        epsilon = self.config.epsilon(self.episode, self.goals)
-        return self.actions.choose(q, epsilon, self.rng, barred)
+        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
 
     def _h(self, r: float, s: State, a: Decision) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g)."""
@@ -294,10 +292,9 @@ class Learner:
         self.taught.grow(n_advice, n_place)
         return s
 
-    def _end_episode(self, outcome: str) -> None:
+    def _end_episode(self) -> None:
         self.interrupt()
         self.episode += 1
-        self.goals += outcome == "goal"  # exploration settles as the goal is found
 
     def interrupt(self) -> None:
         """Forgets the episode in progress without counting it (a gap in the observations,

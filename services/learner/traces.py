@@ -85,14 +85,14 @@ class TraceBook:
     def replay(self, learner: Learner) -> int:
         """Learns from every recorded episode; returns the number of steps replayed. The
         replays do not count as the learner's own episodes."""
-        episode, goals, steps = learner.episode, learner.goals, 0
+        episode, steps = learner.episode, 0
         for recorded in self.episodes:
             learner.interrupt()
             for percept, decision in recorded:
                 learner.step(percept, forced=decision, replay=True)
                 steps += 1
             learner.interrupt()
-        learner.episode, learner.goals = episode, goals
+        learner.episode = episode
         return steps
 
     def replay_if_due(self, learner: Learner) -> int:
