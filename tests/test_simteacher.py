@@ -296,7 +296,8 @@ def test_a_steering_person_says_the_way_round_at_a_bump_facing_away_else_terribl
     assert meanings(t.watch(look(3.0, 2.0, 2.0, heading=toward, collided=True))) == ["terrible"]
 
 
-def test_the_steering_person_is_a_named_profile_the_judging_person_the_default():
-    assert PROFILES["steering"].steer_after and PROFILES["steering"].steer_at_bumps
-    assert not PERSON.steer_after and not PERSON.steer_at_bumps
-    assert "steering" in PROFILES["steering"].describe()
+def test_the_person_steers_by_default_the_judging_person_is_a_named_profile():
+    assert PERSON.steer_after and PERSON.steer_at_bumps and "steering" in PERSON.describe()
+    judging = PROFILES["judging"]
+    assert not judging.steer_after and not judging.steer_at_bumps
+    assert replace(judging, steer_after=PERSON.steer_after, steer_at_bumps=True) == PERSON

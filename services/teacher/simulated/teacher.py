@@ -118,9 +118,9 @@ class TeacherProfile:
     # Steers as well as judges: once the robot has headed more than `off_route` radians away
     # from the way to the goal for `steer_after` seconds, says the command that turns it back
     # ("left", "right"), within the same budget; 0 seconds: never steers.
-    steer_after: float = 0.0
+    steer_after: float = 8.0
     off_route: float = math.radians(45)
-    steer_at_bumps: bool = False  # at a bump, the turn towards the way instead of "terrible"
+    steer_at_bumps: bool = True  # at a bump facing away, the turn back instead of "terrible"
     delay: float = 0.5  # seconds from what is judged being displayed to the onset of speech
     jitter: float = 0.1  # standard deviation of the delay
     speaking: float = 0.4  # seconds a word takes to say
@@ -151,13 +151,19 @@ class TeacherProfile:
         return f"{budget}, {when}{steers}"
 
 
+# A person judges and steers: the turn back after 8 s headed away, and at a bump facing away.
 PERSON = TeacherProfile()
-# The person who also steers: the turn back after 8 s headed away, and at a bump facing away
-# (measured slower than the judging person: docs/decisions.md).
-STEERING = TeacherProfile(steer_after=8.0, steer_at_bumps=True)
+# The person of earlier figures, who only judges.
+JUDGING = TeacherProfile(steer_after=0.0, steer_at_bumps=False)
 # Judges every look, with the paper's fading schedule: about 50 words a robot minute.
-TIRELESS = TeacherProfile(words_per_robot_minute=0.0, salient=False, schedule=FeedbackSchedule())
-PROFILES = {"person": PERSON, "steering": STEERING, "tireless": TIRELESS}
+TIRELESS = TeacherProfile(
+    words_per_robot_minute=0.0,
+    salient=False,
+    schedule=FeedbackSchedule(),
+    steer_after=0.0,
+    steer_at_bumps=False,
+)
+PROFILES = {"person": PERSON, "judging": JUDGING, "tireless": TIRELESS}
 
 
 @dataclass(frozen=True)
