@@ -9,6 +9,7 @@ import pytest
 
 from protocol.vocabulary import load_vocabulary
 from services.experiment.dictation import dictate
+from services.learner.config import LearnerConfig
 from services.teacher.simulated.teacher import (
     PERSON,
     PROFILES,
@@ -301,3 +302,13 @@ def test_the_person_steers_by_default_the_judging_person_is_a_named_profile():
     judging = PROFILES["judging"]
     assert not judging.steer_after and not judging.steer_at_bumps
     assert replace(judging, steer_after=PERSON.steer_after, steer_at_bumps=True) == PERSON
+
+
+def test_traces_are_dictated_with_the_actions_of_the_learner_that_learns_from_them():
+    m = load_map("1")
+    on_the_spot = {**LearnerConfig().velocities, "left": (0.0, 1.0), "right": (0.0, -1.0)}
+    arcs = dictate(m, 1, seed=1)
+    spot = dictate(m, 1, seed=1, config=LearnerConfig(velocities=on_the_spot))
+    turns = [d for _, d in spot.episodes[0] if d is not None and d.omega]
+    assert turns and all(d.v == 0.0 for d in turns)
+    assert all(d.v > 0 for _, d in arcs.episodes[0] if d is not None and d.omega)

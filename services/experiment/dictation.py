@@ -4,6 +4,7 @@ a TraceBook for the learner to replay."""
 
 from __future__ import annotations
 
+from services.learner.config import LearnerConfig
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 from services.sim.task import SimConfig, Simulation
@@ -12,11 +13,17 @@ from services.world.maps import Map
 
 
 def dictate(
-    m: Map, episodes: int, seed: int = 100, sim_config: SimConfig | None = None
+    m: Map,
+    episodes: int,
+    seed: int = 100,
+    sim_config: SimConfig | None = None,
+    config: LearnerConfig | None = None,
 ) -> TraceBook:
-    """`episodes` episodes driven by the teacher's commands, each to the goal or its timeout."""
+    """`episodes` episodes driven by the teacher's commands, each to the goal or its timeout,
+    with the actions (velocities, command steps) of the learner `config` that will learn
+    from them."""
     sim = Simulation(m, ("robot",), sim_config, seed=seed)
-    learner, book = Learner(seed=seed), TraceBook()
+    learner, book = Learner(config, seed=seed), TraceBook()
     try:
         for _ in range(episodes):
             reading = sim.reset("robot")

@@ -251,9 +251,13 @@ class _Session:
 
 
 def initial_traces(spec: RunSpec, m: Map | None = None) -> TraceBook | None:
-    """The episodes the teacher dictates before learning in the run's setting (None: none)."""
+    """The episodes the teacher dictates before learning in the run's setting, with the
+    actions of the run's learner (None: none)."""
     traces = SETTINGS[spec.setting].traces if spec.traces is None else spec.traces
-    return dictate(m or load_map(spec.task), traces, seed=10_000 + spec.seed) if traces else None
+    if not traces:
+        return None
+    config = with_settings(list(spec.learner))
+    return dictate(m or load_map(spec.task), traces, seed=10_000 + spec.seed, config=config)
 
 
 def look(reading: Reading, now: float) -> Look:
