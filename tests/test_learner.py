@@ -403,8 +403,20 @@ def test_with_the_action_bias_a_replayed_trace_teaches_advice_not_values():
     run_episode(Learner(EXACT, seed=1), book, command_at=0)  # left, left, left, ..., the goal
     student = Learner(replace(EXACT, shaping="action_bias"), seed=2)
     book.replay(student)
-    assert student.taught.H[:, LEFT].max() > 0  # h's bonus, as advice
+    assert student.taught.T[:, LEFT].max() > 0  # h's bonus, as the traces' advice
+    assert not student.taught.H.any()  # the words' advice, which fades, is apart
     assert not student.Q.any()  # the route's values stay untried (optimistic)
+
+
+def test_the_words_advice_fades_with_the_episodes_the_traces_does_not():
+    config = replace(EXACT, shaping="action_bias", bias_decay=0.5)
+    learner = Learner(config, seed=0)
+    s = learner._state_of(P(WALL_LEFT, step=0))
+    learner.taught.advise([s], 2.0 * np.eye(len(ACTION_NAMES))[[LEFT]])
+    learner.taught.advise([s], 4.0 * np.eye(len(ACTION_NAMES))[[FORWARD]], traced=True)
+    now, later = learner.taught.weighed(s, 0), learner.taught.weighed(s, 3)
+    assert now[LEFT] == pytest.approx(2.0) and later[LEFT] == pytest.approx(2.0 * 0.5**3)
+    assert now[FORWARD] == later[FORWARD] == pytest.approx(4.0)
 
 
 def test_traces_keep_the_pose_so_places_and_goal_sectors_replay_as_lived(tmp_path):
@@ -463,10 +475,15 @@ def test_checkpoint_round_trip(tmp_path, config):
     run_episode(learner, TraceBook())
     run_episode(learner, TraceBook())
     assert learner.credit(step=2, weight=1.0, f=10.0)
+    book = TraceBook()
+    run_episode(Learner(config, seed=4), book, command_at=0)
+    book.replay(learner)  # the traces' advice, T, too
     path = tmp_path / "learner.npz"
     checkpoint.save(learner, path)
     back = checkpoint.load(path, config)
     assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
+    assert np.array_equal(back.taught.T, learner.taught.T)
+    assert (config.shaping == "action_bias") == back.taught.T.any()
     assert np.array_equal(back.taught.Phi, learner.taught.Phi)
     assert (config.shaping == "action_bias") == back.taught.H.any()
     assert back.features.coordinates() == learner.features.coordinates()

@@ -108,6 +108,8 @@ class LearnerConfig:
     command_steps: int = 5  # a teacher command overrides the policy this many steps
     feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
     bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
+    # ... of which the words' H weighs bias_decay^episode, the traces' T always 1 (advice.py)
+    bias_decay: float = 0.97
     # With "keys": fields of the key the advice generalizes over, one coarse tiling per
     # field ignoring it; the policy's H(s) is the mean of the state's own and its tiles'.
     advice_generalization: tuple[str, ...] = ("distance", "sector")

@@ -101,7 +101,7 @@ class Learner:
         if self.s is None:  # the first step of an episode: nothing to learn yet
             self.episode_return = 0.0
         else:
-            self._accumulate(p.reward)  # r, and h's bonus, into the action's return G
+            self._accumulate(p.reward, replay)  # r, and h's bonus, into the return G
             if self._holds(s_next, ended, forced):  # a goes on: no decision this step
                 self.recent[-1].last = p.step
                 return self.a
@@ -134,11 +134,11 @@ class Learner:
         self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
         self.td_error = float(delta)
 
-    def _accumulate(self, r: float) -> None:
+    def _accumulate(self, r: float, replay: bool) -> None:
         """Adds the step's reward r (with h's bonus if the teacher chose a) to the return G
         of the action in progress, discounted by gamma per step it has been held."""
         if self.a.chooser == "teacher":
-            r = self._h(r, self.s, self.a)
+            r = self._h(r, self.s, self.a, replay)
         self.G += self.discount * r
         self.episode_return += r
         self.discount *= self.config.gamma
@@ -165,15 +165,16 @@ class Learner:
         the policy's own turn."""
         if self.commands:
             return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
-        q = self.shaping.ranked(self.q(s), s)
+        q = self.shaping.ranked(self.q(s), s, self.episode)
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
         return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
 
-    def _h(self, r: float, s: State, a: Decision) -> float:
-        """h(r, a): the reward of an action the teacher selected (bounded like g)."""
-        return self.shaping.chosen(r, s, a.weights, self._bonus())
+    def _h(self, r: float, s: State, a: Decision, replay: bool) -> float:
+        """h(r, a): the reward of an action the teacher selected (bounded like g), in a
+        replayed trace or live."""
+        return self.shaping.chosen(r, s, a.weights, self._bonus(), replay)
 
     def _bonus(self) -> float:
         """h's bonus for a teacher's action, bounded like g's f."""
@@ -269,8 +270,8 @@ class Learner:
         return self.Q[s.q].sum(axis=0) / len(s.q)
 
     def advice(self, s: State) -> np.ndarray:
-        """H(s, .) as the policy weighs it (advice.py)."""
-        return self.taught.h(s)
+        """The teacher's bias in s as the policy weighs it now (advice.py)."""
+        return self.taught.weighed(s, self.episode)
 
     def phi(self, s: State) -> float:
         """Phi(s), the potential the teacher's words imply (advice.py)."""

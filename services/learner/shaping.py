@@ -5,8 +5,8 @@
   the step the teacher chose, g's f moves Q where the arbiter credits it, and a replayed trace
   runs the SARSA update like the robot's own steps.
 - `ActionBias` (the default, TAMER+RL's action biasing): the words go to a table H of their
-  own (advice.py); the policy ranks Q + beta H, Q learns from R_RL alone, on the robot's own
-  steps, and a replayed trace teaches H alone.
+  own and a replayed trace's commands to T (advice.py); the policy ranks
+  Q + beta (T + bias_decay^episode H), Q learns from R_RL alone, on the robot's own steps.
 
 Both leave the potential Phi to the learner: it moves with every word whatever the rule.
 """
@@ -26,14 +26,18 @@ from services.learner.features import State
 class Shaping(Protocol):
     replays_learn_q: bool  # a replayed trace runs the Q update (else it teaches the words)
 
-    def chosen(self, r: float, s: State, weights: np.ndarray, bonus: float) -> float:
-        """h(r, a): the reward of a step whose action the teacher chose in s."""
+    def chosen(
+        self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
+    ) -> float:
+        """h(r, a): the reward of a step whose action the teacher chose in s (`replayed`:
+        in a trace replayed)."""
 
     def credit(self, Q: np.ndarray, states: Sequence[State], changes: np.ndarray) -> None:
         """g's f (or h's bonus) credited after the fact: each state's change, in order."""
 
-    def ranked(self, q: np.ndarray, s: State) -> np.ndarray:
-        """What the policy ranks the actions of s by, given Q(s, .)."""
+    def ranked(self, q: np.ndarray, s: State, episode: int) -> np.ndarray:
+        """What the policy ranks the actions of s by, given Q(s, .), after `episode`
+        episodes."""
 
 
 class Additive:
@@ -42,13 +46,15 @@ class Additive:
     def __init__(self, config: LearnerConfig, taught: Advice) -> None:
         pass
 
-    def chosen(self, r: float, s: State, weights: np.ndarray, bonus: float) -> float:
+    def chosen(
+        self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
+    ) -> float:
         return r + bonus
 
     def credit(self, Q: np.ndarray, states: Sequence[State], changes: np.ndarray) -> None:
         add_rows(Q, [s.q for s in states], changes)
 
-    def ranked(self, q: np.ndarray, s: State) -> np.ndarray:
+    def ranked(self, q: np.ndarray, s: State, episode: int) -> np.ndarray:
         return q
 
 
@@ -58,15 +64,17 @@ class ActionBias:
     def __init__(self, config: LearnerConfig, taught: Advice) -> None:
         self.alpha, self.beta, self.taught = config.alpha, config.bias_weight, taught
 
-    def chosen(self, r: float, s: State, weights: np.ndarray, bonus: float) -> float:
-        self.taught.advise([s], (self.alpha * bonus * weights)[None, :])
+    def chosen(
+        self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
+    ) -> float:
+        self.taught.advise([s], (self.alpha * bonus * weights)[None, :], traced=replayed)
         return r
 
     def credit(self, Q: np.ndarray, states: Sequence[State], changes: np.ndarray) -> None:
         self.taught.advise(states, changes)
 
-    def ranked(self, q: np.ndarray, s: State) -> np.ndarray:
-        return q + self.beta * self.taught.h(s)
+    def ranked(self, q: np.ndarray, s: State, episode: int) -> np.ndarray:
+        return q + self.beta * self.taught.weighed(s, episode)
 
 
 SHAPINGS: dict[str, type[Additive] | type[ActionBias]] = {
