@@ -103,9 +103,12 @@ COVERED: dict[str, tuple[str, ...]] = {
         f"{HERE}::test_pool_as_written_gives_the_published_results",
         "tests.test_experiment::test_pooled_experiments_are_the_experiment_of_all_their_seeds",
     ),
-    "voxshape experiment sweep --rate 0,1,2,4,8,16 --seeds 20 --workers 2"
-    " --out docs/results/budget": (
-        "tests.test_experiment::test_the_budget_sweep_runs_both_feedback_settings_at_each_rate",
+    "voxshape experiment paper --tasks docs/results/other-maps/office.toml,"
+    "docs/results/other-maps/corridor.toml,docs/results/new-maps/uturn.toml,"
+    "docs/results/new-maps/zigzag.toml --settings rl,rl+f,rl+t+f --seeds 10 --first-seed 10"
+    " --workers 2 --out docs/results/maps-heldout": (
+        "tests.test_experiment::test_experiments_run_on_a_users_own_map_file",
+        "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
     ),
     # A service that runs until stopped: a tiny map file's episodes on a test router.
     "voxshape sim --task my-map.toml": (
