@@ -78,17 +78,20 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
         assert summaries[-1].states >= 1 and len(summaries[-1].q_values) == len(ACTION_NAMES)
         out = node.output("feedback", robot_key(session_id, "r1", "feedback"))
         out.put(feedback(steps[-1], kind="reward", reward=50.0, command=None))
-        out.put(feedback(steps[-1], kind="command", command="left", reward=None))
         left = ACTION_NAMES.index("left")
-        for _ in range(10):  # the command shows within a few actions
-            action = collect(node, 1, Action)[0]
-            if action.chooser == "teacher":
+        said = 0
+        while said < 3:  # an episode that ends as it arrives forgets it: say it again
+            said += 1
+            out.put(feedback(steps[-1], kind="command", command="left", reward=None))
+            actions = [collect(node, 1, Action)[0] for _ in range(10)]  # within a few actions
+            if any(a.chooser == "teacher" for a in actions):
                 break
-        assert action.chooser == "teacher" and action.discrete == left
+        taught = [a for a in actions if a.chooser == "teacher"]
+        assert taught and taught[0].discrete == left
     learner.send_signal(signal.SIGTERM)
     _, err = learner.communicate(timeout=20)
     assert learner.returncode == 0, err
-    assert "learner.feedback_credited=1" in err and "learner.commands=1" in err
+    assert "learner.feedback_credited=1" in err and f"learner.commands={said}" in err
     assert path.is_file()
     states = int(re.search(r"learning robot=r1 .* states=(\d+)", err).group(1))
     assert states == 0  # a fresh start ...

@@ -28,7 +28,9 @@ def services(session: LoopbackSession, robot_router: str, log: str) -> list[Serv
     """The robot (its own router, not on the session's bus), compose.yaml's learner, arbiter
     and mock speech, the simulated teacher and the bridge."""
     robot = ["python", str(ROOT / "tests" / "ros2_robot.py"), "--listen", robot_router]
-    teacher = ["voxshape", "sim-teacher", "--seed", "1", "--teacher-profile", "person"]
+    # the demo's person, who judges: the steering one settles task 1 just over its convergence
+    # bound in 3 of 20 runs (docs/decisions.md), and this test is of the bridge
+    teacher = ["voxshape", "sim-teacher", "--seed", "1", "--teacher-profile", "judging"]
     bridge = ["voxshape", "ros2", "--connect", robot_router, "--goal", "5,5"]
     bridge += ["--rtf", str(RTF), "--max-speed", "0.7", "--max-turn", "1.75", "--radius", "0.25"]
     return [
