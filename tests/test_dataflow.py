@@ -13,7 +13,16 @@ import time
 
 import pytest
 
-from protocol import CreditedFeedback, TeacherNotice, TeachingStats, robot_key, teacher_key
+from protocol import (
+    CreditedFeedback,
+    HelpAnswer,
+    HelpRequest,
+    Observation,
+    TeacherNotice,
+    TeachingStats,
+    robot_key,
+    teacher_key,
+)
 from protocol.dataflow import (
     ANY,
     DATAFLOW,
@@ -27,7 +36,7 @@ from protocol.dataflow import (
 from protocol.keys import SCOPES
 from services.cli import main
 from services.deploy.access import ROLES, User, access_control
-from services.runtime import Node
+from services.runtime import Input, Node
 from services.tools import unfed_inputs
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port, wait_present
 
@@ -182,6 +191,16 @@ WITH_OTHER_OPTIONS = {
 }
 
 
+def answered(node: Node, within: float) -> bool:
+    """Whether a HelpAnswer arrives within `within` seconds (other messages are skipped)."""
+    deadline = time.monotonic() + within
+    while time.monotonic() < deadline:
+        event = node.poll(0.1)
+        if isinstance(event, Input) and isinstance(event.message, HelpAnswer):
+            return True
+    return False
+
+
 def test_the_real_services_declare_exactly_their_rows(
     spawn, router, session_id, tmp_path, client_config
 ):
@@ -227,6 +246,17 @@ def test_the_real_services_declare_exactly_their_rows(
         # The arbiter and speech declare their outputs as they first use them: speech its
         # notices when it rejects what bob says.
         collect(node, 1, CreditedFeedback, timeout=60.0)
+        # The arbiter declares a robot's answers as it first gives one: ask as the learner
+        # would (the learner asks by itself only when lost), until the person answers.
+        node.input("obs", robot_key(session_id, "r1", "obs"))
+        node.input("answer", robot_key(session_id, "r1", "answer"))
+        ask = node.output("help", robot_key(session_id, "r1", "help"))
+        for _ in range(4):
+            seen = collect(node, 1, Observation, timeout=10.0)[0]
+            where = {"episode": seen.episode, "step": seen.step, "x": seen.x, "y": seen.y}
+            ask.put(HelpRequest(robot="r1", reason="unsure", detail="asked by the test", **where))
+            if answered(node, within=15.0):
+                break
         services["teacher"].stdin.write(b"cucumber\n")
         services["teacher"].stdin.flush()
         kinds: dict[str, str] = {}
