@@ -125,7 +125,10 @@ def test_a_ros2_robot_on_rmw_zenoh_is_a_robot_of_the_session(
     robot = start_robot(spawn)
     with (tmp_path / "bridge.log").open("w") as log:
         bridge = start_bridge(spawn, router, session_id, robot, log=log)
-    start, first = collect(node, 2, (EpisodeEvent, Observation), timeout=20.0)
+    # the episode's start and its first observation, in either order (a key each)
+    got = collect(node, 2, (EpisodeEvent, Observation), timeout=20.0)
+    start = next(m for m in got if isinstance(m, EpisodeEvent))
+    first = next(m for m in got if isinstance(m, Observation))
     assert start.kind == "start" and (first.x, first.y, first.episode_step) == (1.0, 1.0, 0)
     assert len(first.laser) == 180 and len(first.sonar) == 8
     assert first.goal_distance == pytest.approx(4 * 2**0.5)
