@@ -258,7 +258,7 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
 
 
 def teacher_spec(
-    session: launcher.LocalSession, mode: str, seed: int, profile: str = "person"
+    session: launcher.LocalSession, mode: str, seed: int, profile: str
 ) -> ServiceSpec:
     """The simulated teacher as one more service of the session (on the learner's bus
     settings), started last."""

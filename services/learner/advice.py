@@ -30,10 +30,6 @@ class Advice:
         self.T = np.zeros((0, N_ACTIONS))  # the replayed traces' action bias, alike
         self.Phi = np.zeros(0)  # the potential, a value per place feature
 
-    def h(self, s: State) -> np.ndarray:
-        """H(s, .): the mean of the rows of the state's advice features."""
-        return self.H[s.advice].sum(axis=0) / len(s.advice)
-
     def weighed(self, s: State, episode: int) -> np.ndarray:
         """T(s, .) + bias_decay^episode H(s, .): the bias the policy weighs after `episode`
         episodes."""
