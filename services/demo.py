@@ -257,9 +257,7 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     return os.environ["VOXSHAPE_SESSION"]
 
 
-def teacher_spec(
-    session: launcher.LocalSession, mode: str, seed: int, profile: str
-) -> ServiceSpec:
+def teacher_spec(session: launcher.LocalSession, mode: str, seed: int, profile: str) -> ServiceSpec:
     """The simulated teacher as one more service of the session (on the learner's bus
     settings), started last."""
     bus = next(s for s in session.specs if s.name == "learner").environment
