@@ -1,5 +1,3 @@
-import sys
+from services.cli import program
 
-from services.cli import main
-
-sys.exit(main())
+program()

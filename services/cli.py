@@ -3,13 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import faulthandler
 import importlib
 import io
+import os
 import signal
 import sys
+import threading
 from collections.abc import Callable
+from typing import NoReturn
 
 from protocol import ProtocolError, VocabularyError
 from services.logger.run import RunError
@@ -224,5 +228,23 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
 
+def program() -> NoReturn:
+    """`voxshape` as a program: main(), then an exit that skips the interpreter's
+    finalization. zenoh's native threads may still take the GIL while Python 3.11 finalizes,
+    which aborts a process whose work is done ("FATAL: exception not rethrown", exit -6)."""
+    try:
+        code = main()
+    except SystemExit as e:  # argparse's --help and usage errors
+        code = e.code if isinstance(e.code, int) else int(e.code is not None)
+    # What finalization would do, as multiprocessing's children do before their os._exit:
+    # join non-daemon threads, run atexit's functions (logging, rerun, the router's files).
+    threading._shutdown()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # a closed pipe (`voxshape listen | head`)
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    program()
