@@ -305,13 +305,18 @@ def test_the_distributed_run_learns_exactly_what_the_in_process_run_learns():
     assert bus.durations_s == local.durations_s and len(bus.durations_s) == 2
 
 
+@pytest.mark.long
 def test_over_zenoh_the_simulated_teacher_says_as_much_per_robot_minute_as_in_process():
     """Lockstep runs ~50x real time: the teacher, the speech service and the arbiter keep to
     robot time (rate, delays), so the teacher is heard as often as in-process, not refused
-    as a flood (before: 4% of its words)."""
-    spec = RunSpec("4", "rl+f", seed=0, max_episodes=3)  # minutes, beyond the first burst
-    local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
-    per_minute = [o.interventions / (sum(o.durations_s) / 60) for o in (local, bus)]
+    as a flood (before: 4% of its words). Pooled over three seeds: how much a person says
+    depends on what the robot does, which differs between the two (one seed alone: 0.58-1.18)."""
+    specs = [RunSpec("4", "rl+f", seed, max_episodes=3) for seed in range(3)]  # robot minutes
+    runs = [(distributed.in_process(s), distributed.over_zenoh(s, timeout_s=300)) for s in specs]
+    per_minute = [
+        sum(r.interventions for r in side) / (sum(sum(r.durations_s) for r in side) / 60)
+        for side in zip(*runs, strict=True)
+    ]
     assert 0.67 < per_minute[1] / per_minute[0] < 1.5, per_minute
 
 
