@@ -74,8 +74,8 @@ class LearnerConfig:
             "stop": (0.0, 0.0),
             "forward": (0.5, 0.0),
             "back": (-0.3, 0.0),
-            "left": (0.2, math.radians(60)),  # arcs: turning on the way, not on the spot
-            "right": (0.2, -math.radians(60)),
+            "left": (0.3, math.radians(60)),  # arcs: turning on the way, not on the spot
+            "right": (0.3, -math.radians(60)),
         }
     )
     # The actions the policy chooses among; the others are left to teachers' commands.
