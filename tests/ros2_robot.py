@@ -10,8 +10,13 @@ rmw_zenoh would show it.
   ns, a length byte and the 16-byte GID: 33 bytes; --attachment 77: the older format), and
   the liveliness tokens of its node, publishers and subscription.
 - It drives by the cmd_vel (Twist, or TwistStamped with --cmd twist_stamped) it receives:
-  a disk of --radius m whose pose integrates the last command (it has no command timeout of
-  its own: only the bridge stops it) and stays put where it would touch a wall.
+  a disk of --radius m whose pose integrates the last command and stays put where it would
+  touch a wall. By default it has no command timeout of its own (only the bridge stops it);
+  --cmd-timeout S stops it S robot seconds after the last command, as diff_drive_controller's
+  `cmd_vel_timeout` (0.5 s by default there) does.
+- Its world runs at --rtf times real time when it can; a stall of its process slows its time
+  down (as a loaded Gazebo's real-time factor drops) rather than skipping it forward in a burst
+  of steps.
 - Each cmd_vel it receives is checked (an attachment of the right size, its length byte,
   a sequence number one more than the last, a source time within 10 s of now) and printed as
   a JSON line: {"cmd": [v, w], "t": monotonic seconds, "attachment": "ok" or the problem}.
@@ -98,6 +103,7 @@ class Robot:
         self.pose = list(self.start)  # the truth: what the scan sees
         self.odom = list(self.start)  # what the wheels measured (odometry frame = the map's)
         self.cmd = (0.0, 0.0)
+        self.cmds = 0  # commands received (the main loop times out the standing one)
         self.lock = threading.Lock()
         self.muted = False
         self.log = open(args.log, "a") if args.log else sys.stdout  # noqa: SIM115
@@ -106,9 +112,9 @@ class Robot:
     def free(self, x: float, y: float) -> bool:
         return float(self.map.clearance(x, y)) >= self.args.radius
 
-    def move(self, dt: float) -> None:
+    def move(self, dt: float, stopped: bool = False) -> None:
         with self.lock:
-            v, w = self.cmd
+            v, w = (0.0, 0.0) if stopped else self.cmd
             for _ in range(4):
                 x, y, th = self.pose
                 th2 = th + w * dt / 4
@@ -166,6 +172,7 @@ class Robot:
         twist = message.twist if self.args.cmd == "twist_stamped" else message
         with self.lock:
             self.cmd = (float(twist.linear.x), float(twist.angular.z))
+            self.cmds += 1
         line = {"cmd": list(self.cmd), "t": time.monotonic(), "attachment": verdict}
         print(json.dumps(line), file=self.log, flush=True)
 
@@ -252,6 +259,7 @@ def main() -> int:
     parser.add_argument("--cmd", choices=("twist", "twist_stamped"), default="twist")
     parser.add_argument("--attachment", choices=("33", "77"), default="33")
     parser.add_argument("--log", help="write the cmd_vel lines to this file, not stdout")
+    parser.add_argument("--cmd-timeout", type=float, default=0.0, help="robot s; 0: none")
     args = parser.parse_args()
     router = session(mode="router", listen={"endpoints": [args.listen]})  # its rmw_zenohd
     node = session(
@@ -268,10 +276,13 @@ def main() -> int:
     print(json.dumps({"ready": args.listen}), flush=True)
     gids = {name: bytes(range(i, i + 16)) for i, name in enumerate(pubs)}
     period, seq, t0, robot_t = 1.0 / args.hz, 0, time.monotonic(), 0.0
+    cmds, cmd_t = 0, 0.0  # commands seen, and the robot time the last one came
     epoch = time.time()
     try:
         while True:
-            robot.move(period)
+            if robot.cmds != cmds:
+                cmds, cmd_t = robot.cmds, robot_t
+            robot.move(period, stopped=0 < args.cmd_timeout < robot_t - cmd_t)
             robot_t += period
             seq += 1
             whole = epoch + robot_t
@@ -284,6 +295,9 @@ def main() -> int:
                     break
                 payload = bytes(TYPES.serialize_cdr(message, typename))
                 pubs[name].put(payload, attachment=attachment(args, seq, gids[name]))
+            late = time.monotonic() - (t0 + robot_t / args.rtf)
+            if late > period / args.rtf:  # stalled: its time slows down, no burst of steps
+                t0 += late
             time.sleep(max(0.0, t0 + robot_t / args.rtf - time.monotonic()))
     except KeyboardInterrupt:
         pass
