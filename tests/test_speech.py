@@ -477,8 +477,16 @@ def test_a_said_text_heard_again_is_heard_the_same():
     other words or none: the same utterances (ids, texts), so the arbiter drops the copies
     instead of crediting a word twice, even when the mock mishears or inserts a word."""
     settings = MockSettings(latency_s=0.0, error_rate=0.5, misheard=1, dropped=1, inserted=2)
-    said = [
-        Said(teacher="ana", robot="r1", text="good", language="en", onset=t, end=t + 0.4)
+    said = [  # ids fixed: the mock's draws depend on them alone
+        Said(
+            id=f"said-{t}",
+            teacher="ana",
+            robot="r1",
+            text="good",
+            language="en",
+            onset=t,
+            end=t + 0.4,
+        )
         for t in range(40)
     ]
 
