@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import signal
+import time
 import uuid
 
 import pytest
@@ -79,14 +80,15 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
         out = node.output("feedback", robot_key(session_id, "r1", "feedback"))
         out.put(feedback(steps[-1], kind="reward", reward=50.0, command=None))
         left = ACTION_NAMES.index("left")
-        said = 0
-        while said < 3:  # an episode that ends as it arrives forgets it: say it again
+        said, taught = 0, []
+        while not taught and said < 3:  # an episode that ends as it arrives forgets it
             said += 1
             out.put(feedback(steps[-1], kind="command", command="left", reward=None))
-            actions = [collect(node, 1, Action)[0] for _ in range(10)]  # within a few actions
-            if any(a.chooser == "teacher" for a in actions):
-                break
-        taught = [a for a in actions if a.chooser == "teacher"]
+            # every action in order for 3 s: a loaded machine leaves a backlog of them
+            until = time.monotonic() + 3.0
+            while not taught and time.monotonic() < until:
+                action = collect(node, 1, Action)[0]
+                taught += [action] if action.chooser == "teacher" else []
         assert taught and taught[0].discrete == left
     learner.send_signal(signal.SIGTERM)
     _, err = learner.communicate(timeout=20)
