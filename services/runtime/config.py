@@ -49,7 +49,6 @@ from services.runtime.settings import ConfigError, add_options, option, read_opt
 Mode = Literal["peer", "client", "router"]
 MODES: tuple[Mode, ...] = ("peer", "client", "router")
 LOCAL_ROUTER = "tcp/127.0.0.1:7447"
-ROUTER_BLOCK_BEFORE_CLOSE_US = 100_000  # docs/reliability.md: a stopped logger
 _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 
 
@@ -176,11 +175,6 @@ class BusConfig:
             # ms), also after a lost link. Gossip stays zenoh's (on, one hop): the router
             # brokers between its peers with it (without, peers of one router hear nothing).
             conf["connect"]["exit_on_failure"] = False
-            # A subscriber that takes nothing (stopped, asleep) while its queue is full is cut
-            # off after this, to reconnect and recover, rather than stall every publisher of
-            # must-arrive messages until its lease ends (zenoh's default: 5 s).
-            block = {"block": {"wait_before_close": ROUTER_BLOCK_BEFORE_CLOSE_US}}
-            conf["transport"]["link"] = {"tx": {"queue": {"congestion_control": block}}}
         if self.user is not None:
             conf["transport"]["auth"] = {"usrpwd": {"user": self.user, "password": self.password}}
         tls: dict = {}
@@ -193,7 +187,7 @@ class BusConfig:
         if self.mtls:
             tls["enable_mtls"] = True
         if tls:
-            conf["transport"].setdefault("link", {})["tls"] = tls
+            conf["transport"]["link"] = {"tls": tls}
         config = zenoh.Config.from_json5(json.dumps(conf))
         for path, value in self.extra:
             config.insert_json5(path, value)
