@@ -25,6 +25,7 @@ from services.runtime.processes import end_process
 from services.topology import ServiceSpec, TopologyError
 
 STOP_GRACE_S = 10.0
+BUS_CLOSE_S = 2.0  # the launcher's own leaving of the bus may take this long, then it goes on
 SLOW_STOP_S = 2.0  # a service slower than this to stop is named (most take 0.1-0.5 s)
 INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it
 TAIL_CHARS = 2000  # of a dead service's log, in the error that names it
@@ -324,12 +325,21 @@ class LocalSession:
         self._restart_due.pop(name, None)
         return end_process(proc, grace)
 
+    def _leave_bus(self, bus: Node) -> None:
+        """Closes the launcher's bus node, waiting at most BUS_CLOSE_S: a close that hangs in
+        zenoh must not keep Ctrl-C from stopping the services (seen once, 27 s)."""
+        closing = threading.Thread(target=bus.close, name="leave-bus", daemon=True)
+        closing.start()
+        closing.join(BUS_CLOSE_S)
+        if closing.is_alive():
+            self.say(f"the launcher's bus node did not close in {BUS_CLOSE_S:g} s: stopping anyway")
+
     def stop(self) -> dict[str, int | None]:
         """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes. The
         launcher leaves the bus first, while its router still runs (closing a session whose
         router is gone can wait on zenoh)."""
         if self.bus is not None:
-            self.bus.close()
+            self._leave_bus(self.bus)
             self.bus = None
         for name in reversed(list(self.procs)):
             proc = self.procs[name]
