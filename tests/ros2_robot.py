@@ -103,7 +103,7 @@ class Robot:
         self.pose = list(self.start)  # the truth: what the scan sees
         self.odom = list(self.start)  # what the wheels measured (odometry frame = the map's)
         self.cmd = (0.0, 0.0)
-        self.cmds = 0  # commands received (the main loop times out the standing one)
+        self.since_cmd = 0.0  # robot seconds since the last command (--cmd-timeout)
         self.lock = threading.Lock()
         self.muted = False
         self.log = open(args.log, "a") if args.log else sys.stdout  # noqa: SIM115
@@ -112,9 +112,11 @@ class Robot:
     def free(self, x: float, y: float) -> bool:
         return float(self.map.clearance(x, y)) >= self.args.radius
 
-    def move(self, dt: float, stopped: bool = False) -> None:
+    def move(self, dt: float) -> None:
         with self.lock:
-            v, w = (0.0, 0.0) if stopped else self.cmd
+            lapsed = 0 < self.args.cmd_timeout < self.since_cmd
+            v, w = (0.0, 0.0) if lapsed else self.cmd
+            self.since_cmd += dt
             for _ in range(4):
                 x, y, th = self.pose
                 th2 = th + w * dt / 4
@@ -172,7 +174,7 @@ class Robot:
         twist = message.twist if self.args.cmd == "twist_stamped" else message
         with self.lock:
             self.cmd = (float(twist.linear.x), float(twist.angular.z))
-            self.cmds += 1
+            self.since_cmd = 0.0
         line = {"cmd": list(self.cmd), "t": time.monotonic(), "attachment": verdict}
         print(json.dumps(line), file=self.log, flush=True)
 
@@ -276,13 +278,10 @@ def main() -> int:
     print(json.dumps({"ready": args.listen}), flush=True)
     gids = {name: bytes(range(i, i + 16)) for i, name in enumerate(pubs)}
     period, seq, t0, robot_t = 1.0 / args.hz, 0, time.monotonic(), 0.0
-    cmds, cmd_t = 0, 0.0  # commands seen, and the robot time the last one came
     epoch = time.time()
     try:
         while True:
-            if robot.cmds != cmds:
-                cmds, cmd_t = robot.cmds, robot_t
-            robot.move(period, stopped=0 < args.cmd_timeout < robot_t - cmd_t)
+            robot.move(period)
             robot_t += period
             seq += 1
             whole = epoch + robot_t

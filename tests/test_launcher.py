@@ -196,16 +196,21 @@ def test_profiles_select_optional_services(tmp_path):
     assert [s.name for s in load_topology(compose, {}, ("extra",))] == ["a", "b", "c"]
 
 
-def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_path, monkeypatch):
-    """The demo counts episodes from the first: the launcher's inputs declared before start()
-    are there when it joins the bus, before the simulator starts and announces episode 0."""
-    port = free_port()
+def router_and_sim(session_id: str, tmp_path: Path, monkeypatch) -> LocalSession:
+    """compose.yaml's router and simulator as a LocalSession on a free port, not started."""
     monkeypatch.chdir(tmp_path)  # the services write under ./runs
     monkeypatch.setenv("VOXSHAPE_SESSION", session_id)  # the services' and the launcher's
     variables = local_variables()
-    variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = f"tcp/127.0.0.1:{port}"
+    router = f"tcp/127.0.0.1:{free_port()}"
+    variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = router
     specs = [s for s in load_topology(COMPOSE, variables) if s.name in ("router", "sim")]
-    session = LocalSession(specs, variables["VOXSHAPE_ROUTER"], ready_timeout=30)
+    return LocalSession(specs, router, ready_timeout=30)
+
+
+def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_path, monkeypatch):
+    """The demo counts episodes from the first: the launcher's inputs declared before start()
+    are there when it joins the bus, before the simulator starts and announces episode 0."""
+    session = router_and_sim(session_id, tmp_path, monkeypatch)
     session.input("episode", robot_key(session_id, "r1", "episode"))
     try:
         session.start()
@@ -223,14 +228,7 @@ def test_a_launcher_whose_bus_will_not_close_still_stops_its_services(
 ):
     """Ctrl-C stops the services within BUS_CLOSE_S and their own stop, even when the
     launcher's leaving the bus hangs (it once took 27 s)."""
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("VOXSHAPE_SESSION", session_id)
-    variables = local_variables()
-    variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = (
-        f"tcp/127.0.0.1:{free_port()}"
-    )
-    specs = [s for s in load_topology(COMPOSE, variables) if s.name in ("router", "sim")]
-    session = LocalSession(specs, variables["VOXSHAPE_ROUTER"], ready_timeout=30)
+    session = router_and_sim(session_id, tmp_path, monkeypatch)
     said: list[str] = []
     monkeypatch.setattr(session, "say", said.append)
     try:

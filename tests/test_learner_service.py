@@ -88,7 +88,8 @@ def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
             until = time.monotonic() + 3.0
             while not taught and time.monotonic() < until:
                 action = collect(node, 1, Action)[0]
-                taught += [action] if action.chooser == "teacher" else []
+                if action.chooser == "teacher":
+                    taught.append(action)
         assert taught and taught[0].discrete == left
     learner.send_signal(signal.SIGTERM)
     _, err = learner.communicate(timeout=20)
