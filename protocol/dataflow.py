@@ -9,13 +9,17 @@ Nodes check what they declare against their row (`check`), `voxshape status` use
 to name inputs nobody publishes, and `voxshape dataflow --markdown` prints the table
 docs/architecture.md shows.
 
-What must survive a restart is said on its flow: a publisher keeps its last `kept` messages
-of a key, and a subscriber that (re)joins asks for what was published in the last
-`recover_s` seconds (and for what it missed meanwhile). Nodes take both from here.
+How each topic reaches a subscriber that is slow, stopped or restarting is said once, per
+topic (DELIVERY): a slow subscriber never makes a publisher wait (what its queue cannot take is
+dropped for it alone, zenoh's DROP), so no observer can stall the control loop; each publisher
+keeps its last `kept` messages of a key, and a subscriber that missed some gets them back
+from there. A subscription says how far back a (re)joining subscriber asks (`recover_s`).
+Nodes take all of it from here.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -33,23 +37,98 @@ class DataflowError(ValueError):
 
 
 @dataclass(frozen=True)
+class Delivery:
+    """How one topic reaches a subscriber that is slow, stopped or restarting.
+
+    `waits`: whether a slow subscriber may make the publisher wait (zenoh's BLOCK). Never for
+    a topic an observer subscribes to (the logger records every topic), or an observer that
+    stops stalls the robots. False: what a slow subscriber's queue cannot take is dropped for
+    it alone (DROP); the others get everything at once.
+    `kept`: how many messages of a key each publisher keeps; a subscriber that missed some
+    (dropped while it was slow or stopped, published while it restarted) fetches them back.
+    `after_stop`: what an observer stopped for a while (a logger, tens of seconds) has when
+    it runs again: "all" (the publishers keep minutes of the topic at its fastest) or
+    "recent" (a per-step stream: the last `kept` come back, the logger marks a gap for the
+    rest)."""
+
+    kept: int
+    after_stop: Literal["all", "recent"]
+    waits: bool = False
+
+    def __str__(self) -> str:
+        waits = "waits for a slow subscriber" if self.waits else "drops for a slow subscriber"
+        back = "all come back" if self.after_stop == "all" else "the rest a marked gap"
+        return f"keeps {self.kept}; {waits}; after a stop: {back}"
+
+
+# What survives a restart or a stop (the constants the nodes take from here):
+OBS_KEPT = 600  # a minute of steps at 10 Hz (the simulator keeps a minute at any --rtf)
+STEPS_KEPT = 600  # other per-step topics (actions, learning summaries), as observations
+FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
+UTTERANCES_KEPT = 256  # per teacher: as many as speech and the arbiter recover in 30 s
+AUDIO_KEPT = 800  # per teacher: 40 s of 50 ms chunks
+EVENTS_KEPT = 256  # episodes, interventions, notices: minutes of them at their fastest
+RARE_KEPT = 64  # questions, answers, a robot placed, clock probes
+RECOVER_S = 30.0  # what the arbiter and speech ask for on joining
+FEEDBACK_RECOVER_S = 60.0  # what a learner asks for; older is about steps out of its window
+ALL_KEPT = math.inf  # a subscription that asks for whatever is kept, however old (limits)
+
+DELIVERY: dict[tuple[FlowScope, str], Delivery] = {
+    ("robot", "obs"): Delivery(OBS_KEPT, "recent"),
+    ("robot", "action"): Delivery(STEPS_KEPT, "recent"),
+    ("robot", "learning"): Delivery(STEPS_KEPT, "recent"),
+    ("robot", "episode"): Delivery(EVENTS_KEPT, "all"),
+    ("robot", "feedback"): Delivery(FEEDBACK_KEPT, "all"),
+    ("robot", "teaching"): Delivery(EVENTS_KEPT, "all"),
+    ("robot", "help"): Delivery(RARE_KEPT, "all"),
+    ("robot", "answer"): Delivery(RARE_KEPT, "all"),
+    ("robot", "limits"): Delivery(1, "all"),
+    ("teacher", "audio"): Delivery(AUDIO_KEPT, "recent"),
+    ("teacher", "utterance"): Delivery(UTTERANCES_KEPT, "all"),
+    ("teacher", "said"): Delivery(UTTERANCES_KEPT, "all"),
+    ("teacher", "clock"): Delivery(RARE_KEPT, "recent"),
+    ("teacher", "clock-reply"): Delivery(RARE_KEPT, "recent"),
+    ("teacher", "notice"): Delivery(EVENTS_KEPT, "all"),
+    ("teacher", "placed"): Delivery(RARE_KEPT, "all"),
+}
+UNLISTED = Delivery(0, "recent")  # a key outside the protocol (tests, tools): not kept
+
+
+def delivery_of(key: str) -> Delivery:
+    """How the topic of `key` is delivered (UNLISTED for a key that is not one of a topic)."""
+    scope, _, topic = topic_of(key).partition("/")
+    return DELIVERY.get((scope, topic), UNLISTED)  # type: ignore[call-overload]
+
+
+@dataclass(frozen=True)
 class Flow:
-    """A topic of robots or teachers: its own ("own") or any of the session's ("*"); kept by
-    its publisher (messages), recovered by its subscriber (seconds)."""
+    """A topic of robots or teachers: its own ("own") or any of the session's ("*"); a
+    subscription may recover what was published in the last `recover_s` seconds."""
 
     scope: FlowScope
     owner: Owner
     topic: str
-    kept: int = 0
     recover_s: float = 0.0
 
     def __str__(self) -> str:
         return f"{self.scope}/{'<own>' if self.owner == 'own' else ANY}/{self.topic}"
 
-    def described(self, quote: str = "") -> str:
-        extra = f" (keeps {self.kept})" if self.kept else ""
-        extra += f" (recovers {self.recover_s:g} s)" if self.recover_s else ""
-        return f"{quote}{self}{quote}{extra}"
+    @property
+    def delivery(self) -> Delivery:
+        return DELIVERY[(self.scope, self.topic)]
+
+    def described(self, direction: Direction, quote: str = "") -> str:
+        return f"{quote}{self}{quote}{_survives(self, direction)}"
+
+
+def _survives(flow: Flow, direction: Direction) -> str:
+    """What survives a restart, as the tables say it: a publisher keeps N, a subscriber
+    recovers S seconds."""
+    if direction == "publishes":
+        return f" (keeps {flow.delivery.kept})" if flow.delivery.kept else ""
+    if flow.recover_s == ALL_KEPT:
+        return " (recovers what is kept)"
+    return f" (recovers {flow.recover_s:g} s)" if flow.recover_s else ""
 
 
 @dataclass(frozen=True)
@@ -68,19 +147,6 @@ def _flows(scope: FlowScope, owner: Owner, *topics: str) -> tuple[Flow, ...]:
     return tuple(Flow(scope, owner, topic) for topic in topics)
 
 
-# What survives a restart (the constants the nodes take from here):
-OBS_KEPT = 600  # a minute of steps at 10 Hz (the simulator keeps a minute at any --rtf)
-FEEDBACK_KEPT = 1024  # per robot: minutes of feedback at the teachers' rate limits
-UTTERANCES_KEPT = 256  # per teacher: as many as speech and the arbiter recover in 30 s
-AUDIO_KEPT = 800  # per teacher: 40 s of 50 ms chunks
-RECOVER_S = 30.0  # what the arbiter and speech ask for on joining
-FEEDBACK_RECOVER_S = 60.0  # what a learner asks for; older is about steps out of its window
-
-
-def _kept(scope: FlowScope, owner: Owner, topic: str, kept: int) -> Flow:
-    return Flow(scope, owner, topic, kept=kept)
-
-
 def _recovered(scope: FlowScope, owner: Owner, topic: str, seconds: float) -> Flow:
     return Flow(scope, owner, topic, recover_s=seconds)
 
@@ -89,14 +155,14 @@ DATAFLOW: dict[str, NodeRole] = {
     "sim": NodeRole(
         "simulator",
         "steps its robots: observations and episode events out, actions in",
-        publishes=(_kept("robot", "own", "obs", OBS_KEPT), *_flows("robot", "own", "episode")),
+        publishes=_flows("robot", "own", "obs", "episode", "limits"),
         subscribes=_flows("robot", "own", "action"),
     ),
     "ros2": NodeRole(
         "simulator",
         "a real ROS 2 robot (voxshape ros2), to the session as the simulator's: observations "
         "and episode events out, actions in; a teacher's word that it is back at its start",
-        publishes=(_kept("robot", "own", "obs", OBS_KEPT), *_flows("robot", "own", "episode")),
+        publishes=_flows("robot", "own", "obs", "episode", "limits"),
         subscribes=(*_flows("robot", "own", "action"), *_flows("teacher", ANY, "placed")),
     ),
     "learner": NodeRole(
@@ -106,14 +172,14 @@ DATAFLOW: dict[str, NodeRole] = {
         subscribes=(
             *_flows("robot", "own", "obs"),
             _recovered("robot", "own", "feedback", FEEDBACK_RECOVER_S),
+            _recovered("robot", "own", "limits", ALL_KEPT),
         ),
     ),
     "arbiter": NodeRole(
         "arbiter",
         "turns every teacher's utterances into credited feedback on the robots' step clocks",
         publishes=(
-            _kept("robot", ANY, "feedback", FEEDBACK_KEPT),
-            *_flows("robot", ANY, "teaching", "answer"),
+            *_flows("robot", ANY, "feedback", "teaching", "answer"),
             *_flows("teacher", ANY, "notice", "clock-reply"),
         ),
         subscribes=(
@@ -126,10 +192,7 @@ DATAFLOW: dict[str, NodeRole] = {
     "speech": NodeRole(
         "speech",
         "recognizes every teacher's audio (or a mock's said text) as utterances",
-        publishes=(
-            _kept("teacher", ANY, "utterance", UTTERANCES_KEPT),
-            *_flows("teacher", ANY, "notice"),
-        ),
+        publishes=_flows("teacher", ANY, "utterance", "notice"),
         subscribes=(
             _recovered("teacher", ANY, "audio", RECOVER_S),
             _recovered("teacher", ANY, "said", RECOVER_S),
@@ -138,12 +201,7 @@ DATAFLOW: dict[str, NodeRole] = {
     "teacher": NodeRole(
         "teacher",
         "a person's client (voxshape teach): speaks or types as itself, watches a robot",
-        publishes=(
-            _kept("teacher", "own", "audio", AUDIO_KEPT),
-            _kept("teacher", "own", "utterance", UTTERANCES_KEPT),
-            _kept("teacher", "own", "said", UTTERANCES_KEPT),
-            *_flows("teacher", "own", "clock", "placed"),
-        ),
+        publishes=_flows("teacher", "own", "audio", "utterance", "said", "clock", "placed"),
         subscribes=(
             *_flows("teacher", "own", "utterance", "notice", "clock-reply"),
             *_flows("robot", ANY, "obs", "episode", "feedback", "help", "answer"),
@@ -152,11 +210,7 @@ DATAFLOW: dict[str, NodeRole] = {
     "simteacher": NodeRole(
         "teacher",
         "the simulated teacher: watches a robot and speaks as itself",
-        publishes=(
-            _kept("teacher", "own", "audio", AUDIO_KEPT),
-            _kept("teacher", "own", "said", UTTERANCES_KEPT),
-            *_flows("teacher", "own", "clock"),
-        ),
+        publishes=_flows("teacher", "own", "audio", "said", "clock"),
         subscribes=(
             *_flows("teacher", "own", "notice", "clock-reply"),
             *_flows("robot", ANY, "obs", "help"),
@@ -232,7 +286,7 @@ def publishers_of(scope: str, topic: str) -> list[str]:
 def _cells(row: NodeRole, quote: str = "") -> list[str]:
     if row.everything:
         return ["everything in the session"] * 2
-    return [", ".join(f.described(quote) for f in row.flows(d)) or "nothing" for d in DIRECTIONS]
+    return [", ".join(f.described(d, quote) for f in row.flows(d)) or "nothing" for d in DIRECTIONS]
 
 
 def markdown() -> str:
@@ -266,10 +320,9 @@ def docstring(role: str) -> str:
     keys = {f: f"{ROOT}/<session>/{f.scope}/{_owner(f)}/{f.topic}" for f in _flows_of(row)}
     width = max((len(k) for k in keys.values()), default=0) + 2
     lines = []
-    for label, flows in sides.items():
+    for (label, flows), direction in zip(sides.items(), ("subscribes", "publishes"), strict=True):
         for i, f in enumerate(flows):
-            extra = f" (keeps {f.kept})" if f.kept else ""
-            extra += f" (recovers {f.recover_s:g} s)" if f.recover_s else ""
+            extra = _survives(f, direction)  # type: ignore[arg-type]
             kind = SCOPES[f.scope][f.topic].__name__
             lines.append(f"{label if i == 0 else '':<9}{keys[f]:<{width}}{kind}{extra}")
         if not flows:
@@ -285,10 +338,27 @@ def _flows_of(row: NodeRole) -> tuple[Flow, ...]:
     return (*row.subscribes, *row.publishes)
 
 
+def delivery_markdown() -> str:
+    """The delivery table as markdown (docs/reliability.md shows it)."""
+    lines = [
+        "| topic | a slow subscriber | kept per key | an observer after a stop |",
+        "|---|---|---|---|",
+    ]
+    for (scope, topic), d in DELIVERY.items():
+        slow = "makes the publisher wait" if d.waits else "dropped for it alone"
+        back = "gets all back" if d.after_stop == "all" else "gets the last kept, a gap marked"
+        lines.append(f"| `{scope}/{topic}` | {slow} | {d.kept} | {back} |")
+    return "\n".join(lines)
+
+
 def _check_table() -> None:
     for role, row in DATAFLOW.items():
         for flow in (*row.publishes, *row.subscribes):
             assert flow.topic in SCOPES[flow.scope], f"{role}: unknown topic {flow}"
+    topics = {(scope, topic) for scope, topics in SCOPES.items() for topic in topics}
+    assert set(DELIVERY) == topics, f"DELIVERY must list every topic: {topics ^ set(DELIVERY)}"
+    # An observer (the logger records everything) that stops would stall a waiting publisher.
+    assert not any(d.waits for d in DELIVERY.values()), "no topic may wait: the logger observes all"
 
 
 _check_table()

@@ -20,6 +20,7 @@ from protocol.messages import (
     Message,
     Observation,
     Placed,
+    RobotLimits,
     Said,
     TeacherNotice,
     TeacherStats,
@@ -59,8 +60,13 @@ def _utterance(robot: str, teacher: str, now: float) -> Utterance:
 
 
 def _sim_examples(session: str, robot: str, now: float) -> list[tuple[str, Message]]:
-    """The simulator's loop: an observation, the action chosen for it, an episode's end."""
+    """The simulator's loop: its robot's limits, an observation, the action chosen for it,
+    an episode's end."""
     return [
+        (
+            robot_key(session, robot, "limits"),
+            RobotLimits(robot=robot, max_speed=0.7, max_turn=1.745),
+        ),
         (
             robot_key(session, robot, "obs"),
             Observation(

@@ -8,6 +8,7 @@ voxshape/<session>/robot/<robot>/learning         LearningSummary
 voxshape/<session>/robot/<robot>/teaching         TeachingStats (interventions, teacher stats)
 voxshape/<session>/robot/<robot>/help             HelpRequest (the robot asks which way)
 voxshape/<session>/robot/<robot>/answer           HelpAnswer (who answered, with what)
+voxshape/<session>/robot/<robot>/limits           RobotLimits (how fast it may be driven)
 voxshape/<session>/teacher/<teacher>/audio        AudioChunk
 voxshape/<session>/teacher/<teacher>/utterance    Utterance
 voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for the mock engine)
@@ -43,6 +44,7 @@ from protocol.messages import (
     Message,
     Observation,
     Placed,
+    RobotLimits,
     Said,
     TeacherNotice,
     TeachingStats,
@@ -61,6 +63,7 @@ ROBOT_TOPICS: dict[str, type[Message]] = {
     "teaching": TeachingStats,
     "help": HelpRequest,
     "answer": HelpAnswer,
+    "limits": RobotLimits,
 }
 TEACHER_TOPICS: dict[str, type[Message]] = {
     "audio": AudioChunk,

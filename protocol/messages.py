@@ -365,6 +365,18 @@ class Placed(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
+class RobotLimits(Message):
+    """How fast a robot may be driven (simulator or `voxshape ros2` -> learner): the learner
+    scales its actions to fit, so that what it sends is never clipped."""
+
+    TYPE: ClassVar[str] = "limits"
+
+    robot: Id
+    max_speed: Annotated[float, Range(0.001, 10.0)]  # m/s, forward and back
+    max_turn: Annotated[float, Range(0.001, 20.0)]  # rad/s, either way
+
+
+@dataclass(frozen=True, kw_only=True)
 class TeacherStats:
     """One teacher's part in a robot's teaching (within TeachingStats)."""
 
@@ -415,5 +427,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         HelpRequest,
         HelpAnswer,
         Placed,
+        RobotLimits,
     )
 }

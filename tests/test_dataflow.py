@@ -26,8 +26,11 @@ from protocol import (
 from protocol.dataflow import (
     ANY,
     DATAFLOW,
+    DELIVERY,
+    UNLISTED,
     DataflowError,
     check,
+    delivery_of,
     docstring,
     flow_of,
     markdown,
@@ -90,7 +93,7 @@ def test_a_users_router_rules_are_its_rows_keys():
     users = {"learner": User("learner", "learner", ("r1",)), "ana": User("ana", "teacher")}
     rules = {r["id"]: r for r in access_control("s1", users)["rules"]}
     assert rules["learner:subscribe"]["key_exprs"] == sorted(
-        robot_key("s1", "r1", t) for t in ("obs", "feedback")
+        robot_key("s1", "r1", t) for t in ("obs", "feedback", "limits")
     )
     assert rules["learner:publish"]["key_exprs"] == sorted(
         robot_key("s1", "r1", t) for t in ("action", "learning", "help")
@@ -290,7 +293,9 @@ def test_the_real_services_declare_exactly_their_rows(
 
 def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config, session_id):
     obs, said = robot_key(session_id, "r1", "obs"), teacher_key(session_id, "ana", "said")
-    assert flow_of("sim", "publishes", obs).kept == 600
+    assert flow_of("sim", "publishes", obs).delivery.kept == 600 == delivery_of(obs).kept
+    assert not any(d.waits for d in DELIVERY.values())  # no observer can stall a publisher
+    assert delivery_of("voxshape/s/a/tool/key") == UNLISTED
     assert flow_of("arbiter", "subscribes", obs).recover_s == 30.0
     assert flow_of("learner", "subscribes", obs).recover_s == 0.0  # live steps only
     assert flow_of("speech", "subscribes", said).recover_s == 30.0
@@ -300,8 +305,8 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
         node.input("clock", teacher_key(session_id, "*", "clock"))
         assert set(node._recovering) == {"obs"}  # a recovering input, as its flow says
         feedback = node.output("feedback", robot_key(session_id, "r1", "feedback"))
-        notice = node.output("notice", teacher_key(session_id, "ana", "notice"))
-        assert feedback.kept and not notice.kept
+        notice = node.output("notice", teacher_key(session_id, "ana", "notice"), keep=0)
+        assert feedback.kept and not notice.kept  # as its topic says, or as told
 
 
 # node role -> the module whose docstring shows its row (the learner's: services/learner/node.py)
@@ -333,7 +338,8 @@ def test_the_docstring_rendering_says_direction_owner_type_and_what_survives():
     assert docstring("sim").splitlines() == [
         "Inputs:  voxshape/<session>/robot/<robot>/action   Action",
         "Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)",
-        "         voxshape/<session>/robot/<robot>/episode  EpisodeEvent",
+        "         voxshape/<session>/robot/<robot>/episode  EpisodeEvent (keeps 256)",
+        "         voxshape/<session>/robot/<robot>/limits   RobotLimits (keeps 1)",
     ]
     assert "voxshape/<session>/teacher/*/utterance    Utterance (recovers 30 s)" in docstring(
         "arbiter"

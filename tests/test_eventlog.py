@@ -46,8 +46,9 @@ def test_an_incomplete_last_record_is_reported_and_cut_off_on_reopen(tmp_path):
         for record in records("s1", 10):
             writer.append(record)
     whole = path.stat().st_size
+    observation = next(r for r in records("s1", 10) if r.key.endswith("/obs"))
     with path.open("ab") as f:  # a killed writer: half of a record
-        f.write(pack_record(records("s1", 1)[0])[:700])
+        f.write(pack_record(observation)[:700])
     log = read_events(path)
     assert len(log.records) == 10 and log.incomplete_tail == 700
     assert "700 bytes of an incomplete record" in log.describe_tail()

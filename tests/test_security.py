@@ -326,9 +326,10 @@ def test_access_control_is_built_from_the_protocols_keys(tmp_path):
         teacher_key(SESSION, "ana", t) for t in ("audio", "utterance", "said", "clock", "placed")
     )
     assert rules["sim:publish"]["key_exprs"] == sorted(
-        robot_key(SESSION, "r1", t) for t in ("obs", "episode")
+        robot_key(SESSION, "r1", t) for t in ("obs", "episode", "limits")
     )
-    assert rules["logger:all-in"]["key_exprs"] == [session_keys(SESSION)]
+    every = session_keys(SESSION)
+    assert rules["logger:all-in"]["key_exprs"] == sorted([every, f"{every}/@adv/**"])
     assert {p["id"] for p in acl["policies"]} == set(users)
     # zenoh accepts it
     config = replace(bus_config("router", env={}), extra=(("access_control", json.dumps(acl)),))

@@ -166,7 +166,7 @@ def test_garbage_audio_is_rejected_and_counted_and_the_service_goes_on(
     )
     wire = to_wire(good)
     with Node("test", client_config("mallory")) as node:
-        out = node.output("audio", key)
+        out = node.output("audio", key, keep=0)  # not kept: zenoh tells its subscribers
         deadline = time.monotonic() + 30
         while not out.has_subscribers() and time.monotonic() < deadline:
             time.sleep(0.05)

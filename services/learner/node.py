@@ -2,9 +2,10 @@
 
 Inputs:  voxshape/<session>/robot/<robot>/obs       Observation
          voxshape/<session>/robot/<robot>/feedback  CreditedFeedback (recovers 60 s)
-Outputs: voxshape/<session>/robot/<robot>/action    Action
-         voxshape/<session>/robot/<robot>/learning  LearningSummary
-         voxshape/<session>/robot/<robot>/help      HelpRequest
+         voxshape/<session>/robot/<robot>/limits    RobotLimits (recovers what is kept)
+Outputs: voxshape/<session>/robot/<robot>/action    Action (keeps 600)
+         voxshape/<session>/robot/<robot>/learning  LearningSummary (keeps 600)
+         voxshape/<session>/robot/<robot>/help      HelpRequest (keeps 64)
 
 For each robot it drives (`--robot`, once per robot, or VOXSHAPE_ROBOTS, as the simulator):
 an action per observation that is not terminal, a summary per step (for the logger), and
@@ -23,10 +24,17 @@ import argparse
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
-from protocol import CreditedFeedback, Observation, check_id, parse_key, robot_key
+from protocol import (
+    CreditedFeedback,
+    Observation,
+    RobotLimits,
+    check_id,
+    parse_key,
+    robot_key,
+)
 from services.learner import checkpoint
 from services.learner.config import LearnerConfig, add_settings_argument, with_settings
 from services.learner.online import OnlineLearner
@@ -113,13 +121,26 @@ class Driven:
     summary: Output
     ask: Output
 
+    scale: float = 1.0  # of every velocity it sends, to fit the robot's limits
+
     def save(self) -> None:
         checkpoint.save(self.learner, self.path, self.bookmark)
+
+    def fit(self, limits: RobotLimits) -> float:
+        """Scales its actions' velocities to the robot's limits (v and omega alike, so that
+        each action keeps its path, slower): nothing it sends is clipped. The new scale."""
+        velocities = self.learner.config.velocities.values()
+        top_v = max(abs(v) for v, _ in velocities) or 1.0
+        top_omega = max(abs(omega) for _, omega in velocities) or 1.0
+        self.scale = min(1.0, limits.max_speed / top_v, limits.max_turn / top_omega)
+        return self.scale
 
     def observe(self, obs: Observation) -> None:
         """Learns from the step, then publishes the next action, the summary and a
         question, if any."""
         action, learnt, question = self.online.observe(obs)
+        if action is not None and action.v is not None and self.scale < 1.0:
+            action = replace(action, v=action.v * self.scale, omega=action.omega * self.scale)
         if action is not None:
             self.act.put(action)
         self.summary.put(learnt)
@@ -173,6 +194,13 @@ def run(args: argparse.Namespace) -> int:
                     driven[parse_key(key).owner].observe(obs)
                 case Input(message=CreditedFeedback() as feedback, key=key):
                     driven[parse_key(key).owner].take(node, feedback)
+                case Input(message=RobotLimits() as limits, key=key):
+                    scale = driven[parse_key(key).owner].fit(limits)
+                    node.log.info(
+                        "actions fit to the robot's limits",
+                        extra=fields(robot=limits.robot, scale=f"{scale:.3g}",
+                                     max_speed=limits.max_speed, max_turn=limits.max_turn),
+                    )  # fmt: skip
             if time.monotonic() - last_save >= options.checkpoint_every:
                 for one in driven.values():
                     one.save()
@@ -224,9 +252,8 @@ def drive(
     online = OnlineLearner(learner, bookmark, initial, node.counters, timeout_s)
     node.input("obs", robot_key(node.session_id, robot, "obs"))
     node.input("feedback", robot_key(node.session_id, robot, "feedback"))
+    node.input("limits", robot_key(node.session_id, robot, "limits"))
     act = node.output("action", robot_key(node.session_id, robot, "action"))
-    summary = node.output(
-        "learning", robot_key(node.session_id, robot, "learning"), must_arrive=False
-    )
+    summary = node.output("learning", robot_key(node.session_id, robot, "learning"))
     ask = node.output("help", robot_key(node.session_id, robot, "help"))
     return Driven(robot, path, learner, bookmark, online, act, summary, ask)

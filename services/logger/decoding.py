@@ -1,5 +1,6 @@
 """What an event-log record is: a known message, a valid message of a type this build does not
-know, a node joining or leaving, or something rejected (and why). Pure, no bus."""
+know, a node joining or leaving, a gap (messages the logger missed for good), or something
+rejected (and why). Pure, no bus."""
 
 from __future__ import annotations
 
@@ -43,7 +44,16 @@ class Rejected:
     problem: str
 
 
-Decoded = Known | Unknown | PresenceChange | Rejected
+@dataclass(frozen=True)
+class Gap:
+    """Messages on `record.key` that the logger missed and could not get back: it was stopped
+    for longer than their publisher keeps them."""
+
+    record: EventRecord
+    missed: int
+
+
+Decoded = Known | Unknown | PresenceChange | Gap | Rejected
 
 
 def decode_record(record: EventRecord) -> Decoded:
@@ -51,6 +61,8 @@ def decode_record(record: EventRecord) -> Decoded:
     parts = record.key.split("/")
     if len(parts) == 5 and parts[0] == ROOT and parts[2] == "presence":
         return PresenceChange(record, parts[3], parts[4], record.kind == "put")
+    if record.kind == "gap":
+        return _gap(record)
     if record.kind != "put":
         return Rejected(record, f"a {record.kind} on a message key")
     try:
@@ -80,3 +92,13 @@ def _unknown_type(record: EventRecord) -> Unknown | None:
         return None  # a known type that failed validation: rejected, not unknown
     fields = {str(k): v for k, v in wire.items() if k not in ("schema", "type")}
     return Unknown(record, type_name[:64], fields)
+
+
+def _gap(record: EventRecord) -> Gap | Rejected:
+    try:
+        missed = msgpack.unpackb(record.payload, raw=False)["missed"]
+    except Exception:  # any unpacking failure means: not a gap the logger wrote
+        return Rejected(record, "a gap record without a count of missed messages")
+    if not isinstance(missed, int) or missed < 0:
+        return Rejected(record, f"a gap record missing {missed!r} messages")
+    return Gap(record, missed)

@@ -9,9 +9,10 @@ A file of msgpack objects, one after another (`runs/<session>/events.msgpack`):
 
 - `received`: the logger's wall clock (Unix seconds) when the sample arrived;
 - `key`: the zenoh key expression it arrived on, e.g. `voxshape/s1/robot/r1/obs`;
-- `kind`: "put" (a message, or a node's presence token appearing) or "delete" (a presence
-  token vanishing);
-- `payload`: the raw bytes as they crossed the bus (empty for presence tokens).
+- `kind`: "put" (a message, or a node's presence token appearing), "delete" (a presence
+  token vanishing) or "gap" (messages on `key` the logger missed and could not get back);
+- `payload`: the raw bytes as they crossed the bus (empty for presence tokens); of a gap,
+  msgpack `{"missed": count, "source": "<zenoh id>/<entity id>"}` (`pack_gap`).
 
 Records are raw, so a message type this build does not know is kept as faithfully as a known
 one. Appending only adds to a buffer in memory (a few microseconds, no disk access); the
@@ -40,12 +41,12 @@ from protocol import MAX_PAYLOAD_BYTES
 
 FORMAT = "voxshape-events"
 VERSION = 1
-KINDS = ("put", "delete")
+KINDS = ("put", "delete", "gap")
 # No record can be longer than this: a payload at the protocol's limit plus a key and a time.
 MAX_RECORD_BYTES = MAX_PAYLOAD_BYTES + 1024
 READ_CHUNK_BYTES = 1 << 20
 
-Kind = Literal["put", "delete"]
+Kind = Literal["put", "delete", "gap"]
 
 
 class EventLogError(ValueError):
@@ -70,6 +71,11 @@ def pack_record(record: EventRecord) -> bytes:
     return msgpack.packb(
         [record.received, record.key, record.kind, record.payload], use_bin_type=True
     )
+
+
+def pack_gap(missed: int, source: str) -> bytes:
+    """A gap record's payload: how many messages of one publisher the logger missed."""
+    return msgpack.packb({"missed": missed, "source": source}, use_bin_type=True)
 
 
 def _pack_header(header: Header) -> bytes:

@@ -15,8 +15,9 @@ Two processes, so that recording never slows the session down:
 - this one only appends raw samples to the event log's memory buffer (a few microseconds; no
   decoding, no drawing) and writes the buffer out every `--flush-every` seconds. zenoh hands
   the samples over through a FIFO channel, so its receiving thread never waits for Python or
-  the disk: a subscriber that made zenoh wait would, through BLOCK congestion control, make
-  the simulator and learner wait too (benchmarks/logger.py measures one);
+  the disk. Publishers never wait for it either (protocol/dataflow.py DELIVERY): what it
+  cannot take while slow or stopped is dropped for it, and fetched back from the
+  publishers' caches when it runs again; what they no longer keep is a gap record;
 - a child (renderer.py), `voxshape replay RUN --follow`, at a lower CPU priority, follows the
   event log and draws it with rerun (recording.py), serving viewers on `--serve-port`. When it
   falls behind it draws fewer scans (counted); the event log is never thinned.
@@ -33,9 +34,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
+from zenoh.ext import AdvancedSubscriber, Miss
 
 from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
-from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord
+from protocol.keys import ROOT
+from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord, pack_gap
 from services.logger.renderer import start_renderer, stop_renderer
 from services.logger.replay import ScanThinning, add_thinning_arguments
 from services.logger.run import (
@@ -56,6 +59,7 @@ from services.runtime import (
     bus_config,
     fields,
 )
+from services.runtime.flows import recovering_subscriber
 from services.runtime.settings import add_options, option, read_options
 from services.world.maps import task_option
 
@@ -64,13 +68,16 @@ RECEIVE_QUEUE = 50_000
 
 
 class Receiver:
-    """Appends each raw sample to the event log and counts it, nothing else."""
+    """Appends each raw sample to the event log and counts it, and marks what was missed for
+    good as a gap, nothing else."""
 
-    def __init__(self, writer: EventLogWriter) -> None:
+    def __init__(self, writer: EventLogWriter, session: str) -> None:
         self.writer = writer
+        self.session = session
         self.counts: Counter[str] = Counter()
         self.record_seconds = 0.0
         self.record_max = 0.0
+        self.keys: dict[tuple[str, int], str] = {}  # a kept output's id -> its key
 
     def record(self, sample: zenoh.Sample) -> None:
         t0 = time.perf_counter()
@@ -82,6 +89,9 @@ class Receiver:
                 return
             kind = "put" if sample.kind == zenoh.SampleKind.PUT else "delete"
             self.writer.append(EventRecord(time.time(), key, kind, payload))
+            source = sample.source_info
+            if source is not None:  # a kept output: a gap of it names its key
+                self.keys[(str(source.source_id.zid), source.source_id.eid)] = key
             parts = key.split("/")
             self.counts["presence" if "presence" in parts[2:3] else f"received.{parts[-1]}"] += 1
         except Exception:  # a bad sample must not end the receiving thread
@@ -91,7 +101,19 @@ class Receiver:
             self.record_seconds += took
             self.record_max = max(self.record_max, took)
 
-    def drain(self, subscriber: zenoh.Subscriber) -> None:
+    def missed(self, miss: Miss) -> None:
+        """A kept output's messages the logger could not get back (it was stopped for longer
+        than they are kept): a gap record in their place, and counted."""
+        try:
+            source = (str(miss.source.zid), miss.source.eid)
+            key = self.keys.get(source, f"{ROOT}/{self.session}")
+            payload = pack_gap(miss.nb, f"{source[0]}/{source[1]}")
+            self.writer.append(EventRecord(time.time(), key, "gap", payload))
+            self.counts[f"missed.{key.split('/')[-1]}"] += miss.nb
+        except Exception:  # never end zenoh's callback thread
+            self.counts["errors"] += 1
+
+    def drain(self, subscriber: AdvancedSubscriber) -> None:
         """Records what a FIFO-channel subscriber receives, until it is undeclared."""
         for sample in subscriber:
             self.record(sample)
@@ -151,10 +173,13 @@ def run(args: argparse.Namespace) -> int:
     settings = _settings(options, bus, port)
     with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up
         writer = _open_event_log(node, run_dir, bus.session, options.task, settings)
-        receiver = Receiver(writer)
-        samples = node.zenoh.declare_subscriber(
-            session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE)
+        receiver = Receiver(writer, bus.session)
+        # Recovering what kept outputs dropped for it while it was stopped or slow (they never
+        # wait for it); nothing older on joining (a restarted logger would log it twice).
+        samples = recovering_subscriber(
+            node.zenoh, session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE), 0
         )
+        gaps = samples.sample_miss_listener(receiver.missed)
         drainer = threading.Thread(
             target=receiver.drain, args=(samples,), name="event-log", daemon=True
         )
@@ -179,6 +204,7 @@ def run(args: argparse.Namespace) -> int:
             ),
         )
         code = _flush_until_stopped(node, options, writer, receiver, renderer, run_dir)
+        gaps.undeclare()
         samples.undeclare()  # the drainer records what was queued, then ends
         drainer.join(10)
         presence.undeclare()

@@ -50,7 +50,7 @@ from protocol import (
     to_wire,
 )
 from services.logger.columns import Columns, When, set_time
-from services.logger.decoding import Decoded, Known, PresenceChange, Rejected, Unknown
+from services.logger.decoding import Decoded, Gap, Known, PresenceChange, Rejected, Unknown
 from services.logger.scene import log_map, log_robot_styles
 from services.logger.tally import RobotTally, SessionTally
 from services.runtime import worth_logging
@@ -108,6 +108,15 @@ class Recorder:
                 self.counters["presence"] += 1
                 verb = "joined" if alive else "left"
                 self._text(decoded, "log/session", f"{role} {node} {verb} the session", "DEBUG")
+            case Gap(missed=missed):
+                self.counters["missed"] += missed
+                self._text(
+                    decoded,
+                    "log/session",
+                    f"the logger missed {missed} message(s) on {decoded.record.key}: it was "
+                    "stopped for longer than their publisher keeps them",
+                    "WARN",
+                )
             case Unknown(type_name=type_name, fields=fields):
                 self.counters["unknown_types"] += 1
                 body = _preview(fields)

@@ -16,7 +16,14 @@ from protocol import (
     TeachingStats,
     Utterance,
 )
-from services.logger.decoding import Known, PresenceChange, Rejected, Unknown, decode_record
+from services.logger.decoding import (
+    Gap,
+    Known,
+    PresenceChange,
+    Rejected,
+    Unknown,
+    decode_record,
+)
 from services.logger.eventlog import EventRecord
 from services.logger.run import RunError
 from services.world.robot import CONTROL_PERIOD_S
@@ -192,6 +199,7 @@ class SessionSummary:
     records: int = 0
     rejected: int = 0
     unknown_types: int = 0
+    missed: int = 0  # messages the logger missed for good (its gap records)
     nodes: set[str] = field(default_factory=set)
     first_wall: float | None = None
     last_wall: float | None = None
@@ -229,6 +237,8 @@ def summarize(records: Iterable[EventRecord], session: str = "") -> SessionSumma
                 summary.robot(learning.robot).states = learning.states
             case PresenceChange(role=role, node=node):
                 summary.nodes.add(f"{role} {node}")
+            case Gap(missed=missed):
+                summary.missed += missed
             case Unknown():
                 summary.unknown_types += 1
             case Rejected():

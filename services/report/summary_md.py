@@ -24,7 +24,7 @@ def markdown(
     lines += [
         f"- map: {m.name}",
         f"- {summary.records} messages over {duration:.1f} s of wall time; "
-        f"{summary.rejected} rejected, {summary.unknown_types} of unknown types",
+        f"{summary.rejected} rejected, {summary.unknown_types} of unknown types{_gaps(summary)}",
         f"- nodes seen: {', '.join(sorted(summary.nodes)) or 'none'}",
         "",
     ]
@@ -70,3 +70,9 @@ def markdown(
             lines.append(f"![{picture.stem}]({picture.name})")
         lines.append("")
     return "\n".join(lines)
+
+
+def _gaps(summary: SessionSummary) -> str:
+    if not summary.missed:
+        return ""
+    return f"; {summary.missed} missed by the logger (marked gaps: it was stopped)"

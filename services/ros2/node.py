@@ -14,7 +14,8 @@ Bus side (a teacher's placed: the robot is at its start again):
 Inputs:  voxshape/<session>/robot/<robot>/action   Action
          voxshape/<session>/teacher/*/placed       Placed
 Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
-         voxshape/<session>/robot/<robot>/episode  EpisodeEvent
+         voxshape/<session>/robot/<robot>/episode  EpisodeEvent (keeps 256)
+         voxshape/<session>/robot/<robot>/limits   RobotLimits (keeps 1)
 """
 
 from __future__ import annotations
@@ -25,7 +26,15 @@ import time
 
 import zenoh
 
-from protocol import Action, EpisodeEvent, Placed, check_id, robot_key, teacher_key
+from protocol import (
+    Action,
+    EpisodeEvent,
+    Placed,
+    RobotLimits,
+    check_id,
+    robot_key,
+    teacher_key,
+)
 from services.ros2.bridge import Bridge, BridgeConfig, BridgeOutput
 from services.ros2.episodes import EpisodeRules
 from services.ros2.homing import HomingConfig
@@ -174,6 +183,8 @@ def run(args: argparse.Namespace) -> int:
             "obs": node.output("obs", robot_key(node.session_id, robot, "obs")),
             "episode": node.output("episode", robot_key(node.session_id, robot, "episode")),
         }
+        limits = bridge_config.limits  # the learner fits its actions to them: none clipped
+        node.publish(RobotLimits(robot=robot, max_speed=limits.max_speed, max_turn=limits.max_turn))
         node.input("action", robot_key(node.session_id, robot, "action"))
         node.input("placed", teacher_key(node.session_id, "*", "placed"))
         link = open_link(link_config, node)

@@ -51,6 +51,13 @@ MODES: tuple[Mode, ...] = ("peer", "client", "router")
 LOCAL_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 
+# No publisher waits for a slow subscriber (protocol/dataflow.py DELIVERY): what a queue cannot
+# take at once waits this long, then is dropped for that subscriber alone. zenoh's 1 ms
+# dropped a lockstep learner's observations and actions on a loaded machine (the robot then
+# stood for its action timeout); a stopped subscriber costs the wait once, after which its
+# queue counts as congested and what follows is dropped at once (docs/decisions.md).
+DROP_WAIT = {"wait_before_drop": 50_000}  # microseconds
+
 
 def _endpoints(value: str) -> tuple[str, ...]:
     return tuple(e.strip() for e in value.split(",") if e.strip())
@@ -165,7 +172,10 @@ class BusConfig:
             },
             "listen": {"endpoints": list(self.listen) if self.mode != "client" else []},
             # One host, heavy CPU contention: shared memory lost samples (zenoh issue 2628).
-            "transport": {"shared_memory": {"enabled": False}},
+            "transport": {
+                "shared_memory": {"enabled": False},
+                "link": {"tx": {"queue": {"congestion_control": {"drop": DROP_WAIT}}}},
+            },
         }
         if self.mode == "router":
             conf["listen"]["exit_on_failure"] = True
@@ -187,7 +197,7 @@ class BusConfig:
         if self.mtls:
             tls["enable_mtls"] = True
         if tls:
-            conf["transport"]["link"] = {"tls": tls}
+            conf["transport"]["link"]["tls"] = tls
         config = zenoh.Config.from_json5(json.dumps(conf))
         for path, value in self.extra:
             config.insert_json5(path, value)

@@ -4,6 +4,7 @@ recovering input, so that what a restart made a subscriber miss still reaches it
 
 from __future__ import annotations
 
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -17,13 +18,14 @@ from zenoh.ext import (
     HistoryConfig,
     MissDetectionConfig,
     RecoveryConfig,
+    RepliesConfig,
     declare_advanced_publisher,
     declare_advanced_subscriber,
 )
 
 from protocol import Message, encode
 
-HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often (if new)
+HEARTBEAT_S = 0.5  # a kept output announces its latest sequence number this often
 HISTORY_SUFFIX = "@adv/**"  # under a kept output's key: where zenoh answers for what it keeps
 
 
@@ -88,14 +90,19 @@ def kept_publisher(
     session: zenoh.Session, key: str, congestion: zenoh.CongestionControl, keep: int
 ) -> AdvancedPublisher:
     """A publisher that keeps its last `keep` messages for recovering inputs, and announces
-    its sequence numbers so that they notice what they missed."""
+    its sequence numbers so that they notice what they missed. The heartbeat is periodic:
+    zenoh sends a sporadic one with BLOCK, which a stopped subscriber's full queue turns into
+    a stall of every publisher behind the router (docs/decisions.md, 2026-11-28); the cache's
+    replies go with the output's own congestion control, for the same reason."""
     return declare_advanced_publisher(
         session,
         key,
         congestion_control=congestion,
         express=True,
-        cache=CacheConfig(max_samples=keep),
-        sample_miss_detection=MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
+        cache=CacheConfig(
+            max_samples=keep, replies_config=RepliesConfig(congestion_control=congestion)
+        ),
+        sample_miss_detection=MissDetectionConfig(heartbeat=HEARTBEAT_S, sporadic_heartbeat=None),
         publisher_detection=True,
     )
 
@@ -103,18 +110,22 @@ def kept_publisher(
 def recovering_subscriber(
     session: zenoh.Session,
     key: str,
-    on_sample: Callable[[zenoh.Sample], None],
+    handler: Callable[[zenoh.Sample], None] | zenoh.handlers.FifoChannel,
     recover: float,
 ) -> AdvancedSubscriber:
     """A subscriber that fetches from kept outputs what it missed, and on joining what they
-    published in the last `recover` seconds."""
+    published in the last `recover` seconds (math.inf: whatever they keep; 0: nothing)."""
+    history = None
+    if recover > 0:
+        max_age = None if math.isinf(recover) else recover
+        history = HistoryConfig(detect_late_publishers=True, max_age=max_age)
     return declare_advanced_subscriber(
         session,
         key,
-        on_sample,
-        history=HistoryConfig(detect_late_publishers=True, max_age=recover),
+        handler,
+        history=history,
         recovery=RecoveryConfig(periodic_queries=None, heartbeat=True),
-        subscriber_detection=True,
+        subscriber_detection=recover > 0,
     )
 
 
@@ -131,8 +142,9 @@ def query_history(
         if reply.ok is not None and zenoh.KeyExpr(key).intersects(reply.ok.key_expr):
             on_sample(reply.ok)
 
+    since = "" if math.isinf(seconds) else f"?_time=[now(-{seconds:g}s)..]"
     session.get(
-        f"{key}/{HISTORY_SUFFIX}?_time=[now(-{seconds:g}s)..]",
+        f"{key}/{HISTORY_SUFFIX}{since}",
         on_reply,
         consolidation=zenoh.ConsolidationMode.NONE,
         accept_replies=zenoh.ReplyKeyExpr.ANY,

@@ -9,11 +9,12 @@
                 case Tick(): obs.put(...)
 
 Inputs are decoded strictly with the type their key carries; a malformed message is counted
-and logged, never delivered and never fatal. What must survive a restart of its subscriber or
-of the router goes out on a kept output (zenoh's advanced publisher, which keeps its last N
-messages) and comes in on a recovering input (an advanced subscriber that fetches what it
-missed, and on joining the last S seconds), as the role's flows in protocol/dataflow.py say;
-the messages' ids tell a copy from a new one. The node holds a liveliness token at
+and logged, never delivered and never fatal. Outputs never wait for a slow subscriber and keep
+their last N messages (zenoh's advanced publisher), as their topic's delivery in
+protocol/dataflow.py says; what must survive a stop or a restart of its subscriber or of the
+router comes in on a recovering input (an advanced subscriber that fetches what it missed,
+and on joining the last S seconds), as the role's flows say; the messages' ids tell a copy
+from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
 SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
 
@@ -37,7 +38,7 @@ import zenoh
 from zenoh.ext import Miss
 
 from protocol import Message, ProtocolError, decode, parse_key, presence_key
-from protocol.dataflow import Direction, check, flow_of
+from protocol.dataflow import Direction, check, delivery_of, flow_of
 from protocol.keys import message_key
 from services.runtime.config import BusConfig
 from services.runtime.flows import (
@@ -109,22 +110,20 @@ class Node:
         check(self.role, direction, key)
         self.declared[direction].add(key)
 
-    def output(
-        self, name: str, key: str, *, must_arrive: bool = True, keep: int | None = None
-    ) -> Output:
-        """A publisher. `must_arrive` (default) blocks instead of dropping under congestion.
-        `keep` > 0 keeps the last `keep` messages for recovering inputs that missed them (a
-        subscriber restarted, the router restarted); None: as this role's flow in
-        protocol/dataflow.py says.
+    def output(self, name: str, key: str, *, keep: int | None = None) -> Output:
+        """A publisher, delivered as its topic's row of protocol/dataflow.py DELIVERY says: a
+        slow subscriber never makes it wait (what that one cannot take is dropped for it
+        alone), and it keeps its last `keep` messages (None: the row's) for subscribers that
+        missed them (dropped while slow, or published while they or the router restarted).
 
         Express: each message leaves at once rather than waiting to be batched. Every
         voxshape message is small and latency-bound; `benchmarks/sim.py` measured no
         difference in lockstep speed either way (the round trip is Python-bound)."""
         self.declare("publishes", key)
-        if keep is None:
-            flow = flow_of(self.role, "publishes", key)
-            keep = flow.kept if flow is not None else 0
-        congestion = zenoh.CongestionControl.BLOCK if must_arrive else zenoh.CongestionControl.DROP
+        delivery = delivery_of(key)
+        keep = delivery.kept if keep is None else keep
+        drop = zenoh.CongestionControl.DROP
+        congestion = zenoh.CongestionControl.BLOCK if delivery.waits else drop
         if keep > 0:
             publisher = kept_publisher(self.zenoh, key, congestion, keep)
         else:

@@ -2,7 +2,8 @@
 
 Inputs:  voxshape/<session>/robot/<robot>/action   Action
 Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
-         voxshape/<session>/robot/<robot>/episode  EpisodeEvent
+         voxshape/<session>/robot/<robot>/episode  EpisodeEvent (keeps 256)
+         voxshape/<session>/robot/<robot>/limits   RobotLimits (keeps 1)
 
 An observation per control step (10 Hz of sim time), an episode event at each start, goal,
 collision and timeout.
@@ -16,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Literal
 
-from protocol import Action, EpisodeEvent, check_id, parse_key, robot_key
+from protocol import Action, EpisodeEvent, RobotLimits, check_id, parse_key, robot_key
 from services.runtime import (
     ConfigError,
     Input,
@@ -107,6 +108,9 @@ def run(args: argparse.Namespace) -> int:
             episode = {
                 r: node.output("episode", robot_key(node.session_id, r, "episode")) for r in robots
             }
+            fast, turn = config.model.max_speed, config.model.max_turn
+            for r in robots:  # how fast it may be driven: the learner fits its actions to it
+                node.publish(RobotLimits(robot=r, max_speed=fast, max_turn=turn))
 
             def publish(messages: list) -> None:
                 for message in messages:

@@ -11,8 +11,8 @@ Inputs:  voxshape/<session>/teacher/<teacher>/utterance    Utterance
 Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
          voxshape/<session>/teacher/<teacher>/utterance    Utterance (keeps 256)
          voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
-         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
-         voxshape/<session>/teacher/<teacher>/placed       Placed
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe (keeps 64)
+         voxshape/<session>/teacher/<teacher>/placed       Placed (keeps 64)
 
 It sends microphone or WAV chunks as audio, typed words as utterances (engine "typed"), or,
 with --through-speech, as said text (straight out while no speech service). It hears what was

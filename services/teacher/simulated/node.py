@@ -6,7 +6,7 @@ Inputs:  voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
          voxshape/<session>/robot/*/help                   HelpRequest
 Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
          voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
-         voxshape/<session>/teacher/<teacher>/clock        ClockProbe
+         voxshape/<session>/teacher/<teacher>/clock        ClockProbe (keeps 64)
 
 It watches its robot's observations and answers its questions; the arbiter's notices are
 counted, the clock exchange is a thread (services/runtime/clock.py). Its words go out as said
