@@ -11,15 +11,19 @@ rmw_zenoh would show it.
   the liveliness tokens of its node, publishers and subscription.
 - It drives by the cmd_vel (Twist, or TwistStamped with --cmd twist_stamped) it receives:
   a disk of --radius m whose pose integrates the last command and stays put where it would
-  touch a wall. By default it has no command timeout of its own (only the bridge stops it);
-  --cmd-timeout S stops it S robot seconds after the last command, as diff_drive_controller's
-  `cmd_vel_timeout` (0.5 s by default there) does.
+  touch a wall (its odometry then stands still too; its scan never reads nearer than its
+  radius). It stops by itself --cmd-timeout robot seconds after the last command (0.5 s, as
+  diff_drive_controller's `cmd_vel_timeout`; 0: never, only the bridge stops it).
+- --mast D: its lidar sees a part of itself D m away, behind (a mast, a handle).
 - Its world runs at --rtf times real time when it can; a stall of its process slows its time
   down (as a loaded Gazebo's real-time factor drops) rather than skipping it forward in a burst
   of steps.
 - Each cmd_vel it receives is checked (an attachment of the right size, its length byte,
   a sequence number one more than the last, a source time within 10 s of now) and printed as
-  a JSON line: {"cmd": [v, w], "t": monotonic seconds, "attachment": "ok" or the problem}.
+  a JSON line: {"cmd": [v, w], "t": monotonic seconds, "attachment": "ok" or the problem};
+  so is what it does by itself: {"contact": true|false, "t": ...} when its body starts or
+  stops touching a wall (a command pushes it there), {"timeout": [v, w], "t": ...} when its
+  command timeout stops it.
   A line "place" on stdin teleports it to its start pose, as a person carrying it would:
   odometry does not see it (wheels turned by hand see nothing); "mute" stops its scans and
   odometry (a driver that died). With --mode ros2dds it plays
@@ -106,6 +110,7 @@ class Robot:
         self.since_cmd = 0.0  # robot seconds since the last command (--cmd-timeout)
         self.lock = threading.Lock()
         self.muted = False
+        self.touching = False
         self.log = open(args.log, "a") if args.log else sys.stdout  # noqa: SIM115
         self.last_seq: dict[bytes, int] = {}  # per publisher GID, as rmw_zenoh counts
 
@@ -115,17 +120,27 @@ class Robot:
     def move(self, dt: float) -> None:
         with self.lock:
             lapsed = 0 < self.args.cmd_timeout < self.since_cmd
-            v, w = (0.0, 0.0) if lapsed else self.cmd
+            if lapsed and self.cmd != (0.0, 0.0):
+                self.say({"timeout": list(self.cmd)})
+                self.cmd = (0.0, 0.0)
+            v, w = self.cmd
             self.since_cmd += dt
+            blocked = False
             for _ in range(4):
                 x, y, th = self.pose
                 th2 = th + w * dt / 4
                 nx, ny = x + v * dt / 4 * math.cos(th), y + v * dt / 4 * math.sin(th)
                 if not self.free(nx, ny):
-                    nx, ny = x, y
+                    nx, ny, blocked = x, y, True
                 ox, oy, oth = self.odom
                 self.odom = [ox + (nx - x), oy + (ny - y), oth + (th2 - th)]
                 self.pose = [nx, ny, th2]
+            if blocked != self.touching:
+                self.touching = blocked
+                self.say({"contact": blocked})
+
+    def say(self, line: dict) -> None:
+        print(json.dumps({**line, "t": time.monotonic()}), file=self.log, flush=True)
 
     def listen(self) -> None:
         """stdin: "place" teleports it to its start; "mute" stops its scans and odometry."""
@@ -182,6 +197,8 @@ class Robot:
         x, y, th = self.pose
         angles = th + np.arange(BEAMS) * (2 * math.pi / BEAMS)
         ranges = cast(x, y, angles, self.segments, self.circles)
+        if self.args.mast:
+            ranges[175:186] = np.minimum(ranges[175:186], self.args.mast)
         ranges = np.where(ranges > RANGE_MAX, np.inf, ranges).astype(np.float32)
         header = TYPES.types["std_msgs/msg/Header"](stamp=stamp, frame_id="base_scan")
         return TYPES.types["sensor_msgs/msg/LaserScan"](
@@ -261,7 +278,8 @@ def main() -> int:
     parser.add_argument("--cmd", choices=("twist", "twist_stamped"), default="twist")
     parser.add_argument("--attachment", choices=("33", "77"), default="33")
     parser.add_argument("--log", help="write the cmd_vel lines to this file, not stdout")
-    parser.add_argument("--cmd-timeout", type=float, default=0.0, help="robot s; 0: none")
+    parser.add_argument("--cmd-timeout", type=float, default=0.5, help="robot s; 0: none")
+    parser.add_argument("--mast", type=float, default=0.0, help="m: it sees itself there")
     args = parser.parse_args()
     router = session(mode="router", listen={"endpoints": [args.listen]})  # its rmw_zenohd
     node = session(

@@ -11,21 +11,26 @@ import pytest
 
 from protocol import Action, EpisodeEvent, Observation, Placed
 from services.ros2 import msgs
-from services.ros2.bridge import Bridge, BridgeConfig
+from services.ros2.bridge import Bridge, BridgeConfig, InsideRadius
+from services.ros2.contact import Contact, ContactConfig
 from services.ros2.episodes import BridgePercept, EpisodeRules, Episodes
 from services.ros2.homing import HomingConfig, homing_command
 from services.ros2.perception import (
+    AROUND,
     Anchor,
     ScanGeometry,
-    goal_geometry,
+    around_angles,
+    around_from_scan,
     laser_from_scan,
     sonar_from_scan,
     yaw_of,
 )
 from services.ros2.safety import STOP, Limits, Safety
-from services.sim.task import Rewards, Simulation
+from services.sim.task import Simulation
 from services.world.maps import load_map
 from services.world.robot import RobotModel
+from services.world.task import Goal, Rewards
+from tests.ros2_robot import cast as ray_cast
 
 MODEL = RobotModel()
 FULL = ScanGeometry(0.0, 2 * math.pi / 360, 0.12, 3.5)  # a TurtleBot's 360 beams
@@ -77,29 +82,38 @@ def test_sonars_read_the_rear_beams_from_the_body():
     assert all(sonar[i] == pytest.approx(1.0 - body, abs=1e-6) for i in behind)
 
 
-def test_the_goal_and_the_rewards_are_the_simulator_s():
+def rules(max_steps: int = 1000, radius: float = 0.25) -> EpisodeRules:
+    return EpisodeRules(Goal(5.0, 5.0, 0.5), ContactConfig(radius), max_steps)
+
+
+def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0, theta: float = 0.0):
+    return BridgePercept(
+        x, y, theta, 0.1, 0.0, np.full(180, near), np.full(8, 3.0), np.full(AROUND, near)
+    )
+
+
+def test_the_bridge_tells_a_pose_as_the_simulator_does():
+    """The same task, the same pose: the bridge's observation carries the simulator's goal
+    distance and bearing, and its steps the simulator's rewards (services/world/task.py)."""
     m = load_map("1")
     sim = Simulation(m, ("r1",), seed=3)
     try:
         reading = sim.reset("r1")
     finally:
         sim.close()
-    distance, bearing = goal_geometry(reading.x, reading.y, reading.theta, m.goal_x, m.goal_y)
-    assert (distance, bearing) == (reading.goal_distance, reading.goal_bearing)
-    rules, rewards = EpisodeRules(5, 5, 0.5, 0.2, 100), Rewards()
-    assert (rules.step_reward, rules.goal_reward, rules.bump_reward) == (
-        rewards.step,
-        rewards.goal,
-        rewards.collision,
+    episodes = Episodes("r1", EpisodeRules(m.goal, ContactConfig(0.2), 1000))
+    p = percept(reading.x, reading.y, theta=reading.theta)
+    _, first = episodes.start(p, 0.0)
+    assert (first.goal_distance, first.goal_bearing) == (
+        reading.goal_distance,
+        reading.goal_bearing,
     )
-
-
-def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0) -> BridgePercept:
-    return BridgePercept(x, y, 0.0, 0.1, 0.0, np.full(180, near), np.full(8, 3.0))
+    (step,) = episodes.advance(p, 0.1)
+    assert step.reward == Rewards().step
 
 
 def test_episodes_end_at_the_goal_at_a_bump_and_at_the_timeout():
-    episodes = Episodes("r1", EpisodeRules(5.0, 5.0, 0.5, 0.25, max_steps=3))
+    episodes = Episodes("r1", rules(max_steps=3))
     start = episodes.start(percept(), 0.0)
     assert [type(m) for m in start] == [EpisodeEvent, Observation]
     assert start[0].kind == "start" and start[1].episode_step == 0 and start[1].reward == 0.0
@@ -121,6 +135,33 @@ def test_episodes_end_at_the_goal_at_a_bump_and_at_the_timeout():
     assert outcomes == ["running", "running", "timeout"]
 
 
+def test_a_bump_is_the_nearest_reading_all_round_or_odometry_stuck():
+    ranges = np.full(360, 3.0, np.float32)
+    ranges[175:186] = 0.15  # just behind: no laser beam looks there
+    around = around_from_scan(ranges, FULL)
+    assert laser_from_scan(ranges, FULL, MODEL).min() == pytest.approx(3.0)
+    assert Contact(ContactConfig(0.2)).touching(around, 0.0, 1.0, 1.0, 0.0) == "scan"
+    assert Contact(ContactConfig(0.1)).touching(around, 0.0, 1.0, 1.0, 0.0) is None
+    clear = np.full(AROUND, np.inf)
+    stuck = Contact(ContactConfig(0.2, stuck_after=0.5))
+    # backing at 0.2 m/s: it moves for 0.3 s, then against a wall it stays put
+    xs = [1.0, 0.98, 0.96, 0.94] + [0.94] * 8
+    said = [stuck.touching(clear, 0.1 * k, x, 1.0, 0.2) for k, x in enumerate(xs)]
+    assert said.index("stuck") == 7  # 0.4 s after it stopped moving, at t = 0.3 s
+    still = Contact(ContactConfig(0.2, stuck_after=0.5))
+    assert {still.touching(clear, 0.1 * k, 1.0, 1.0, 0.0) for k in range(12)} == {None}
+
+
+def test_a_scan_that_does_not_look_behind_reads_unknown_there():
+    narrow = ScanGeometry(-math.radians(45), math.radians(1), 0.1, 10.0)
+    ranges = np.full(91, 1.5, np.float32)
+    ranges[10:14] = np.inf  # nothing within range there
+    around = around_from_scan(ranges, narrow)
+    behind = np.abs(np.degrees(around_angles())) > 150
+    assert np.isnan(around[behind]).all() and np.nanmin(around) == pytest.approx(1.5)
+    assert np.isinf(around).any()
+
+
 def test_a_command_lapses_and_stale_data_or_bus_stops_the_robot():
     safety = Safety(Limits(max_speed=0.3, max_turn=1.0, action_timeout=0.4), period=0.1)
     assert safety.go(0.5, -2.0, 0.0, fresh=True) == (0.3, -1.0)  # clipped
@@ -138,23 +179,39 @@ def test_a_command_lapses_and_stale_data_or_bus_stops_the_robot():
         Limits(max_speed=0)
 
 
+def view(near: float = 5.0, **sectors: tuple[float, float, float]) -> np.ndarray:
+    """An all-round view: `near` everywhere, but (from_deg, to_deg, metres) per sector."""
+    around = np.full(AROUND, near)
+    degrees = np.degrees(around_angles())
+    for lo, hi, metres in sectors.values():
+        around[(degrees >= lo) & (degrees <= hi)] = metres
+    return around
+
+
 def test_homing_drives_to_the_start_turns_there_and_avoids_what_is_ahead():
     start = (1.0, 1.0, 0.0)
-    clear = np.full(180, 5.0)
-    v, w, arrived = homing_command((3.0, 1.0, math.pi), start, clear, MODEL, 0.2)
+    clear = view()
+    v, w, arrived = homing_command((3.0, 1.0, math.pi), start, clear, 0.2)
     assert v > 0 and abs(w) < 0.1 and not arrived  # facing it: drive
-    v, w, _ = homing_command((3.0, 1.0, 0.0), start, clear, MODEL, 0.2)
+    v, w, _ = homing_command((3.0, 1.0, 0.0), start, clear, 0.2)
     assert v == 0 and w != 0  # facing away: turn first
-    blocked = clear.copy()
-    blocked[80:100] = 0.3  # something just ahead
-    v, w, _ = homing_command((3.0, 1.0, math.pi), start, blocked, MODEL, 0.2)
+    v, w, _ = homing_command((3.0, 1.0, math.pi), start, view(ahead=(-10, 10, 0.3)), 0.2)
     assert v == 0 and w != 0
-    blocked[80:100] = 0.1  # nearer than the robot's radius: back off
-    v, _, _ = homing_command((3.0, 1.0, math.pi), start, blocked, MODEL, 0.2)
-    assert v < 0
-    v, w, arrived = homing_command((1.05, 1.0, 1.0), start, clear, MODEL, 0.2)
+    v, _, _ = homing_command((3.0, 1.0, math.pi), start, view(ahead=(-10, 10, 0.1)), 0.2)
+    assert v < 0  # nearer than the robot's radius, the way behind clear: back off
+    v, w, arrived = homing_command((1.05, 1.0, 1.0), start, clear, 0.2)
     assert v == 0 and w < 0 and not arrived  # there: turn to the start heading
-    assert homing_command((1.05, 1.0, 0.05), start, clear, MODEL, 0.2)[2]
+    assert homing_command((1.05, 1.0, 0.05), start, clear, 0.2)[2]
+
+
+@pytest.mark.parametrize("behind", [(150, 180, 0.3), (-180, -160, 0.25)])
+def test_homing_never_backs_into_what_the_scan_shows_behind(behind):
+    squeezed = view(ahead=(-10, 10, 0.1), behind=behind)
+    v, w, _ = homing_command((3.0, 1.0, math.pi), (1.0, 1.0, 0.0), squeezed, 0.2)
+    assert v == 0 and w != 0  # turns in place instead
+    blind = view(ahead=(-10, 10, 0.1), behind=(90, 180, np.nan), other=(-180, -90, np.nan))
+    v, _, _ = homing_command((3.0, 1.0, math.pi), (1.0, 1.0, 0.0), blind, 0.2)
+    assert v == 0  # a scan that does not look behind: it never backs blind
 
 
 def test_a_placed_robot_s_odometry_reads_the_start_there():
@@ -184,8 +241,9 @@ def act(episode: int, v: float = 0.2, robot: str = "r1") -> Action:
 
 
 def bridge(reset: str = "drive", max_steps: int = 1000) -> Bridge:
-    rules = EpisodeRules(5.0, 5.0, 0.5, 0.25, max_steps)
-    config = BridgeConfig(rules, "r1", reset, limits=Limits(max_speed=0.5), homing=HomingConfig())
+    config = BridgeConfig(
+        rules(max_steps), "r1", reset, limits=Limits(max_speed=0.5), homing=HomingConfig()
+    )
     return Bridge(config, now=0.0)
 
 
@@ -265,16 +323,13 @@ def test_homing_that_cannot_get_back_waits_for_a_teacher():
 def test_homing_gets_back_from_a_wall_it_faces_without_touching_it(pose):
     """Task 1's room, the robot just off a wall it faces (as after a bump), the start behind
     it: it turns, drives back and stops at the start, never nearer the wall than it was."""
-    from services.sim.sensors import Sensors
-    from services.world.maps import Pose
-
     m = load_map("1")
-    sensors = Sensors(m, MODEL, compiled=False)
+    segments, circles = m.outlines()
     start, (x, y, theta), dt = (1.0, 1.0, 0.0), pose, 0.1
     nearest = float(m.clearance(x, y))
     for _ in range(2000):
-        laser = sensors.scan([Pose(x, y, theta)])[0][0]
-        v, w, arrived = homing_command((x, y, theta), start, laser, MODEL, 0.25)
+        around = ray_cast(x, y, theta + around_angles(), segments, circles)
+        v, w, arrived = homing_command((x, y, theta), start, around, 0.25)
         if arrived:
             break
         theta += w * dt
@@ -294,3 +349,31 @@ def test_a_late_scan_does_not_push_the_next_ones_back():
     fast = bridge()
     taken = [bool(step(fast, 0.025 * k, 1.0, 1.0).messages) for k in range(17)]
     assert sum(taken) == 5 and taken[::4] == [True] * 5
+
+
+def test_a_robot_that_starts_inside_its_radius_is_refused_and_later_warned():
+    b = bridge()
+    with pytest.raises(InsideRadius, match=r"reads 0\.15 m at .* inside the bump radius"):
+        step(b, 0.0, 1.0, 1.0, near=0.15)
+    b = bridge(reset="wait")
+    step(b, 0.0, 1.0, 1.0)
+    step(b, 0.1, 1.0, 1.0, near=0.2)  # a bump ends the first episode
+    b.on_odom(odom(1.0, 1.0), 0.2)
+    out = b.on_placed(Placed(teacher="ana", robot="r1"), 0.2)
+    assert any(n.startswith("warning: the scan reads 0.20 m") for n in out.notes)
+    assert b.counters["started_in_contact"] == 1
+
+
+def test_a_robot_pushing_a_wall_backwards_ends_its_episode_and_stops():
+    """Its scan sees nothing inside the radius (a radius no larger than the robot), but its
+    odometry stands still while it is told to back: a bump, and a stop, within 0.6 s."""
+    b = bridge()
+    step(b, 0.0, 1.0, 1.0)
+    k, out = 0, None
+    for k in range(1, 20):
+        b.on_action(act(0, v=-0.2), 0.1 * k - 0.05)
+        out = step(b, 0.1 * k, 1.0, 1.0, near=0.3)  # against a wall: odometry does not move
+        if b.state != "running":
+            break
+    assert out.velocity == STOP and out.messages[-1].kind == "collision"
+    assert k <= 6 and b.counters["bumps.stuck"] == 1

@@ -2,7 +2,9 @@
 rmw_zenoh's design document and rosbags, not our bridge) behind its own zenoh router, the
 bridge, and a session's router. The robot checks every cmd_vel's attachment; the faults the
 bridge's safety exists for are played for real: a learner killed, the robot's driver gone
-silent, the session's router gone, the bridge stopped."""
+silent, the session's router gone, the bridge stopped or killed, the robot backing into a
+wall or seeing itself inside its bump radius; and a real learner's actions fit the robot's
+limits."""
 
 from __future__ import annotations
 
@@ -324,3 +326,102 @@ def test_a_waiting_robot_is_placed_by_a_teacher(spawn, router, session_id, learn
     assert {obs.outcome for obs in ended_obs} <= {"running", "timeout"}, ended_obs
     assert start.kind == "start" and start.episode == 1
     assert (first.x, first.y) == pytest.approx((1.0, 1.0), abs=0.02)  # re-anchored
+
+
+def bump_run(spawn, router, session_id, learner_node, *bridge_flags: str):
+    """The robot backs (as told "back") until its episode ends: the robot's lines, the end."""
+    node, out = learner_node
+    robot = start_robot(spawn)
+    start_bridge(spawn, router, session_id, robot, *bridge_flags)
+    collect(node, 1, EpisodeEvent, timeout=20.0)
+    deadline, end = time.monotonic() + 20, None
+    while end is None and time.monotonic() < deadline:
+        (event,) = collect(node, 1, (Observation, EpisodeEvent), timeout=5.0)
+        if isinstance(event, EpisodeEvent) and event.kind != "start":
+            end = event
+        elif isinstance(event, Observation) and event.outcome == "running":
+            out.put(action(event, v=-0.2))
+    assert end is not None, "the episode never ended"
+    time.sleep(0.5)  # the stop reaches the robot
+    return robot, end
+
+
+@pytest.mark.parametrize(
+    ("radius", "seen_by"), [("0.2", "odometry"), ("0.3", "scan")], ids=["odometry", "scan"]
+)
+def test_a_robot_backing_into_a_wall_bumps_and_is_stopped(
+    spawn, router, session_id, learner_node, radius, seen_by
+):
+    """The robot (a 0.2 m disk) backs towards the wall behind its start: with a bump radius of
+    its own size no scan reading ever gets nearer, and its odometry standing still tells; with
+    a larger one the scan tells, before it touches. Either way the episode ends as a collision
+    and a zero command goes out within a second of the contact."""
+    robot, end = bump_run(spawn, router, session_id, learner_node, "--radius", radius)
+    assert end.kind == "collision"
+    contact = next((line["t"] for line in robot.lines if line.get("contact")), None)
+    backing = [c["t"] for c in robot.cmds() if c["cmd"][0] < 0]
+    stop = next(c["t"] for c in robot.cmds() if c["t"] > backing[-1] and c["cmd"] == [0.0, 0.0])
+    in_contact = 0.0 if contact is None or contact > stop else stop - contact
+    print(f"bump seen by the {seen_by}: in contact {in_contact:.2f} s before the stop")
+    assert in_contact <= 1.0
+    if seen_by == "scan":
+        assert contact is None or contact >= stop  # stopped before it touched
+
+
+def test_a_robot_that_sees_itself_inside_its_radius_is_refused(spawn, router, session_id):
+    robot = start_robot(spawn, "--mast", "0.15")  # its lidar sees a mast 0.15 m behind
+    bridge = start_bridge(spawn, router, session_id, robot, "--radius", "0.2")
+    _, err = bridge.communicate(timeout=30)
+    assert bridge.returncode == 2, err
+    assert "not starting: the scan reads 0.15 m at +180 deg" in err or "at -180 deg" in err, err
+    assert "--radius below that reading" in err
+    assert not [c for c in robot.cmds() if c["cmd"] != [0.0, 0.0]]  # it never moved
+
+
+def test_a_robot_whose_bridge_is_killed_stops_by_itself(spawn, router, session_id, learner_node):
+    """SIGKILL: the bridge cannot say stop; the robot's own cmd_vel timeout does (0.5 s)."""
+    node, out = learner_node
+    robot = start_robot(spawn)
+    bridge = start_bridge(spawn, router, session_id, robot)
+    collect(node, 1, EpisodeEvent, timeout=20.0)
+    drive_until(node, out, lambda: sum(c["cmd"][0] > 0 for c in robot.cmds()) >= 5)
+    bridge.send_signal(signal.SIGKILL)
+    killed = time.monotonic()
+    bridge.wait(10)
+    deadline = time.monotonic() + 5
+    while time.monotonic() < deadline and not any("timeout" in line for line in robot.lines):
+        time.sleep(0.05)
+    (stopped,) = [line for line in robot.lines if "timeout" in line]
+    last = max(c["t"] for c in robot.cmds())
+    print(f"the robot stopped itself {stopped['t'] - last:.2f} s after its last cmd_vel")
+    assert stopped["timeout"][0] > 0 and last <= killed + 0.1
+    assert stopped["t"] - last <= 1.0  # its 0.5 s, a period of its loop, a loaded machine
+
+
+def test_a_real_learner_s_actions_fit_the_robot_s_limits(spawn, router, session_id, tmp_path):
+    """At the bridge's default limits (0.25 m/s, 1.5 rad/s) the learner's forward 0.5 m/s
+    and arcs would all be clipped: the bridge says the limits, the learner scales to fit."""
+    robot = start_robot(spawn)
+    with (tmp_path / "bridge.log").open("w") as log:
+        bridge = start_bridge(spawn, router, session_id, robot, "--max-speed", "0.25", log=log)
+    spawn(
+        [VOXSHAPE, "learner", *bus_args(router, session_id, "learner"), "--fresh", "--seed", "1",
+         "--checkpoint", str(tmp_path / "learner.npz")],
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )  # fmt: skip
+    deadline = time.monotonic() + 60
+    while len([c for c in robot.cmds() if c["cmd"] != [0.0, 0.0]]) < 30:
+        assert time.monotonic() < deadline, "the learner did not drive it"
+        time.sleep(0.1)
+    bridge.send_signal(signal.SIGINT)
+    assert bridge.wait(timeout=15) == 0
+    moving = [c["cmd"] for c in robot.cmds() if c["cmd"] != [0.0, 0.0]]
+    (bye,) = [
+        json.loads(x)
+        for x in (tmp_path / "bridge.log").read_text().splitlines()
+        if '"stopped the robot"' in x
+    ]
+    print(f"{len(moving)} commands, fastest {max(abs(v) for v, _ in moving):.3f} m/s")
+    assert bye.get("clipped", 0) == 0 and bye["actions"] >= 30, bye
+    assert max(abs(v) for v, _ in moving) <= 0.25 + 1e-9
+    assert max(abs(v) for v, _ in moving) >= 0.2  # scaled to fit, not stopped

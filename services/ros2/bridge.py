@@ -29,12 +29,19 @@ from services.ros2.msgs import LaserScanMsg, OdometryMsg
 from services.ros2.perception import (
     Anchor,
     ScanGeometry,
+    around_angles,
+    around_from_scan,
     laser_from_scan,
     sonar_from_scan,
     yaw_of,
 )
 from services.ros2.safety import Limits, Safety, Velocity
 from services.world.robot import CONTROL_PERIOD_S, RobotModel
+
+
+class InsideRadius(ValueError):
+    """The scan reads something inside the bump radius where the first episode would start."""
+
 
 Reset = Literal["drive", "wait"]
 State = Literal["waiting", "running", "homing", "placing"]
@@ -173,6 +180,7 @@ class Bridge:
             self.odom.angular[2],
             laser_from_scan(scan.ranges, geometry, model),
             sonar_from_scan(scan.ranges, geometry, model),
+            around_from_scan(scan.ranges, geometry),
         )
 
     def _step(self, now: float) -> BridgeOutput:
@@ -201,20 +209,45 @@ class Bridge:
 
     def _begin(self, now: float) -> BridgeOutput:
         p = self.percept()
+        notes = [f"episode {self.episodes.episode + 1} starts"]
+        inside = self.inside_radius(p.around)
+        if inside is not None and self.episodes.episode < 0:
+            raise InsideRadius(inside)  # every step would be a bump: refuse, say why
+        if inside is not None:
+            self.counters["started_in_contact"] += 1
+            notes.append(f"warning: {inside}")
         if self.start is None:
             self.start = (p.x, p.y, p.theta)
         self.state = "running"
         messages = self.episodes.start(p, self.robot_time(now))
-        return BridgeOutput(
-            messages=list(messages), notes=[f"episode {self.episodes.episode} starts"]
+        return BridgeOutput(messages=list(messages), notes=notes)
+
+    def inside_radius(self, around: np.ndarray) -> str | None:
+        """What is wrong when the scan reads something inside the bump radius where an
+        episode would start (None when nothing is)."""
+        radius = self.config.rules.contact.radius
+        if not (np.nan_to_num(around, nan=np.inf) < radius).any():
+            return None
+        k = int(np.nanargmin(around))
+        bearing = math.degrees(around_angles()[k])
+        return (
+            f"the scan reads {around[k]:.2f} m at {bearing:+.0f} deg (0 ahead, + left), inside "
+            f"the bump radius ({radius:g} m), where an episode would start: each step would be "
+            "a bump. Move the robot away from what it touches; if that is part of the robot "
+            "(a mast, a bumper the lidar sees), give a --radius below that reading "
+            "(docs/robot.md#the-bump-radius)"
         )
 
     def _run(self, now: float) -> BridgeOutput:
-        messages: list[Message] = list(self.episodes.advance(self.percept(), self.robot_time(now)))
+        speed = abs(self.safety.command[0])  # what the robot was told over the last step
+        p = self.percept()
+        messages: list[Message] = list(self.episodes.advance(p, self.robot_time(now), speed))
         end = next((m for m in messages if isinstance(m, EpisodeEvent)), None)
         if end is None:
             return BridgeOutput(messages=messages)
         self.counters[f"episodes.{end.kind}"] += 1
+        if self.episodes.bumped is not None:
+            self.counters[f"bumps.{self.episodes.bumped}"] += 1
         out = BridgeOutput(messages, self.safety.halt(now, "episode"))
         if self.config.reset == "drive":
             self.state, self.homing_since = "homing", self.robot_time(now)
@@ -244,9 +277,8 @@ class Bridge:
         v, omega, arrived = homing_command(
             (p.x, p.y, p.theta),
             self.start,
-            np.asarray(p.laser),
-            self.config.model,
-            self.config.rules.bump_radius,
+            p.around,
+            self.config.rules.contact.radius,
             self.config.homing,
         )
         if arrived:

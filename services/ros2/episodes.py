@@ -1,22 +1,23 @@
-"""A real robot's episodes, told as the simulator tells them (services/sim/task.py): a step's
-observation with R_RL and the episode's outcome, and the start and end events. Pure.
+"""A real robot's episodes, told as the simulator tells them: a step's observation with R_RL
+and the episode's outcome, and the start and end events. Pure.
 
-An episode ends at the goal (the robot's odometry within the task's goal radius), at a bump
-(the scan's nearest beam under the robot's radius: a real robot must not push on) or when
-it has lasted the task's timeout, counted in control steps as the simulator counts it. The
-rewards are the simulator's (services/sim/task.py Rewards, which tests compare): -1 a step,
-+100 at the goal, -100 for a bump.
+The rules are the task's, the simulator's own (services/world/task.py): an episode ends at the
+goal (the robot's odometry within the task's goal radius), at a bump or when it has lasted
+the task's timeout in control steps; -1 a step, +100 at the goal, -100 for a bump. A bump
+ends the episode (a real robot must not push on); what a bump is, all round, is contact.py's.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from protocol import EpisodeEvent, Observation
+from services.ros2.contact import Contact, ContactConfig
+from services.world.task import Goal, Outcome, Rewards, judge
 
 SPEED_BOUND, TURN_BOUND = 10.0, 20.0  # Observation's bounds on v and omega
 
@@ -33,18 +34,15 @@ class BridgePercept:
     omega: float
     laser: np.ndarray
     sonar: np.ndarray
+    around: np.ndarray  # the nearest reading all round (perception.around_from_scan)
 
 
 @dataclass(frozen=True)
 class EpisodeRules:
-    goal_x: float
-    goal_y: float
-    goal_radius: float
-    bump_radius: float  # metres from the robot's centre
+    goal: Goal  # in the robot's odometry frame
+    contact: ContactConfig
     max_steps: int  # the timeout, in control steps
-    step_reward: float = -1.0
-    goal_reward: float = 100.0
-    bump_reward: float = -100.0
+    rewards: Rewards = field(default_factory=Rewards)
 
 
 class Episodes:
@@ -53,11 +51,13 @@ class Episodes:
     def __init__(self, robot: str, rules: EpisodeRules) -> None:
         self.robot = robot
         self.rules = rules
+        self.contact = Contact(rules.contact)
         self.episode = -1
         self.step = -1  # global, monotonic across episodes (the simulator's)
         self.episode_step = 0
         self.episode_return = 0.0
         self.running = False
+        self.bumped: str | None = None  # what the last step's bump was: "scan", "stuck"
 
     def start(self, p: BridgePercept, robot_time: float) -> list[EpisodeEvent | Observation]:
         """A new episode from where the robot stands: its start event and first observation."""
@@ -66,29 +66,30 @@ class Episodes:
         self.episode_step = 0
         self.episode_return = 0.0
         self.running = True
+        self.contact.reset()
         event = self._event("start", robot_time)
         return [event, self._observation(p, 0.0, "running", False, robot_time)]
 
-    def advance(self, p: BridgePercept, robot_time: float) -> list[EpisodeEvent | Observation]:
-        """One control step: its observation, and the end event if the episode ended."""
+    def advance(
+        self, p: BridgePercept, robot_time: float, speed: float = 0.0
+    ) -> list[EpisodeEvent | Observation]:
+        """One control step (`speed`: the |v| the robot was told over it): its observation,
+        and the end event if the episode ended."""
         assert self.running, "start() an episode first"
         rules = self.rules
         self.step += 1
         self.episode_step += 1
-        reward = rules.step_reward
-        bumped = bool(len(p.laser)) and float(np.min(p.laser)) < rules.bump_radius
-        outcome = "running"
-        if bumped:
-            reward += rules.bump_reward
-            outcome = "collision"
-        elif math.hypot(p.x - rules.goal_x, p.y - rules.goal_y) <= rules.goal_radius:
-            reward += rules.goal_reward
-            outcome = "goal"
-        elif self.episode_step >= rules.max_steps:
-            outcome = "timeout"
+        self.bumped = self.contact.touching(p.around, robot_time, p.x, p.y, speed)
+        reward, outcome = judge(
+            rules.rewards,
+            bumped=self.bumped is not None,
+            at_goal=bool(rules.goal.contains(p.x, p.y)),
+            episode_step=self.episode_step,
+            max_steps=rules.max_steps,
+        )
         self.episode_return += reward
         out: list[EpisodeEvent | Observation] = [
-            self._observation(p, reward, outcome, bumped, robot_time)
+            self._observation(p, reward, outcome, self.bumped is not None, robot_time)
         ]
         if outcome != "running":
             self.running = False
@@ -96,10 +97,9 @@ class Episodes:
         return out
 
     def _observation(
-        self, p: BridgePercept, reward: float, outcome: str, collided: bool, robot_time: float
+        self, p: BridgePercept, reward: float, outcome: Outcome, collided: bool, robot_time: float
     ) -> Observation:
-        r = self.rules
-        dx, dy = r.goal_x - p.x, r.goal_y - p.y
+        distance, bearing = self.rules.goal.seen_from(p.x, p.y, p.theta)
         return Observation(
             robot=self.robot,
             episode=self.episode,
@@ -115,9 +115,9 @@ class Episodes:
             laser=tuple(p.laser.tolist()),
             sonar=tuple(p.sonar.tolist()),
             reward=reward,
-            goal_distance=math.hypot(dx, dy),
-            goal_bearing=math.remainder(math.atan2(dy, dx) - p.theta, math.tau),
-            outcome=outcome,  # type: ignore[arg-type]
+            goal_distance=distance,
+            goal_bearing=bearing,
+            outcome=outcome,
             collided=collided,
         )
 

@@ -35,7 +35,8 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.ros2.bridge import Bridge, BridgeConfig, BridgeOutput
+from services.ros2.bridge import Bridge, BridgeConfig, BridgeOutput, InsideRadius
+from services.ros2.contact import ContactConfig
 from services.ros2.episodes import EpisodeRules
 from services.ros2.homing import HomingConfig
 from services.ros2.rmw import RmwError, check_name
@@ -55,6 +56,7 @@ from services.runtime import (
 )
 from services.world.maps import add_task_argument, load_map
 from services.world.robot import CONTROL_PERIOD_S
+from services.world.task import Goal, steps_of
 
 LOOP_TICK_S = 0.02  # wall seconds between checks of stops and steps due
 BUS_CHECK_S = 0.1  # how often the link to the session's router is looked at
@@ -102,7 +104,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     robot.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="its id in the session")
     add_task_argument(parser, "for the goal's radius and the timeout (and the page's map)")
     robot.add_argument(
-        "--radius", type=float, default=0.2, help="m: a scan reading nearer is a bump"
+        "--radius",
+        type=float,
+        default=0.2,
+        help="m from the lidar: a scan reading nearer, in any direction, is a bump: the "
+        "robot's own reach from its lidar plus a few cm (docs/robot.md#the-bump-radius)",
+    )
+    robot.add_argument(
+        "--stuck-after",
+        type=float,
+        default=ContactConfig.stuck_after,
+        help="robot s: told to move, its odometry nearly still this long, is a bump too",
     )
     robot.add_argument("--max-speed", type=float, default=Limits.max_speed, help="m/s")
     robot.add_argument("--max-turn", type=float, default=Limits.max_turn, help="rad/s")
@@ -137,8 +149,8 @@ def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
         limits = Limits(args.max_speed, args.max_turn, args.action_timeout, args.data_timeout)
     except ValueError as e:
         raise ConfigError(str(e)) from None
-    if args.rtf <= 0 or args.radius <= 0 or args.domain < 0:
-        raise ConfigError("--rtf and --radius must be > 0, --domain >= 0")
+    if min(args.rtf, args.radius, args.stuck_after) <= 0 or args.domain < 0:
+        raise ConfigError("--rtf, --radius and --stuck-after must be > 0, --domain >= 0")
     robot = check_id(args.robot, "robot")
     try:
         check_name(args.namespace, "--namespace")
@@ -150,9 +162,9 @@ def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
     if args.start is not None:
         x, y, degrees = args.start
         start = (x, y, degrees * 3.141592653589793 / 180)
-    rules = EpisodeRules(
-        args.goal[0], args.goal[1], m.goal_radius, args.radius, round(m.timeout / CONTROL_PERIOD_S)
-    )
+    contact = ContactConfig(args.radius, args.stuck_after)
+    goal = Goal(args.goal[0], args.goal[1], m.goal_radius)
+    rules = EpisodeRules(goal, contact, steps_of(m.timeout, CONTROL_PERIOD_S))
     bridge = BridgeConfig(rules, robot, args.reset, start, limits, HomingConfig(), rtf=args.rtf)
     connect = tuple(e.strip() for e in args.robot_connect.split(",") if e.strip())
     node_name = "voxshape_" + "".join(c if c.isalnum() else "_" for c in robot)
@@ -192,6 +204,8 @@ def run(args: argparse.Namespace) -> int:
         node.log.info("bridging", extra=fields(robot=robot, **describe(link)))
         try:
             drive(node, link, bridge, outputs)
+        except InsideRadius as e:
+            raise ConfigError(f"not starting: {e}") from None
         finally:
             finish(node, link, bridge)
     return 0

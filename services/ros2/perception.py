@@ -1,5 +1,6 @@
 """A real robot's senses as the simulator's: its scan resampled to the simulator's laser
-beams and rear sonars, its odometry as a pose, the goal as distance and bearing. Pure.
+beams and rear sonars (and, for bumps and the way back, its nearest reading all round), its
+odometry as a pose. Pure.
 
 A scan's readings follow REP 117: +inf is nothing within range_max (it reads as the laser's
 far limit), -inf something nearer than range_min (the near limit); NaN, and finite readings
@@ -99,11 +100,27 @@ def sonar_from_scan(ranges: np.ndarray, geometry: ScanGeometry, model: RobotMode
     return np.clip(out, model.sonar_min, model.sonar_max)
 
 
-def goal_geometry(x: float, y: float, theta: float, gx: float, gy: float) -> tuple[float, float]:
-    """Distance to the goal and its bearing from the heading (+ to the left), as the
-    simulator computes them (services/sim/task.py)."""
-    dx, dy = gx - x, gy - y
-    return math.hypot(dx, dy), math.remainder(math.atan2(dy, dx) - theta, math.tau)
+AROUND = 360  # the all-round view's directions: one a degree, the first straight behind
+
+
+def around_angles() -> np.ndarray:
+    """The all-round view's directions in the robot's frame, from -pi (behind) on."""
+    return -math.pi + (np.arange(AROUND) + 0.5) * math.tau / AROUND
+
+
+def around_from_scan(ranges: np.ndarray, geometry: ScanGeometry) -> np.ndarray:
+    """The nearest reading in each of AROUND directions all round (metres from the robot's
+    centre): +inf where the scan saw nothing within its range, NaN where it does not look
+    (or said nothing valid). Bumps and the way back read it (contact.py, homing.py)."""
+    values = cleaned(ranges, geometry, math.inf, 0.0)
+    angles = geometry.angle_min + geometry.angle_increment * np.arange(len(values))
+    slot = np.floor(np.mod(angles + math.pi, math.tau) / (math.tau / AROUND)).astype(int)
+    valid = ~np.isnan(values) & (slot < AROUND)
+    out = np.full(AROUND, math.inf)
+    np.minimum.at(out, slot[valid], values[valid])
+    seen = np.zeros(AROUND, bool)
+    seen[slot[valid]] = True
+    return np.where(seen, out, np.nan)
 
 
 @dataclass(frozen=True)

@@ -41,6 +41,7 @@ class Safety:
         self.period = period  # wall seconds between repeated stops
         self.counters: Counter[str] = Counter()
         self.moving = False  # the last command sent was not a stop
+        self.command: Velocity = STOP  # what the robot was last told
         self.given_at = -float("inf")  # when the standing command was given
         self.zeros_left = 0
         self.next_zero = 0.0
@@ -62,7 +63,7 @@ class Safety:
         velocity = self.clip(v, omega)
         if velocity == STOP:
             return self.halt(now, "asked")
-        self.moving, self.given_at = True, now
+        self.moving, self.given_at, self.command = True, now, velocity
         return velocity
 
     def halt(self, now: float, why: str) -> Velocity | None:
@@ -71,7 +72,7 @@ class Safety:
             return None
         if self.moving or why != self.why:
             self.counters[f"stops.{why}"] += 1
-        self.moving, self.why = False, why
+        self.moving, self.why, self.command = False, why, STOP
         self.zeros_left, self.next_zero = ZEROS - 1, now + self.period
         return STOP
 

@@ -1,7 +1,8 @@
 """Episodes of a navigation task: the simulator's pure core (no bus).
 
 `Simulation` steps every robot of one world at once, one control step of `control_period`
-simulated seconds, and tells each robot's outcome. The service publishes what it returns; the
+simulated seconds, and tells each robot's outcome by the task's rules (services/world/task.py,
+which a real robot's bridge follows too). The service publishes what it returns; the
 Gymnasium environment wraps it for single-robot RL; the experiments run it in-process.
 """
 
@@ -18,19 +19,9 @@ from services.sim.sensors import Sensors
 from services.sim.world import World
 from services.world.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
 from services.world.robot import CONTROL_PERIOD_S, RobotModel
+from services.world.task import Outcome, Rewards, judge, steps_of
 
-Outcome = Literal["running", "goal", "collision", "timeout"]
-
-
-@dataclass(frozen=True)
-class Rewards:
-    """R_RL, the environment's own reward, in one place. The paper's learner uses
-    R = R_RL + R_U, where R_U comes from the teachers (see the arbiter)."""
-
-    step: float = -1.0  # every control step, so shorter paths are better
-    goal: float = 100.0  # reaching the goal region; ends the episode
-    collision: float = -100.0  # touching a wall, obstacle or another robot
-    # A timeout adds nothing: the episode is cut short (truncated), not failed.
+__all__ = ["Outcome", "Reading", "Rewards", "SimConfig", "Simulation"]  # the rules: world/task.py
 
 
 @dataclass(frozen=True)
@@ -125,8 +116,7 @@ class Simulation:
         self.robots = {name: _RobotProgress(name, i) for i, name in enumerate(robots)}
         self.rng = np.random.default_rng(seed)
         self.sim_time = 0.0
-        timeout = self.config.timeout or m.timeout
-        self.max_episode_steps = max(1, round(timeout / self.config.control_period))
+        self.max_episode_steps = steps_of(self.config.timeout or m.timeout, c.control_period)
 
     def seed(self, seed: int | None) -> None:
         self.rng = np.random.default_rng(seed)
@@ -203,17 +193,15 @@ class Simulation:
         for name, r in self.robots.items():
             r.step += 1
             r.episode_step += 1
-            reward = rewards.step
             pose = self.world.poses[r.index]
-            if collided[name]:
-                reward += rewards.collision
-                if self.config.collision == "end":
-                    r.outcome = "collision"
-            if r.outcome == "running" and self.map.in_goal(pose.x, pose.y):
-                reward += rewards.goal
-                r.outcome = "goal"
-            if r.outcome == "running" and r.episode_step >= self.max_episode_steps:
-                r.outcome = "timeout"
+            reward, r.outcome = judge(
+                rewards,
+                bumped=collided[name],
+                at_goal=bool(self.map.goal.contains(pose.x, pose.y)),
+                episode_step=r.episode_step,
+                max_steps=self.max_episode_steps,
+                bump_ends=self.config.collision == "end",
+            )
             r.episode_return += reward
             readings[name] = self._reading(
                 r, laser[r.index], sonar[r.index], reward, collided[name]
@@ -237,7 +225,7 @@ class Simulation:
         self, r: _RobotProgress, laser: np.ndarray, sonar: np.ndarray, reward: float, collided: bool
     ) -> Reading:
         pose = self.world.poses[r.index]
-        dx, dy = self.map.goal_x - pose.x, self.map.goal_y - pose.y
+        distance, bearing = self.map.goal.seen_from(pose.x, pose.y, pose.theta)
         return Reading(
             robot=r.name,
             episode=r.episode,
@@ -250,8 +238,8 @@ class Simulation:
             laser=laser,
             sonar=sonar,
             reward=reward,
-            goal_distance=math.hypot(dx, dy),
-            goal_bearing=math.remainder(math.atan2(dy, dx) - pose.theta, math.tau),
+            goal_distance=distance,
+            goal_bearing=bearing,
             episode_return=r.episode_return,
             outcome=r.outcome,
             collided=collided,

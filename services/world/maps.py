@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from services.runtime.settings import option, option_of
+from services.world.task import Goal
 
 MAPS_DIR = Path(__file__).with_name("maps")
 TASKS = {str(i): MAPS_DIR / f"task{i}.toml" for i in range(1, 5)}
@@ -114,8 +115,9 @@ class Map:
                 circles.append((shape.x, shape.y, shape.radius))
         return np.array(segments, float).reshape(-1, 4), np.array(circles, float).reshape(-1, 3)
 
-    def in_goal(self, x: float, y: float) -> bool:
-        return math.hypot(x - self.goal_x, y - self.goal_y) <= self.goal_radius
+    @property
+    def goal(self) -> Goal:
+        return Goal(self.goal_x, self.goal_y, self.goal_radius)
 
     @cached_property
     def grid(self) -> FreeSpace:
@@ -175,7 +177,7 @@ class FreeSpace:
         heap: list[tuple[float, int, int]] = []
         ys = (np.arange(self.rows) + 0.5) * self.resolution
         xs = (np.arange(self.cols) + 0.5) * self.resolution
-        in_goal = np.hypot(xs[None, :] - m.goal_x, ys[:, None] - m.goal_y) <= m.goal_radius
+        in_goal = m.goal.contains(xs[None, :], ys[:, None])
         for row, col in zip(*np.nonzero(in_goal & free), strict=True):
             dist[row, col] = 0.0
             heap.append((0.0, int(row), int(col)))
