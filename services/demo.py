@@ -34,7 +34,7 @@ from protocol import EpisodeEvent, LearningSummary, TeachingStats, robot_key
 from services import launcher
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
-from services.logger.run import RunDir, RunError
+from services.logger.run import RUNS, RunDir, RunError
 from services.report import load_run, write_report
 from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts
 from services.report.summary import STEP_SECONDS, RobotSummary
@@ -237,8 +237,11 @@ def speech_mode(choice: str) -> str:
 def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     """The variables compose.yaml and the services read (the shell's own win, but for those
     of --task, --rtf and --robots, whose defaults are the shell's); the session. The
-    simulated teacher teaches the first robot."""
-    session = os.environ.get("VOXSHAPE_SESSION") or time.strftime("demo-%Y%m%d-%H%M%S")
+    simulated teacher teaches the first robot. Each demo is a session of its own, named by
+    when it starts; --resume goes on with the latest (or --session's)."""
+    session = args.session or (latest_demo() if args.resume else None)
+    session = session or time.strftime("demo-%Y%m%d-%H%M%S")
+    os.environ["VOXSHAPE_SESSION"] = session
     os.environ["VOXSHAPE_TASK"] = args.task
     os.environ["VOXSHAPE_RTF"] = f"{args.rtf:g}"
     os.environ["VOXSHAPE_ROBOTS"] = ",".join(args.robots)
@@ -255,6 +258,13 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
     for name, value in defaults.items():
         os.environ.setdefault(name, value)
     return os.environ["VOXSHAPE_SESSION"]
+
+
+def latest_demo(runs: Path = RUNS) -> str | None:
+    """The session of the latest demo run in `runs` (demo-YYYYmmdd-HHMMSS; a run kept aside,
+    named with a dot, is none), else None."""
+    names = sorted(p.name for p in runs.glob("demo-*") if p.is_dir() and "." not in p.name)
+    return names[-1] if names else None
 
 
 def teacher_spec(session: launcher.LocalSession, mode: str, seed: int, profile: str) -> ServiceSpec:

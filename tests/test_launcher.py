@@ -23,6 +23,7 @@ from services.launcher import (
     without_simulator,
 )
 from services.launcher.session import BUS_CLOSE_S
+from services.logger.run import RunError
 from services.runtime import BusConfig, Input, Node, bus_config
 from services.topology import TopologyError, interpolate, load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
@@ -267,26 +268,49 @@ def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
 
 def test_a_new_run_keeps_the_earlier_one_aside_and_resume_keeps_it(tmp_path):
     run_dir = tmp_path / "runs" / "s1"
-    assert prepare_run(run_dir, resume=False) == f"a new run in {run_dir}"
-    run_dir.mkdir(parents=True)
+
+    def prepared(resume: bool) -> str:
+        line, lock = prepare_run(run_dir, resume, "up")
+        lock.close()  # the session ended
+        return line
+
+    assert prepared(resume=False) == f"a new run in {run_dir}"
     (run_dir / "events.msgpack").write_bytes(b"earlier")
-    line = prepare_run(run_dir, resume=True)
+    line = prepared(resume=True)
     assert line.startswith(f"resuming the run in {run_dir}: no learner checkpoint"), line
     assert (run_dir / "events.msgpack").read_bytes() == b"earlier"
-    line = prepare_run(run_dir, resume=False)
+    line = prepared(resume=False)
     (kept,) = (p for p in run_dir.parent.iterdir() if p != run_dir)
     assert line == (
         f"{run_dir} held an earlier run: kept as {kept}; this run starts fresh (--resume "
         "continues it)"
     )
     assert re.fullmatch(r"s1\.\d{4}-\d\d-\d\dT\d\d-\d\d-\d\d", kept.name), kept.name
-    assert (kept / "events.msgpack").read_bytes() == b"earlier" and not run_dir.exists()
-    run_dir.mkdir()
+    assert (kept / "events.msgpack").read_bytes() == b"earlier"
+    assert [p.name for p in run_dir.iterdir()] == ["session.lock"]  # held, empty
     (run_dir / "events.msgpack").write_bytes(b"later")
-    prepare_run(run_dir, resume=False)  # started in the same second: its own name
-    assert len(list(run_dir.parent.iterdir())) == 2 and not run_dir.exists()
-    line = prepare_run(run_dir, resume=True)
+    prepared(resume=False)  # started in the same second: its own name
+    assert len(list(run_dir.parent.iterdir())) == 3
+    line = prepared(resume=True)
     assert line == f"--resume: {run_dir} holds no earlier run; this run starts fresh"
+
+
+def test_a_run_folder_belongs_to_one_live_session(tmp_path):
+    """A second session of the same name is refused, naming the folder, who holds it and the
+    way out, and the folder is left as it is; once the first ends, it is free."""
+    run_dir = tmp_path / "runs" / "default"
+    _, first = prepare_run(run_dir, False, "up")
+    (run_dir / "events.msgpack").write_bytes(b"live")
+    with pytest.raises(RunError, match=r"runs/default belongs to a session that is running \(up"):
+        prepare_run(run_dir, False, "up")
+    with pytest.raises(RunError, match="--session NAME"):
+        prepare_run(run_dir, True, "demo")
+    assert (run_dir / "events.msgpack").read_bytes() == b"live"
+    assert [p.name for p in run_dir.parent.iterdir()] == ["default"]
+    first.close()
+    line, second = prepare_run(run_dir, False, "up")
+    second.close()
+    assert "held an earlier run: kept as" in line
 
 
 def test_the_flags_set_the_compose_variables(monkeypatch):

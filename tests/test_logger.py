@@ -15,9 +15,10 @@ import pytest
 from rerun.chunk import RrdReader
 
 from protocol import encode
+from protocol.examples import example_messages
 from services.cli import main
 from services.logger.decoding import decode_record
-from services.logger.eventlog import EventLogWriter, EventRecord, read_events
+from services.logger.eventlog import EventLogWriter, EventRecord, pack_gap, read_events
 from services.logger.recording import Recorder
 from services.logger.replay import ScanThinning, close_stream, open_stream, render
 from services.logger.run import RunDir, describe_session, session_map, write_session_info
@@ -107,6 +108,41 @@ def test_unknown_message_types_become_text_and_rejects_are_counted(tmp_path):
     assert "arbiter_stats on voxshape/s1/robot/r1/arbiter: dropped=3" in texts
     assert any(t.startswith("rejected #1 on voxshape/s1/robot/r1/obs:") for t in texts)
     assert "sim sim joined the session" in texts
+
+
+def test_messages_before_a_robot_s_first_step_or_of_no_robot_are_drawn(tmp_path):
+    """A word said before the robot's first step, or to a robot that is not there (`teach
+    --robot r9`), and whatever follows from it, is drawn at its wall time; a gap too."""
+    run = RunDir(tmp_path / "runs" / "s1")
+    write_session_info(run, describe_session("s1", "1", {}))
+    with EventLogWriter(run.events, "s1") as writer:
+        for k, (key, message) in enumerate(example_messages("s1", robot="r9")):
+            if not key.endswith(("/obs", "/episode")):  # r9 never steps
+                writer.append(EventRecord(1.7e9 + k, key, "put", encode(message)))
+        writer.append(EventRecord(1.8e9, "voxshape/s1/robot/r9/obs", "gap", pack_gap(7, "z/1")))
+    recorder = render_file(run, tmp_path / "x.rrd")
+    assert recorder.counters["not_drawn"] == 0 and recorder.counters["missed"] == 7
+    texts = [r[-1][0] for r in rows(tmp_path / "x.rrd")["/log/teachers/ana"]]
+    assert any("ana to r9: 'muy bien'" in t for t in texts)
+
+
+def test_a_record_that_cannot_be_drawn_is_counted_and_the_rest_drawn(scripted_run, tmp_path):
+    run, _ = scripted_run
+    out = tmp_path / "x.rrd"
+    broken = Recorder._episode
+
+    def failing(self, decoded, event):
+        if event.episode == 1:
+            raise RuntimeError("a bug drawing episode 1")
+        broken(self, decoded, event)
+
+    Recorder._episode = failing
+    try:
+        recorder = render_file(run, out)
+    finally:
+        Recorder._episode = broken
+    assert recorder.counters["not_drawn"] == 2  # its start and its end
+    assert len(rows(out)["/episode/return/r1"]) == 2  # the other two episodes' ends
 
 
 def test_thinning_leaves_out_scans_not_poses_and_counts_them(scripted_run, tmp_path):

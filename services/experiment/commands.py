@@ -17,6 +17,7 @@ from services.experiment.published import TASKS
 from services.experiment.runner import ResumeError, RunsFailed
 from services.experiment.sweep import sweep
 from services.learner.config import add_settings_argument, with_settings
+from services.logger.run import keep_earlier_run
 from services.runtime.settings import SettingsError, replaced
 from services.teacher.simulated.teacher import PROFILES, TeacherProfile
 from services.world.maps import MapError, load_map
@@ -202,8 +203,16 @@ def seeds_of(args: argparse.Namespace) -> range:
     return range(args.first_seed, args.first_seed + args.seeds)
 
 
+def keep_earlier_results(args: argparse.Namespace) -> None:
+    """An experiment writes into a fresh --out: results of an earlier one there are moved
+    aside (--out.<when it ran>/), never overwritten; --resume goes on with them instead."""
+    if getattr(args, "resume", None) is None and (kept := keep_earlier_run(args.out)):
+        print(f"{args.out} held earlier results: kept as {kept}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.experiment == "pool":
+        keep_earlier_results(args)
         return run_pool(args)
     if args.seeds < 1 or args.max_episodes < 1 or args.first_seed < 0:
         print(
@@ -218,6 +227,7 @@ def run(args: argparse.Namespace) -> int:
         except SettingsError as e:
             print(f"voxshape experiment: {e}", file=sys.stderr)
             return 2
+    keep_earlier_results(args)
     if args.experiment == "distributed":
         return run_distributed(args)
     if args.resume is not None:

@@ -100,6 +100,7 @@ class LocalSession:
         self._width = max((len(s.name) for s in specs), default=2)
         self._stop_requested = False
         self._inputs: list[tuple[str, str]] = []  # the launcher node's, declared on joining
+        self.run_lock: IO[str] | None = None  # runs/<session>/ held while it runs (up.py)
 
     @property
     def session_id(self) -> str:
@@ -354,6 +355,9 @@ class LocalSession:
                     proc.wait()
                 if (took := time.monotonic() - asked) > SLOW_STOP_S:
                     self.say(f"{name} took {took:.1f} s to stop")
+        if self.run_lock is not None:  # the run folder is free for the next session
+            self.run_lock.close()
+            self.run_lock = None
         # one awaiting its restart died during the session, not at its end
         return {
             name: None if name in self._restart_due else proc.returncode

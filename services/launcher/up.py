@@ -17,11 +17,12 @@ import socket
 from collections.abc import Mapping
 from dataclasses import replace
 from pathlib import Path
+from typing import IO
 
 from protocol import ProtocolError, check_id
 from services.launcher.session import LaunchAborted, LocalSession, ServiceDied
 from services.learner import checkpoint
-from services.logger.run import RUNS, keep_earlier_run
+from services.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
 from services.runtime import BusError, ConfigError, free_loopback_port
 from services.runtime.config import tcp_address
 from services.teacher.web import page_url
@@ -44,6 +45,14 @@ def add_arguments(
     parser.add_argument("--compose", type=Path, help="compose file (default: ./compose.yaml)")
     parser.add_argument("--profile", action="append", default=[], help="compose profile(s)")
     parser.add_argument("--port", type=int, help="router port on 127.0.0.1 (default 7447)")
+    parser.add_argument(
+        "--session",
+        type=session_id,
+        default=os.environ.get("VOXSHAPE_SESSION") or (defaults or {}).get("session"),
+        help="the session's name, and its run folder runs/NAME/ (VOXSHAPE_SESSION; default: "
+        + ((defaults or {}).get("session") or "compose.yaml's, default")
+        + ")",
+    )
     parser.add_argument("--ready-timeout", type=float, default=30.0, help="seconds per service")
 
     def default(flag: str) -> str | None:  # a string default goes through `type` too
@@ -117,6 +126,13 @@ def positive_float(text: str) -> float:
     return value
 
 
+def session_id(text: str) -> str:
+    try:
+        return check_id(text, "session")
+    except ProtocolError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+
+
 def robot_list(text: str) -> tuple[str, ...]:
     """`r1,r2` as robot ids (checked, in order, without repeats)."""
     try:
@@ -129,6 +145,8 @@ def robot_list(text: str) -> tuple[str, ...]:
 def session_variables(args: argparse.Namespace) -> dict[str, str]:
     """The variables compose.yaml is read with: the local ones, the shell's, then the flags."""
     variables = local_variables()
+    if args.session is not None:
+        variables["VOXSHAPE_SESSION"] = args.session
     if args.port is not None:
         variables["VOXSHAPE_ROUTER"] = variables["VOXSHAPE_ROUTER_LISTEN"] = (
             f"tcp/127.0.0.1:{args.port}"
@@ -164,9 +182,11 @@ def local_session(args: argparse.Namespace) -> LocalSession:
     if taken:
         raise ConfigError(
             f"{', '.join(taken)} is in use: is a session running already? (`voxshape status` "
-            "says who is there; --port chooses another)"
+            "says who is there; --port chooses another, and --session NAME a name and a "
+            "runs/NAME/ of this one's own)"
         )
-    session.say(prepare_run(RUNS / session.session_id, args.resume))
+    said, session.run_lock = prepare_run(RUNS / session.session_id, args.resume, args.command)
+    session.say(said)
     return session
 
 
@@ -192,27 +212,38 @@ def _can_listen(host: str, port: int) -> bool:
     return True
 
 
-def prepare_run(path: Path, resume: bool) -> str:
-    """Makes `path` (runs/<session>/) this run's: an earlier run there is kept aside, unless
-    `resume`. Says what happened, in one line."""
+def prepare_run(path: Path, resume: bool, holder: str) -> tuple[str, IO[str]]:
+    """Makes `path` (runs/<session>/) this run's, held while it lives (RunError if a live
+    session holds it): an earlier run there is kept aside, unless `resume`. What happened,
+    in one line, and the lock to keep open."""
+    lock = hold_run(path, holder)
     if resume:
-        if not path.exists() or not any(path.iterdir()):
-            return f"--resume: {path} holds no earlier run; this run starts fresh"
-        learners = sorted(p for p in path.glob("learner-*.npz") if not p.name.endswith(".prev.npz"))
-        resumed = [
-            f"learner {p.stem.removeprefix('learner-')} at episode {seen[0]} ({seen[1]} states)"
-            for p in learners
-            if (seen := checkpoint.peek(p)) is not None
-        ]
-        return (
-            f"resuming the run in {path}: {', '.join(resumed) or 'no learner checkpoint'}; "
-            "its event log goes on (the simulator counts episodes from 0 again)"
-        )
-    kept = keep_earlier_run(path)
-    if kept is None:
-        return f"a new run in {path}"
+        return _resumed(path), lock
+    if not holds_a_run(path):
+        return f"a new run in {path}", lock
+    kept = keep_earlier_run(path)  # its lock goes with it, held until the new one is
+    new_lock = hold_run(path, holder)
+    lock.close()
     return (
-        f"{path} held an earlier run: kept as {kept}; this run starts fresh (--resume continues it)"
+        f"{path} held an earlier run: kept as {kept}; this run starts fresh (--resume "
+        "continues it)",
+        new_lock,
+    )
+
+
+def _resumed(path: Path) -> str:
+    """What --resume goes on with in `path`."""
+    if not holds_a_run(path):
+        return f"--resume: {path} holds no earlier run; this run starts fresh"
+    learners = sorted(p for p in path.glob("learner-*.npz") if not p.name.endswith(".prev.npz"))
+    resumed = [
+        f"learner {p.stem.removeprefix('learner-')} at episode {seen[0]} ({seen[1]} states)"
+        for p in learners
+        if (seen := checkpoint.peek(p)) is not None
+    ]
+    return (
+        f"resuming the run in {path}: {', '.join(resumed) or 'no learner checkpoint'}; "
+        "its event log goes on (the simulator counts episodes from 0 again)"
     )
 
 

@@ -67,7 +67,7 @@ class Columns:
         self.pending_rows = 0
 
 
-def set_time(stream: rr.RecordingStream, when: When | None, wall_time: float | None) -> None:
+def set_time(stream: rr.RecordingStream, when: When | None, wall_time: float) -> None:
     """The time of what is logged next, one row at a time: `when`, or (None: a message
     without a robot, or before its first step) `wall_time` alone."""
     stream.reset_time()

@@ -95,8 +95,21 @@ class Recorder:
 
     # -- records -------------------------------------------------------------------------
     def record(self, decoded: Decoded, *, detail: bool = True) -> None:
+        """Draws one record. One that cannot be drawn (a bug here) is counted and logged,
+        and the recording goes on: a run stays renderable whatever one record holds."""
         self.tally.observe(decoded)
         self.counters["records"] += 1
+        try:
+            self._record(decoded, detail)
+        except Exception:
+            self.counters["not_drawn"] += 1
+            if worth_logging(self.counters["not_drawn"]):
+                log.exception(
+                    "a record could not be drawn (%d so far): %s", self.counters["not_drawn"],
+                    decoded.record.key,
+                )  # fmt: skip
+
+    def _record(self, decoded: Decoded, detail: bool) -> None:
         match decoded:
             case Known(message=message):
                 self.counters[f"messages.{message.TYPE}"] += 1
@@ -240,7 +253,7 @@ class Recorder:
         if event.kind == "start":
             self._text(decoded, f"log/{r}", f"episode {event.episode} starts", "DEBUG", when=when)
             return
-        self._set_time(when)
+        self._set_time(when, decoded.record.received)
         self.stream.log(f"episode/return/{r}", rr.Scalars(event.env_return))
         self.stream.log(f"episode/steps/{r}", rr.Scalars(float(event.episode_steps)))
         self._ends.pop((r, event.episode), None)  # a restarted simulator's: the latest wins
@@ -262,7 +275,7 @@ class Recorder:
         when = self._ends.get((stats.robot, stats.episode))
         if not stats.final or when is None:
             return
-        self._set_time(when)
+        self._set_time(when, decoded.record.received)
         self.stream.log(
             f"episode/interventions/{stats.robot}", rr.Scalars(float(stats.interventions))
         )
@@ -291,19 +304,19 @@ class Recorder:
                     past.sim_time if past else tally.sim_time,
                     past.wall_time if past else decoded.record.received,
                 )
-                self._set_time(when)
+                self._set_time(when, decoded.record.received)
                 self.stream.log(f"reward/teacher/{r}", rr.Scalars(feedback.reward * credit.weight))
         else:
             what = f"command {feedback.command}"
         now = self._when_now(tally, decoded)
-        self._set_time(now)
+        self._set_time(now, decoded.record.received)
         self.stream.log(f"reward/feedback/{r}", rr.Scalars(feedback.reward or 0.0))
         self._text(decoded, f"log/{r}", f"{who}: {what}, credited to {span}", "INFO", when=now)
 
     def _utterance(self, decoded: Known, utterance: Utterance) -> None:
         tally = self.tally.robot(utterance.robot)
         now = self._when_now(tally, decoded)
-        self._set_time(now)
+        self._set_time(now, decoded.record.received)
         self.stream.log(f"reward/utterance/{utterance.robot}", rr.Scalars(0.0))
         self._text(
             decoded,
@@ -329,7 +342,9 @@ class Recorder:
             return None
         return When(tally.step, tally.episode, tally.sim_time, decoded.record.received)
 
-    def _set_time(self, when: When | None, wall_time: float | None = None) -> None:
+    def _set_time(self, when: When | None, wall_time: float) -> None:
+        """`when` on every timeline, or (before a robot's first step, or a robot never seen:
+        a word said to it) `wall_time` alone."""
         set_time(self.stream, when, wall_time)
 
     def _text(

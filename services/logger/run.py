@@ -7,6 +7,7 @@
     runs/<session>/recording-stats.json   what the recording drew, and the scans it thinned
     runs/<session>/report/            pictures and summary of `voxshape report`
     runs/<session>/learner-<robot>.npz    each robot's learner checkpoint (the learner's own)
+    runs/<session>/session.lock       held by the live session's launcher (hold_run)
 
 `voxshape up` and `voxshape demo` start each run of a session in an empty runs/<session>/:
 an earlier run there is kept aside as runs/<session>.<its start time>/ (unless --resume).
@@ -17,6 +18,7 @@ map the session ran on even if the file changed or is on another machine.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
 import platform
@@ -26,7 +28,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 from services.runtime import ConfigError
 from services.world.maps import Map, MapError, load_map, parse_map
@@ -38,6 +40,7 @@ RECORDING_FILE = "recording.rrd"
 RECEIVER_STATS_FILE = "logger-stats.json"
 RECORDING_STATS_FILE = "recording-stats.json"
 REPORT_DIR = "report"
+LOCK_FILE = "session.lock"  # held by the launcher of the session the run belongs to
 DEFAULT_VIEWER_PORT = 9876  # where the logger serves the live recording to viewers
 SECRET_WORDS = ("PASSWORD", "SECRET", "TOKEN", "KEY")
 
@@ -189,11 +192,41 @@ def session_map(run: RunDir, task: str | None = None) -> Map:
     return read_session_info(run).world()
 
 
+def holds_a_run(path: Path) -> bool:
+    """Whether `path` holds anything of an earlier run (its lock aside)."""
+    return path.exists() and any(p.name != LOCK_FILE for p in path.iterdir())
+
+
+def hold_run(path: Path, holder: str) -> IO[str]:
+    """Takes `path` (runs/<session>/) for this process's session while it lives: a lock on
+    its session.lock, which the kernel lets go when the process ends, however it ends. The
+    file to keep open; RunError naming the folder, who holds it and the way out if a live
+    session does."""
+    path.mkdir(parents=True, exist_ok=True)
+    lock = (path / LOCK_FILE).open("a+", encoding="utf-8")
+    try:
+        fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.seek(0)
+        other = lock.read().strip() or "another process"
+        lock.close()
+        raise RunError(
+            f"{path} belongs to a session that is running ({other}): stop that one first, "
+            f"or give this one its own name and folder with --session NAME"
+        ) from None
+    lock.seek(0)
+    lock.truncate()
+    lock.write(f"{holder}, pid {os.getpid()}, since {time.strftime('%Y-%m-%d %H:%M:%S')}\n")
+    lock.flush()
+    return lock
+
+
 def keep_earlier_run(path: Path) -> Path | None:
-    """Moves an earlier run out of `path` (runs/<session>/) to a sibling named by when it
-    started, runs/<session>.YYYY-MM-DDTHH-MM-SS/, so that a new run starts empty there;
-    returns where it went, or None if `path` held nothing. Nothing is deleted."""
-    if not path.exists() or (path.is_dir() and not any(path.iterdir())):
+    """Moves an earlier run out of `path` (runs/<session>/, or an experiment's folder) to a
+    sibling named by when it started, e.g. runs/<session>.YYYY-MM-DDTHH-MM-SS/, so that a new
+    run starts empty there; returns where it went, or None if `path` held nothing. Nothing
+    is deleted."""
+    if not holds_a_run(path) if path.is_dir() else not path.exists():
         return None
     try:
         started = read_session_info(RunDir(path)).started

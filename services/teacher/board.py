@@ -60,6 +60,11 @@ class Board:
         self._early: OrderedDict[str, tuple[TeacherNotice, float]] = OrderedDict()
         self._rate_limited_at = float("-inf")
 
+    @property
+    def robot_never_seen(self) -> bool:
+        """Whether it said the robot is missing and the robot never showed up."""
+        return self._robot_missing_told and not self._robot_seen
+
     def observation(self, obs: Observation, now: float) -> list[Shown]:
         """The robot's status, at most every `status_every_s`."""
         back = []

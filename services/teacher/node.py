@@ -134,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
             options, teacher, robot, recordings, mic_chunks, speech, vocabulary, screen
         )
         _loop(node, outputs, sender, speech, board, screen, options.linger)
+    if board.robot_never_seen:  # what it said went to no robot: not a success
+        screen.note("error", f"robot {robot!r} never appeared; nothing it was told was taught")
+        return 1
     return 0
 
 
