@@ -96,10 +96,17 @@ def add_dataflow_arguments(parser: argparse.ArgumentParser) -> None:
         choices=tuple(dataflow.DATAFLOW),
         help="one role's row as its node's module docstring shows it",
     )
+    shown.add_argument(
+        "--delivery",
+        action="store_true",
+        help="how each topic reaches a slow, stopped or restarting subscriber (markdown)",
+    )
 
 
 def show_dataflow(args: argparse.Namespace) -> int:
-    if args.docstring:
+    if args.delivery:
+        print(dataflow.delivery_markdown())
+    elif args.docstring:
         print(dataflow.docstring(args.docstring))
     else:
         print(dataflow.markdown() if args.markdown else dataflow.text())

@@ -45,6 +45,7 @@ class Seen:
     utterances: dict[str, Utterance] = field(default_factory=dict)
     teacher_actions: list[str] = field(default_factory=list)  # discrete names, in order
     phases: dict[str, tuple[float, float]] = field(default_factory=dict)  # name -> (from, to)
+    stood: int = 0  # steps the robot took without its learner's action (it waited 2 s each)
 
     def windows(self, phase: str) -> list[float]:
         """The robot's steps per second in each 0.5 s window of a phase, from the steps'

@@ -30,6 +30,7 @@ from protocol.dataflow import (
     UNLISTED,
     DataflowError,
     check,
+    delivery_markdown,
     delivery_of,
     docstring,
     flow_of,
@@ -132,6 +133,10 @@ def test_the_docs_show_the_table():
     begin, end = text.index(BEGIN), text.index(END)
     shown = text[text.index("\n", begin) + 1 : end].strip()
     assert shown == markdown(), "paste `voxshape dataflow --markdown` between the markers"
+    text = (ROOT / "docs" / "reliability.md").read_text()
+    begin, end = text.index("<!-- delivery:begin"), text.index("<!-- delivery:end -->")
+    shown = text[text.index("\n", begin) + 1 : end].strip()
+    assert shown == delivery_markdown(), "paste `voxshape dataflow --delivery` there"
 
 
 def test_status_names_inputs_nobody_present_publishes():

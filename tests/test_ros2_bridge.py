@@ -150,6 +150,13 @@ def test_a_bump_is_the_nearest_reading_all_round_or_odometry_stuck():
     assert said.index("stuck") == 7  # 0.4 s after it stopped moving, at t = 0.3 s
     still = Contact(ContactConfig(0.2, stuck_after=0.5))
     assert {still.touching(clear, 0.1 * k, 1.0, 1.0, 0.0) for k in range(12)} == {None}
+    # a robot whose process stalls: its odometry's stamps stall too (same stamp, no step)
+    stalled = Contact(ContactConfig(0.2, stuck_after=0.5))
+    stamps = [0.0, 0.1, 0.2, 0.2, 0.2, 0.2, 0.2, 0.2, 0.3, 0.4, 0.5, 0.6]
+    xs = [1.0 + 0.02 * len(set(stamps[: k + 1])) for k in range(len(stamps))]
+    assert {stalled.touching(clear, t, x, 1.0, 0.2) for t, x in zip(stamps, xs, strict=True)} == {
+        None
+    }
 
 
 def test_a_scan_that_does_not_look_behind_reads_unknown_there():

@@ -45,7 +45,13 @@ def services(session: LoopbackSession, robot_router: str, log: str) -> list[Serv
             after=("router", "speech"),
             environment={"VOXSHAPE_TEACHER": "simteacher", "VOXSHAPE_ROBOT": "r1"},
         ),
-        session.client("ros2", bridge, after=("router", "learner", "simteacher")),
+        session.client(
+            "ros2",
+            bridge,
+            after=("router", "learner", "simteacher"),
+            # its counters, in logs/ros2.log
+            environment={"VOXSHAPE_LOG_LEVEL": "INFO", "VOXSHAPE_LOG_FORMAT": "json"},
+        ),
     ]
 
 
@@ -59,7 +65,7 @@ def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, s
         "VOXSHAPE_LOG_LEVEL": "WARNING",
         "VOXSHAPE_ROBOT_TIME": "simteacher",  # the arbiter's: its delays are robot seconds
     }
-    session = LoopbackSession(session_id, variables=variables, cwd=tmp_path)  # runs/ there
+    session = LoopbackSession(session_id, variables=variables, cwd=tmp_path, logs=tmp_path / "logs")
     progress = ConvergenceWatch("r1", MAX_EPISODES)
     session.input("episode", robot_key(session_id, "r1", "episode"))
     session.input("teaching", robot_key(session_id, "r1", "teaching"))
@@ -89,5 +95,10 @@ def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, s
     )
     assert c.converged, "\n".join(lines)
     assert any(e.interventions for e in progress.episodes), "the teacher was never heard"
-    cmds = [json.loads(line) for line in log.read_text().splitlines()]
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    cmds = [line for line in lines if "cmd" in line]
     assert len(cmds) > 1000 and all(c["attachment"] == "ok" for c in cmds)
+    bridge = (tmp_path / "logs" / "ros2.log").read_text().splitlines()
+    (last,) = [json.loads(x) for x in bridge if '"stopped the robot"' in x]
+    print(f"the bridge's counters: {last}")
+    assert last.get("clipped", 0) == 0  # its actions fit the robot's limits

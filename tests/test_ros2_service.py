@@ -162,7 +162,7 @@ def test_a_ros2_robot_on_rmw_zenoh_is_a_robot_of_the_session(
     left = [json.loads(x) for x in (tmp_path / "bridge.log").read_text().splitlines()]
     (bye,) = [x for x in left if x.get("message") == "left the bus"]
     assert (bye["publishes"], bye["subscribes"]) == (
-        "robot/r1/episode robot/r1/obs",
+        "robot/r1/episode robot/r1/limits robot/r1/obs",
         "robot/r1/action teacher/*/placed",
     )  # exactly its row of protocol/dataflow.py
 

@@ -32,6 +32,8 @@ def start_speech(spawn, router, session_id, cwd, *extra):
 
 
 def teach(router, session_id, cwd, *extra, stdin="", timeout=60):
+    """`voxshape teach` to a session of no robot (speech alone): it says its robot never
+    appeared and exits 1, as to a robot that does not exist; what it showed."""
     result = subprocess.run(
         [VOXSHAPE, "teach", *bus_args(router, session_id, "teach"), "--json", *extra],
         input=stdin,
@@ -40,8 +42,10 @@ def teach(router, session_id, cwd, *extra, stdin="", timeout=60):
         timeout=timeout,
         cwd=cwd,
     )
-    assert result.returncode == 0, result.stderr
-    return [json.loads(line) for line in result.stdout.splitlines()]
+    shown = [json.loads(line) for line in result.stdout.splitlines()]
+    assert result.returncode == 1, result.stderr
+    assert "never appeared" in shown[-1]["message"], shown[-1]
+    return shown
 
 
 def speech_refuses(cwd, *args, env=None) -> str:

@@ -238,10 +238,22 @@ class Bridge:
             "(docs/robot.md#the-bump-radius)"
         )
 
+    def odometry_time(self, now: float) -> float:
+        """When the odometry was measured, on the robot's own clock (its stamp): a robot whose
+        process stalls moves nothing in its stamps' time either, so stuck is judged by them.
+        Without stamps, the robot's time as the bridge reckons it."""
+        assert self.odom is not None
+        stamp = self.odom.header.stamp
+        if stamp.sec or stamp.nanosec:
+            return stamp.sec + stamp.nanosec * 1e-9
+        return self.robot_time(now)
+
     def _run(self, now: float) -> BridgeOutput:
         speed = abs(self.safety.command[0])  # what the robot was told over the last step
         p = self.percept()
-        messages: list[Message] = list(self.episodes.advance(p, self.robot_time(now), speed))
+        messages: list[Message] = list(
+            self.episodes.advance(p, self.robot_time(now), speed, self.odometry_time(now))
+        )
         end = next((m for m in messages if isinstance(m, EpisodeEvent)), None)
         if end is None:
             return BridgeOutput(messages=messages)

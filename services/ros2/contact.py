@@ -3,7 +3,8 @@
 A bump is whichever comes first:
 - the scan: its nearest reading in any direction under `radius` (from the robot's centre; a
   scan that does not look behind cannot see a bump there);
-- odometry stuck: for `stuck_after` robot seconds the robot was told to move (at least
+- odometry stuck: for `stuck_after` seconds of the robot's own clock (its odometry's stamps:
+  a robot whose process stalls moves nothing in them either) it was told to move (at least
   `MOVING` m/s) and its odometry moved less than `progress` of the way the commands asked.
   This catches what the scan cannot: a radius no larger than the robot (it stops where its
   body touches, and no reading gets nearer), or a wall the scan does not see. A robot whose
@@ -60,6 +61,10 @@ class Contact:
 
     def _stuck(self, now: Sample) -> bool:
         samples, window = self.samples, self.config.stuck_after
+        if samples and now.time == samples[-1].time:
+            return False  # the same odometry again: a step without a new one
+        if samples and now.time < samples[-1].time:
+            samples.clear()  # its clock went back (the robot restarted): start again
         samples.append(now)
         while len(samples) > 1 and now.time - samples[1].time >= window:
             samples.popleft()  # the oldest kept is the last at least `window` before now

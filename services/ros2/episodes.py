@@ -71,15 +71,21 @@ class Episodes:
         return [event, self._observation(p, 0.0, "running", False, robot_time)]
 
     def advance(
-        self, p: BridgePercept, robot_time: float, speed: float = 0.0
+        self,
+        p: BridgePercept,
+        robot_time: float,
+        speed: float = 0.0,
+        measured_at: float | None = None,
     ) -> list[EpisodeEvent | Observation]:
-        """One control step (`speed`: the |v| the robot was told over it): its observation,
+        """One control step (`speed`: the |v| the robot was told over it; `measured_at`: when
+        its odometry was taken, on the robot's clock, default `robot_time`): its observation,
         and the end event if the episode ended."""
         assert self.running, "start() an episode first"
         rules = self.rules
         self.step += 1
         self.episode_step += 1
-        self.bumped = self.contact.touching(p.around, robot_time, p.x, p.y, speed)
+        at = robot_time if measured_at is None else measured_at
+        self.bumped = self.contact.touching(p.around, at, p.x, p.y, speed)
         reward, outcome = judge(
             rules.rewards,
             bumped=self.bumped is not None,

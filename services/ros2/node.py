@@ -103,6 +103,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     robot.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="its id in the session")
     add_task_argument(parser, "for the goal's radius and the timeout (and the page's map)")
+    _add_limits(robot)
+    robot.add_argument(
+        "--reset",
+        choices=("drive", "wait"),
+        default="drive",
+        help="between episodes: drive back to the start, or wait until a teacher says it is placed",
+    )
+    robot.add_argument(
+        "--start",
+        type=lambda t: _pair(t, 3, "--start"),
+        help="X,Y,DEG in odometry (default: where it starts)",
+    )
+    robot.add_argument("--rtf", type=float, default=1.0, help="a simulated robot's time factor")
+    robot.add_argument("--attachment", choices=("auto", "33", "77"), default="auto")
+    for topic in ("scan", "odom", "cmd"):
+        name = "cmd_vel" if topic == "cmd" else topic
+        robot.add_argument(f"--{topic}-topic", default=name, help=f"(default {name})")
+
+
+def _add_limits(robot: argparse._ArgumentGroup) -> None:
+    """What may move the robot: its bump, its limits, how long a command and its data last."""
     robot.add_argument(
         "--radius",
         type=float,
@@ -124,22 +145,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     robot.add_argument(
         "--data-timeout", type=float, default=Limits.data_timeout, help="s the robot's data may age"
     )
-    robot.add_argument(
-        "--reset",
-        choices=("drive", "wait"),
-        default="drive",
-        help="between episodes: drive back to the start, or wait until a teacher says it is placed",
-    )
-    robot.add_argument(
-        "--start",
-        type=lambda t: _pair(t, 3, "--start"),
-        help="X,Y,DEG in odometry (default: where it starts)",
-    )
-    robot.add_argument("--rtf", type=float, default=1.0, help="a simulated robot's time factor")
-    robot.add_argument("--attachment", choices=("auto", "33", "77"), default="auto")
-    for topic in ("scan", "odom", "cmd"):
-        name = "cmd_vel" if topic == "cmd" else topic
-        robot.add_argument(f"--{topic}-topic", default=name, help=f"(default {name})")
 
 
 def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:

@@ -52,11 +52,12 @@ LOCAL_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 
 # No publisher waits for a slow subscriber (protocol/dataflow.py DELIVERY): what a queue cannot
-# take at once waits this long, then is dropped for that subscriber alone. zenoh's 1 ms
-# dropped a lockstep learner's observations and actions on a loaded machine (the robot then
-# stood for its action timeout); a stopped subscriber costs the wait once, after which its
-# queue counts as congested and what follows is dropped at once (docs/decisions.md).
-DROP_WAIT = {"wait_before_drop": 50_000}  # microseconds
+# take at once is dropped for that subscriber alone, after waiting this long. A node's own
+# queue to its router fills only when the node's sending thread is starved: zenoh's 1 ms then
+# dropped a lockstep learner's actions on a loaded machine (the robot stood for its action
+# timeout). Routers keep zenoh's 1 ms: a router waiting longer on the queue of a subscriber
+# that stopped reading slowed every publisher behind it (docs/decisions.md, 2026-11-28).
+DROP_WAIT = {"drop": {"wait_before_drop": 50_000}}  # microseconds
 
 
 def _endpoints(value: str) -> tuple[str, ...]:
@@ -172,11 +173,10 @@ class BusConfig:
             },
             "listen": {"endpoints": list(self.listen) if self.mode != "client" else []},
             # One host, heavy CPU contention: shared memory lost samples (zenoh issue 2628).
-            "transport": {
-                "shared_memory": {"enabled": False},
-                "link": {"tx": {"queue": {"congestion_control": {"drop": DROP_WAIT}}}},
-            },
+            "transport": {"shared_memory": {"enabled": False}, "link": {}},
         }
+        if self.mode != "router":
+            conf["transport"]["link"]["tx"] = {"queue": {"congestion_control": DROP_WAIT}}
         if self.mode == "router":
             conf["listen"]["exit_on_failure"] = True
             conf["timestamping"] = {"enabled": True}
