@@ -23,6 +23,7 @@ import signal
 import subprocess
 import threading
 import time
+from collections import Counter
 from dataclasses import replace
 from pathlib import Path
 
@@ -198,6 +199,7 @@ def test_a_killed_learner_resumes_from_its_checkpoint_and_loses_no_feedback(
         steps_relearned=relearned,
         steps_per_interval=RTF * 10 * every,
         feedback_published=len(published),
+        feedback_published_by_phase=dict(Counter(published.values())),
         feedback_in_checkpoint_at_kill=len(taken_at_crash & set(published)),
         feedback_delivered_again_skipped=counters.get("learner.feedback_taken_before", 0),
         feedback_taken_after_restart=len(taken - taken_at_crash),
@@ -210,7 +212,9 @@ def test_a_killed_learner_resumes_from_its_checkpoint_and_loses_no_feedback(
     )
     assert started["resumed_at_step"] == saved["step"]
     assert int(started["feedback_taken"]) == len(saved["feedback_taken"])
-    assert len(published) >= 18
+    # feedback before the kill, during the outage and after: how many depends on the load
+    # (words before the robot's first steps are not credited), each phase must have some
+    assert {"before", "outage", "after"} <= set(published.values()), published
     lost_when = [published[i] for i in lost]
     assert not lost, f"{len(lost)} of {len(published)} credited feedback never taken: {lost_when}"
     assert applied_after_restart == len(taken - taken_at_crash)  # none taken twice

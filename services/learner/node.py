@@ -122,6 +122,7 @@ class Driven:
     ask: Output
 
     scale: float = 1.0  # of every velocity it sends, to fit the robot's limits
+    fitted: bool = False  # the robot's limits were asked for (or came)
 
     def save(self) -> None:
         checkpoint.save(self.learner, self.path, self.bookmark)
@@ -133,6 +134,7 @@ class Driven:
         top_v = max(abs(v) for v, _ in velocities) or 1.0
         top_omega = max(abs(omega) for _, omega in velocities) or 1.0
         self.scale = min(1.0, limits.max_speed / top_v, limits.max_turn / top_omega)
+        self.fitted = True
         return self.scale
 
     def observe(self, obs: Observation) -> None:
@@ -191,16 +193,15 @@ def run(args: argparse.Namespace) -> int:
         for event in node.events(tick=1.0):
             match event:
                 case Input(message=Observation() as obs, key=key):
-                    driven[parse_key(key).owner].observe(obs)
+                    one = driven[parse_key(key).owner]
+                    if not one.fitted:  # before its first action: its limits may come later
+                        limits = node.latest(robot_key(node.session_id, one.robot, "limits"))
+                        fit(node, one, limits)
+                    one.observe(obs)
                 case Input(message=CreditedFeedback() as feedback, key=key):
                     driven[parse_key(key).owner].take(node, feedback)
                 case Input(message=RobotLimits() as limits, key=key):
-                    scale = driven[parse_key(key).owner].fit(limits)
-                    node.log.info(
-                        "actions fit to the robot's limits",
-                        extra=fields(robot=limits.robot, scale=f"{scale:.3g}",
-                                     max_speed=limits.max_speed, max_turn=limits.max_turn),
-                    )  # fmt: skip
+                    fit(node, driven[parse_key(key).owner], limits)
             if time.monotonic() - last_save >= options.checkpoint_every:
                 for one in driven.values():
                     one.save()
@@ -214,6 +215,23 @@ def run(args: argparse.Namespace) -> int:
                 one.online.book.save(one.path.with_name(f"traces-{one.robot}.npz"))
             node.counters.update({f"learner.{k}": v for k, v in one.learner.counters.items()})
     return 0
+
+
+def fit(node: Node, one: Driven, limits: object) -> None:
+    """Fits a robot's actions to its limits (none came: it goes unscaled, said once)."""
+    if isinstance(limits, RobotLimits):
+        scale = one.fit(limits)
+        node.log.info(
+            "actions fit to the robot's limits",
+            extra=fields(robot=one.robot, scale=f"{scale:.3g}", max_speed=limits.max_speed,
+                         max_turn=limits.max_turn),
+        )  # fmt: skip
+    elif not one.fitted:
+        one.fitted = True
+        node.log.warning(
+            "the robot said no limits: actions go unscaled (a robot of an older build?)",
+            extra=fields(robot=one.robot),
+        )
 
 
 def drive(

@@ -149,3 +149,16 @@ def query_history(
         consolidation=zenoh.ConsolidationMode.NONE,
         accept_replies=zenoh.ReplyKeyExpr.ANY,
     )
+
+
+def kept_now(session: zenoh.Session, key: str, timeout: float) -> list[zenoh.Sample]:
+    """What the kept outputs on `key` hold now, asked and waited for (at most `timeout`
+    seconds): for a node that needs it before going on."""
+    replies = session.get(
+        f"{key}/{HISTORY_SUFFIX}",
+        timeout=timeout,
+        consolidation=zenoh.ConsolidationMode.NONE,
+        accept_replies=zenoh.ReplyKeyExpr.ANY,
+    )
+    wanted = zenoh.KeyExpr(key)
+    return [r.ok for r in replies if r.ok is not None and wanted.intersects(r.ok.key_expr)]

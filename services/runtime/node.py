@@ -47,6 +47,7 @@ from services.runtime.flows import (
     Output,
     Presence,
     Tick,
+    kept_now,
     kept_publisher,
     query_history,
     recovering_subscriber,
@@ -189,6 +190,19 @@ class Node:
         key, on_sample, seconds = self._recovering[name]
         self.counters[f"refetched.{name}"] += 1
         query_history(self.zenoh, key, on_sample, seconds)
+
+    def latest(self, key: str, timeout: float = 1.0) -> Message | None:
+        """The newest message the kept outputs on `key` hold, asked now and waited for (at
+        most `timeout` seconds; None if none answered): what a node must know before it goes
+        on, which its recovering input may bring only later."""
+        found = []
+        for sample in kept_now(self.zenoh, key, timeout):
+            try:
+                expected = parse_key(str(sample.key_expr)).message_type
+                found.append(decode(sample.payload.to_bytes(), expected))
+            except ProtocolError as e:
+                self._reject("latest", str(sample.key_expr), e)
+        return max(found, key=lambda m: m.sent_at, default=None)
 
     def watch_presence(self, role: str = "*", node: str = "*") -> None:
         """Presence events for nodes of the session, including those already present."""
