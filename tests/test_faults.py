@@ -56,6 +56,9 @@ from tests.strategies import messages
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 RTF = 5.0  # the paced simulator's speed: 50 steps/s
+# From present on the bus to stepping: a simulator loads PyBullet and its map after it joins;
+# a loaded machine (a clean clone's first run beside other work) took more than 10 s.
+STARTING_S = 60.0
 
 
 def figures(fault: str, **values: object) -> None:
@@ -254,6 +257,7 @@ def test_after_a_router_restart_everyone_reconnects_and_nothing_typed_is_lost(
         node.watch_presence()
         wait_present(node, {"sim", "arbiter", "learner"})
         node.input("learning", robot_key(session_id, "r1", "learning"))
+        collect(node, 1, LearningSummary, timeout=STARTING_S)  # the robot steps, and learns
         teach = service(
             spawn,
             "teach",
@@ -453,6 +457,8 @@ def test_words_typed_while_the_arbiter_is_down_reach_the_learner_once(
         node.watch_presence()
         wait_present(node, {"sim", "arbiter", "learner"})
         node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        node.input("learning", robot_key(session_id, "r1", "learning"))
+        collect(node, 1, LearningSummary, timeout=STARTING_S)  # a word now has steps to credit
         teach = service(
             spawn,
             "teach",
