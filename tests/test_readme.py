@@ -59,6 +59,9 @@ COVERED: dict[str, tuple[str, ...]] = {
         "tests.test_web::test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher",
         "tests.test_web::test_a_browser_teaches_through_the_page",
     ),
+    "voxshape demo --resume": (
+        "tests.test_new_user_paths::test_demo_resume_goes_on_with_the_latest_demo",
+    ),
     "voxshape demo --task my-map.toml": (
         "tests.test_first_hour::test_the_demo_on_a_map_file_converges_and_says_so",
     ),

@@ -422,6 +422,7 @@ def test_a_real_learner_s_actions_fit_the_robot_s_limits(spawn, router, session_
         if '"stopped the robot"' in x
     ]
     print(f"{len(moving)} commands, fastest {max(abs(v) for v, _ in moving):.3f} m/s")
-    assert bye.get("clipped", 0) == 0 and bye["actions"] >= 30, bye
+    assert bye.get("clipped", 0) == 0 and bye["actions"] >= 5, bye  # (the rest: homing)
     assert max(abs(v) for v, _ in moving) <= 0.25 + 1e-9
-    assert max(abs(v) for v, _ in moving) >= 0.2  # scaled to fit, not stopped
+    # the learner's forward, 0.5 m/s scaled to fit (homing drives at 0.2 m/s at most)
+    assert max(abs(v) for v, _ in moving) == pytest.approx(0.25)

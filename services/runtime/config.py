@@ -58,6 +58,9 @@ _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 # timeout). Routers keep zenoh's 1 ms: a router waiting longer on the queue of a subscriber
 # that stopped reading slowed every publisher behind it (docs/decisions.md, 2026-11-28).
 DROP_WAIT = {"drop": {"wait_before_drop": 50_000}}  # microseconds
+# Each message leaves as a batch of its own (express): zenoh's 4 batches of data a link held a
+# burst of 4 (a teacher's audio, a test's every type at once); 16 is its most.
+DATA_QUEUE = 16
 
 
 def _endpoints(value: str) -> tuple[str, ...]:
@@ -173,10 +176,13 @@ class BusConfig:
             },
             "listen": {"endpoints": list(self.listen) if self.mode != "client" else []},
             # One host, heavy CPU contention: shared memory lost samples (zenoh issue 2628).
-            "transport": {"shared_memory": {"enabled": False}, "link": {}},
+            "transport": {
+                "shared_memory": {"enabled": False},
+                "link": {"tx": {"queue": {"size": {"data": DATA_QUEUE}}}},
+            },
         }
         if self.mode != "router":
-            conf["transport"]["link"]["tx"] = {"queue": {"congestion_control": DROP_WAIT}}
+            conf["transport"]["link"]["tx"]["queue"]["congestion_control"] = DROP_WAIT
         if self.mode == "router":
             conf["listen"]["exit_on_failure"] = True
             conf["timestamping"] = {"enabled": True}
