@@ -94,7 +94,7 @@ class Bridge:
         self.anchor = Anchor()
         self.start = config.start
         self.bus_ok = True
-        self.homing_since = 0.0  # robot seconds
+        self.homing_since = 0.0  # on the robot's own clock (odometry_time)
 
     # -- inputs -------------------------------------------------------------------------------
     def robot_time(self, now: float) -> float:
@@ -262,7 +262,7 @@ class Bridge:
             self.counters[f"bumps.{self.episodes.bumped}"] += 1
         out = BridgeOutput(messages, self.safety.halt(now, "episode"))
         if self.config.reset == "drive":
-            self.state, self.homing_since = "homing", self.robot_time(now)
+            self.state, self.homing_since = "homing", self.odometry_time(now)
             out.notes.append(f"episode {end.episode} ended ({end.kind}): driving back to the start")
         else:
             self.state = "placing"
@@ -279,7 +279,8 @@ class Bridge:
     def _home(self, now: float) -> BridgeOutput:
         assert self.start is not None
         p = self.percept()
-        if self.robot_time(now) - self.homing_since > self.config.homing.timeout:
+        # the robot's own time: a simulated robot its machine slows down gets as long to drive
+        if self.odometry_time(now) - self.homing_since > self.config.homing.timeout:
             self.state = "placing"
             self.counters["homing.gave_up"] += 1
             return BridgeOutput(
