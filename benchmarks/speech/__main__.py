@@ -106,6 +106,11 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="pocketsphinx's lattice posterior as confidence (to calibrate it)",
     )
+    parser.add_argument(
+        "--sound-alikes",
+        action="store_true",
+        help="pocketsphinx: the words one phone from a vocabulary word compete too",
+    )
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
     parser.add_argument(
         "--tables", type=Path, metavar="JSON", help="print the tables of a run saved with --json"
@@ -149,6 +154,7 @@ def _measure_engines(
     # only the settings given on the command line; the rest are each engine's defaults
     given = {"distractors": args.distractors, "distractor_weight": args.distractor_weight}
     given["calibrated"] = False if args.raw_confidence else None
+    given["sound_alikes"] = True if args.sound_alikes else None
     settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
     wanted = DEFAULT_ENGINE if args.engine == "default" else args.engine
@@ -274,6 +280,7 @@ def print_markdown(r: dict) -> None:
     )
     _print_reliability(r)
     _print_synthesizers(r)
+    _print_confusion(r)
     print("\n| phrase | tuning accuracy | held-out accuracy |\n|---|---|---|")
     for word, by_split in r["per_word_accuracy"].items():
         print(f"| {word.split(':', 1)[1]} | {_f(by_split['tune'])} | {_f(by_split['held-out'])} |")
@@ -305,6 +312,17 @@ def _print_synthesizers(r: dict) -> None:
         for name, found in synthesizers.items():
             cells = [_share(found[k], "share") if k in found else "-" for k in kinds]
             print(f"| {split} | {name} | {' | '.join(cells)} |")
+
+
+def _print_confusion(r: dict) -> None:
+    """What became of vocabulary speech, by kind of word: the mock's confusion model's terms."""
+    outcomes = ["right", "dropped", "misheard, same kind", "misheard, other kind", "inserted"]
+    print(f"\n| split | kind of word | n | {' | '.join(outcomes)} |\n|---|---|---|{'---|' * 5}")
+    for split, kinds in r.get("confusion", {}).items():
+        for kind, counts in kinds.items():
+            n = sum(counts.values())
+            cells = [_f(counts.get(o, 0) / n) for o in outcomes]
+            print(f"| {split} | {kind} | {n} | {' | '.join(cells)} |")
 
 
 def _print_sentences(r: dict) -> None:

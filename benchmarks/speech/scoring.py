@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import csv
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -178,6 +178,8 @@ class _Tallies:
     words: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)  # (lang, text, split)
     bands: dict[tuple[str, float], Tally] = field(default_factory=_by_key)  # (split, confidence)
     sentences: dict[tuple[str, str], Tally] = field(default_factory=_by_key)  # (split, text)
+    # (split, kind of word): what became of vocabulary speech (the mock's confusion model)
+    confusion: dict[tuple[str, str], Counter] = field(default_factory=lambda: defaultdict(Counter))
     # (split, synthesizer, clean / near / unrelated / sentence): the engine's language only
     synthesizers: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)
 
@@ -220,6 +222,16 @@ class _Tallies:
         c, accepted = o.clip, bool(o.heard)
         correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
         meaning = len(o.heard) == 1 and vocabulary.lookup(o.heard[0]) is vocabulary.lookup(c.text)
+        said = vocabulary.lookup(c.text)
+        heard = [vocabulary.lookup(h) for h in o.heard]
+        outcome = (
+            "dropped" if not heard
+            else "inserted" if len(heard) > 1
+            else "right" if heard[0] is said
+            else "misheard, same kind" if heard[0].kind == said.kind
+            else "misheard, other kind"
+        )  # fmt: skip
+        self.confusion[c.split, said.kind][outcome] += 1
         self.conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
         if c.condition == "clean":
             self.voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
@@ -264,6 +276,14 @@ class Report:
             "per_word_accuracy": _per_phrase(tallies.words),
             "sentences": _sentences(tallies.sentences),
             "synthesizers": _synthesizers(tallies.synthesizers),
+            "confusion": {
+                split: {
+                    kind: dict(n)
+                    for (s, kind), n in sorted(tallies.confusion.items())
+                    if s == split
+                }
+                for split in SPLITS
+            },
         }
 
     def _count(self, vocabulary: Vocabulary) -> _Tallies:
