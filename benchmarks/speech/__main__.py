@@ -106,11 +106,6 @@ def _parser() -> argparse.ArgumentParser:
         action="store_true",
         help="pocketsphinx's lattice posterior as confidence (to calibrate it)",
     )
-    parser.add_argument(
-        "--sound-alikes",
-        action="store_true",
-        help="pocketsphinx: the words one phone from a vocabulary word compete too",
-    )
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
     parser.add_argument(
         "--tables", type=Path, metavar="JSON", help="print the tables of a run saved with --json"
@@ -154,7 +149,6 @@ def _measure_engines(
     # only the settings given on the command line; the rest are each engine's defaults
     given = {"distractors": args.distractors, "distractor_weight": args.distractor_weight}
     given["calibrated"] = False if args.raw_confidence else None
-    given["sound_alikes"] = True if args.sound_alikes else None
     settings = PocketsphinxSettings(**{k: v for k, v in given.items() if v is not None})
     results = []
     wanted = DEFAULT_ENGINE if args.engine == "default" else args.engine

@@ -36,7 +36,7 @@ from protocol.vocabulary import Vocabulary, normalize, written_phrases
 from services.runtime.settings import option
 from services.speech import spanish
 from services.speech.recognizer import EngineError, Recognition
-from services.speech.sound_alikes import SoundAlikes, read_dictionary
+from services.speech.sound_alikes import read_dictionary
 
 MODEL_HINT = (
     "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "
@@ -68,7 +68,6 @@ class PocketsphinxSettings:
         1e-4, "their total prior against the vocabulary's 1", group=REJECTION
     )
     distractor_min_distance: int = 2  # phone edits from any vocabulary word, at least
-    sound_alikes: bool = False  # the words one phone from a vocabulary word compete too
     distractor_max_phones: int = 6
     noise_floor: float = 30.0
     seed: int = 0
@@ -190,12 +189,6 @@ class PocketsphinxRecognizer:
                 chosen.append(word)
                 if len(chosen) == wanted:
                     break
-        if s.sound_alikes:  # "could" competes with "good"
-            alikes = SoundAlikes(lexicon)
-            near = {w for v in spoken for w in alikes.of("", [v])} - vocabulary_words
-            chosen += sorted(
-                near - set(chosen) - {w[: -len(SPANISH_SUFFIX)] for w in vocabulary_words}
-            )
         return chosen
 
     def _grammar(self, distractors: list[str]) -> object:
