@@ -256,9 +256,14 @@ class WhisperRecognizer:
         """Whisper's free greedy decoding: its tokens and each step's log-probabilities;
         `SENTENCE_TOKENS` of them when its first ones are words of a sentence."""
         tokens, log_p = self._greedy(encoded, [], FREE_TOKENS)
-        if len(tokens) >= FREE_TOKENS and len(first_unit(self._text_of(tokens)).split()) >= 2:
+        said = first_unit(self._text_of(tokens))
+        if len(tokens) >= FREE_TOKENS and len(said.split()) >= 2 and not self._begins(said):
             tokens, log_p = self._greedy(encoded, tokens, SENTENCE_TOKENS)
         return tokens, log_p
+
+    def _begins(self, said: str) -> bool:
+        """Whether words are the beginning of a phrase, or a whole one ("turn to your")."""
+        return any(f"{p} ".startswith(f"{said} ") for p in self._phrases)
 
     def _greedy(self, encoded: StorageView, prefix: list[int], n: int) -> tuple[list, np.ndarray]:
         result = self._model.generate(
