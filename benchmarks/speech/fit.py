@@ -1,9 +1,8 @@
 """Fits the decision (services/speech/decision.py) on the tuning split: `--fit-decision`.
 
 Each tuning clip goes through what the service does (quiet around, the segmenter), then
-pocketsphinx and Whisper; each candidate phrase that beats its sound-alikes is a row of its
-margins, labelled right when it is the clip's phrase (a sentence's: one of the meaning it
-credits). A logistic
+pocketsphinx and Whisper; each candidate phrase's margins are a row, labelled right when it
+is the clip's phrase (a sentence's: a phrase of the meaning it credits). A logistic
 regression on the rows gives the weights; the cascade's rows carry pocketsphinx's say, the
 Whisper scorer's (its likeliest phrase only) do not. `ACCEPT` is then the lowest confidence,
 on a grid of 0.05, at which the cascade lets at most `NEAR_MISSES` of the near misses pass.
@@ -51,13 +50,11 @@ def collect(clips: list[scoring.Clip], cascade: CascadeRecognizer, vocabulary: V
                 continue
             scored = cascade.second.likeliest(samples, hint)
             candidates = cascade.candidates(scored, hint, posterior)
-            candidates = [(p, m) for p, m in candidates if decision.contends(m)]
             for phrase, margins in candidates:
                 rows.cascade.append((margins.features(), _right(clip, phrase, vocabulary)))
             best = scored.best()
-            plain = cascade.second.margins(scored, best)
-            if decision.contends(plain):
-                rows.whisper.append((plain.features(), _right(clip, best, vocabulary)))
+            plain = cascade.second.margins(scored, best).features()
+            rows.whisper.append((plain, _right(clip, best, vocabulary)))
             if clip.kind == "near":
                 rows.near.append([m.features() for _, m in candidates])
     return rows

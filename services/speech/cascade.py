@@ -6,9 +6,9 @@ gives a phrase with its lattice posterior, or none. A phrase it heard with a pos
 it is. Everything else goes to Whisper with pocketsphinx's phrase as a hint: the candidates
 are Whisper's likeliest phrase and pocketsphinx's, each with what it won by over free
 speech, its sound-alikes and the phrases of other meanings, and whether pocketsphinx heard
-it; one that does not beat its sound-alikes is out, decision.py weighs the rest into a
-confidence, and the best candidate is heard from decision.ACCEPT. Otherwise a phrase
-spotted in a sentence of Whisper's transcript ("could you go left") is heard, or nothing.
+it; decision.py weighs that into a confidence, and the best candidate is heard from
+decision.ACCEPT. Otherwise a phrase spotted in a sentence of Whisper's transcript ("could
+you go left") is heard, or nothing.
 
 Without Whisper (its packages not installed, or a --language the model cannot hear) the
 cascade is pocketsphinx alone, said once at start by `missing`. `stats` counts the
@@ -71,13 +71,14 @@ class CascadeRecognizer:
             return Recognition(hint, SURE)
         self.stats.to_whisper += 1
         scored = self._timed("whisper", self.second.likeliest, samples, hint)
-        heard = [
-            Recognition(p, decision.confidence(m, self.weights))
-            for p, m in self.candidates(scored, hint, posterior)
-            if decision.contends(m)
-        ]
-        best = max(heard, key=lambda r: r.confidence, default=None)
-        if best is not None and best.confidence >= decision.ACCEPT:
+        best = max(
+            (
+                Recognition(p, decision.confidence(m, self.weights))
+                for p, m in self.candidates(scored, hint, posterior)
+            ),
+            key=lambda r: r.confidence,
+        )
+        if best.confidence >= decision.ACCEPT:
             return best
         return self.second.spotted(scored)
 

@@ -206,13 +206,12 @@ class WhisperRecognizer:
         return scored.margins(phrase, self._meanings)
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        """The best phrase when it beats its sound-alikes and its confidence reaches
-        decision.ACCEPT, else a phrase spotted in a sentence, else None."""
+        """The best phrase when its confidence reaches decision.ACCEPT, else a phrase spotted
+        in a sentence, else None."""
         scored = self.likeliest(samples)
         best = scored.best()
-        margins = self.margins(scored, best)
-        heard = decision.confidence(margins, self.weights)
-        if decision.contends(margins) and heard >= decision.ACCEPT:
+        heard = decision.confidence(self.margins(scored, best), self.weights)
+        if heard >= decision.ACCEPT:
             return Recognition(best, heard)
         return self.spotted(scored)
 
