@@ -79,12 +79,14 @@ def test_something_else_is_the_first_unit_of_a_free_transcript():
 
 
 @needs_whisper
-def test_the_likeliest_phrase_comes_with_its_posterior_and_alternatives(recognizer):
+def test_the_likeliest_phrase_comes_with_what_it_won_by(recognizer):
     clip = scoring.as_stream(CLIPS["en-voc-turn-left-kal-diphone.wav"])[0]
-    phrase, something_else = recognizer.likeliest(clip, hint="you made it")
-    assert (phrase.text, something_else) == ("turn left", False)
-    assert len(phrase.alternatives) == 2
-    assert sum(p for _, p in phrase.alternatives) < 0.5 < phrase.confidence <= 1
+    scored = recognizer.likeliest(clip, hint="you made it")
+    assert scored.best() == "turn left" and "you made it" in scored.phrases  # the hint scored
+    margins = recognizer.margins(scored, "turn left")
+    assert margins.free > 0 and margins.sound_alike > 0 and margins.other_phrase > 0
+    assert recognizer.margins(scored, "you made it").other_phrase < 0
+    assert recognizer.has_sound_alikes("turn left") and not recognizer.has_sound_alikes("terrible")
 
 
 @needs_whisper

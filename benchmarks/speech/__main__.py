@@ -5,6 +5,8 @@
     .venv/bin/python -m benchmarks.speech --fixtures DIR --split tune --language es
     .venv/bin/python -m benchmarks.speech --fixtures DIR --markdown  # docs/speech.md's tables
     .venv/bin/python -m benchmarks.speech --fixtures DIR --engine default  # what runs by default
+    .venv/bin/python -m benchmarks.speech --fixtures DIR --fit-decision  # decision.py's constants
+    .venv/bin/python -m benchmarks.speech --tables run.json --markdown  # a --json run's tables
 
 --synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng, sox and
 festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
@@ -59,15 +61,24 @@ ENGINES = [
 
 def main() -> int:
     args = _parser().parse_args()
+    if args.tables:  # the tables of a run saved with --json
+        saved = json.loads(args.tables.read_text())
+        counts = Counter(saved["splits"])
+        _print_results(
+            args, Path(saved["fixtures"]), saved["synthesis_s"], counts, saved["engines"]
+        )
+        return 0
     folder, synthesis_s = _fixtures(args)
     vocabulary = load_vocabulary()
     clips = [c for c in scoring.load_clips(folder) if args.split in ("all", c.split)]
+    if args.fit_decision:
+        return _fit_decision(vocabulary, clips)
     results = _measure_engines(args, vocabulary, clips)
     mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
     summary = scoring.run_mock(clips, mock).summary(vocabulary)
     summary["error_rate_setting"] = args.mock_error_rate
     results.append(summary)
-    _print_results(args, folder, synthesis_s, clips, results)
+    _print_results(args, folder, synthesis_s, Counter(c.split for c in clips), results)
     return 0
 
 
@@ -96,7 +107,28 @@ def _parser() -> argparse.ArgumentParser:
         help="pocketsphinx's lattice posterior as confidence (to calibrate it)",
     )
     parser.add_argument("--mock-error-rate", type=float, default=0.2)
+    parser.add_argument(
+        "--tables", type=Path, metavar="JSON", help="print the tables of a run saved with --json"
+    )
+    parser.add_argument(
+        "--fit-decision",
+        action="store_true",
+        help="fit services/speech/decision.py's weights and threshold on the tuning split",
+    )
     return parser
+
+
+def _fit_decision(vocabulary: Vocabulary, clips: list[scoring.Clip]) -> int:
+    """Prints the decision's constants fitted on the tuning split (the cascade's engines)."""
+    from benchmarks.speech import fit
+    from services.speech.cascade import CascadeRecognizer
+
+    cascade = open_recognizer("cascade", vocabulary, "en")
+    if not isinstance(cascade, CascadeRecognizer) or cascade.second is None:
+        print(f"--fit-decision needs Whisper: {getattr(cascade, 'missing', '')}", file=sys.stderr)
+        return 1
+    print(fit.report(fit.collect(clips, cascade, vocabulary)))
+    return 0
 
 
 def _fixtures(args: argparse.Namespace) -> tuple[Path, float | None]:
@@ -148,18 +180,17 @@ def _print_results(
     args: argparse.Namespace,
     folder: Path,
     synthesis_s: float | None,
-    clips: list[scoring.Clip],
+    counts: Counter[str],
     results: list[dict],
 ) -> None:
     """One JSON object (--json), or a line on the clips and each engine's tables."""
-    counts = Counter(c.split for c in clips)
     if args.json:
-        head = {"fixtures": str(folder), "clips": len(clips), "splits": counts}
+        head = {"fixtures": str(folder), "clips": counts.total(), "splits": counts}
         print(json.dumps({**head, "synthesis_s": synthesis_s, "engines": results}))
         return
     made = f", synthesized in {synthesis_s} s" if synthesis_s is not None else ""
     splits = ", ".join(f"{n} {s}" for s, n in sorted(counts.items(), reverse=True))
-    print(f"{len(clips)} clips ({splits}) in {folder}{made}")
+    print(f"{counts.total()} clips ({splits}) in {folder}{made}")
     for r in results:
         (print_markdown if args.markdown else print_summary)(r)
 
@@ -241,23 +272,64 @@ def print_markdown(r: dict) -> None:
         f"| {_f(r['latency_p50_s'])} s | {_f(r['latency_p95_s'])} s | {r['latency_n']} | "
         f"{r['realtime_factor']} | {_f(r['onset_error_p50_s'])} s |"
     )
-    bands = list(scoring.CONFIDENCE_BANDS)
-    print(f"\n| recognized with confidence from | {' | '.join(map(str, bands))} |")
-    print("|---" * (len(bands) + 1) + "|")
-    for split, found in [(s, f) for s, f in r["calibration"].items() if f]:
-        cells = [_calibration(found.get(f"{b:g}")) for b in bands]
-        print(f"| {split}: right / recognized | {' | '.join(cells)} |")
+    _print_reliability(r)
+    _print_synthesizers(r)
+    _print_confusion(r)
     print("\n| phrase | tuning accuracy | held-out accuracy |\n|---|---|---|")
     for word, by_split in r["per_word_accuracy"].items():
         print(f"| {word.split(':', 1)[1]} | {_f(by_split['tune'])} | {_f(by_split['held-out'])} |")
+    _print_sentences(r)
 
 
-def _calibration(g: dict | None) -> str:
-    return f"{g['right']}/{g['n']}" if g else "-"
+def _print_reliability(r: dict) -> None:
+    """Of the phrases recognized with a confidence in each band, how many were right: the
+    reliability diagram as a table (the mean confidence against the share right)."""
+    bands = list(scoring.CONFIDENCE_BANDS)
+    print("\n| split | confidence from | recognized | mean confidence | right |")
+    print("|---|---|---|---|---|")
+    for split, found in [(s, f) for s, f in r["calibration"].items() if f]:
+        for band in bands:
+            g = found.get(f"{band:g}")
+            if g:
+                print(
+                    f"| {split} | {band:g} | {g['n']} | {_f(g['confidence'])} | {_f(g['share'])} |"
+                )
 
 
-def _share(g: dict) -> str:
-    return f"{_f(g['rate'])} ({g['accepted']}/{g['n']})"
+def _print_synthesizers(r: dict) -> None:
+    kinds = ["clean", "near", "unrelated", scoring.SENTENCE]
+    print(
+        "\n| split | synthesizer | clean speech heard | near misses accepted | unrelated "
+        "accepted | sentences credited right |\n|---|---|---|---|---|---|"
+    )
+    for split, synthesizers in r["synthesizers"].items():
+        for name, found in synthesizers.items():
+            cells = [_share(found[k], "share") if k in found else "-" for k in kinds]
+            print(f"| {split} | {name} | {' | '.join(cells)} |")
+
+
+def _print_confusion(r: dict) -> None:
+    """What became of vocabulary speech, by kind of word: the mock's confusion model's terms."""
+    outcomes = ["right", "dropped", "misheard, same kind", "misheard, other kind", "inserted"]
+    print(f"\n| split | kind of word | n | {' | '.join(outcomes)} |\n|---|---|---|{'---|' * 5}")
+    for split, kinds in r.get("confusion", {}).items():
+        for kind, counts in kinds.items():
+            n = sum(counts.values())
+            cells = [_f(counts.get(o, 0) / n) for o in outcomes]
+            print(f"| {split} | {kind} | {n} | {' | '.join(cells)} |")
+
+
+def _print_sentences(r: dict) -> None:
+    rows = [(s, t, g) for s, found in r["sentences"].items() for t, g in found.items()]
+    if rows:
+        print("\n| split | sentence | credited right |\n|---|---|---|")
+        for split, text, g in rows:
+            print(f"| {split} | {text} | {g['right']}/{g['n']} |")
+
+
+def _share(g: dict, key: str = "rate") -> str:
+    count = f" ({g['accepted']}/{g['n']})" if "accepted" in g else f" (n={g['n']})"
+    return f"{_f(g[key])}{count}"
 
 
 def _f(value: float | None) -> str:

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import csv
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Container, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,7 +37,8 @@ QUIET_NOISE = 8.0  # std dev of that quiet (int16 units, about -72 dBFS)
 SPLITS = ("tune", "held-out")
 OUTSIDE = {"oov": "unrelated", "near": "near"}  # outside words by clip kind
 OTHER_LANGUAGE = "other language"
-CONFIDENCE_BANDS = (0.0, 0.25, 0.5, 0.75, 0.9)  # lower bounds, for the calibration table
+SENTENCE = "sentence"  # sentences that credit nothing ("no good"), among the false accepts
+CONFIDENCE_BANDS = (0.0, 0.5, 0.7, 0.8, 0.9, 0.95)  # lower bounds, for the reliability table
 
 
 def noise_condition(noise: str, snr_db: float) -> str:
@@ -50,7 +51,7 @@ class Clip:
     path: Path
     text: str
     language: str
-    kind: str  # vocabulary, oov (unrelated words) or near (near misses of vocabulary words)
+    kind: str  # vocabulary, oov (unrelated words), near (near misses) or sentence
     voice: str
     noise: str
     snr_db: float
@@ -58,6 +59,8 @@ class Clip:
     speech_end_s: float
     condition: str = "clean"  # "clean", "white 10 dB", "level -20 dBFS", "telephone"...
     split: str = "tune"  # or "held-out"
+    credits: str = ""  # a sentence's: the meaning it credits ("": none, "no good")
+    synthesizer: str = ""  # espeak-ng, festival...
 
 
 @dataclass
@@ -92,6 +95,8 @@ def load_clips(folder: Path) -> list[Clip]:
                 speech_end_s=float(row["speech_end_s"]),
                 condition=row.get("condition") or noise_condition(noise, snr_db),
                 split=row.get("split") or "tune",
+                credits=row.get("credits") or "",
+                synthesizer=row.get("synthesizer") or "",
             )
         )
     return clips
@@ -149,6 +154,7 @@ class Tally:
     correct: int = 0
     same_meaning: int = 0
     accepted: int = 0
+    confidence: float = 0.0  # summed, for the reliability table
 
     def add(self, correct: bool, same_meaning: bool, accepted: bool) -> None:
         self.n += 1
@@ -171,13 +177,25 @@ class _Tallies:
     outside: dict[tuple[str, str], Tally] = field(default_factory=_by_key)  # (split, kind)
     words: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)  # (lang, text, split)
     bands: dict[tuple[str, float], Tally] = field(default_factory=_by_key)  # (split, confidence)
+    sentences: dict[tuple[str, str], Tally] = field(default_factory=_by_key)  # (split, text)
+    # (split, kind of word): what became of vocabulary speech (the mock's confusion model)
+    confusion: dict[tuple[str, str], Counter] = field(default_factory=lambda: defaultdict(Counter))
+    # (split, synthesizer, clean / near / unrelated / sentence): the engine's language only
+    synthesizers: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)
 
-    def count_confidences(self, o: Outcome) -> None:
-        """Each phrase recognized (before the gate) in its confidence band, right or not."""
+    def count_confidences(self, o: Outcome, vocabulary: Vocabulary) -> None:
+        """Each phrase recognized (before the gate) in its confidence band, right or not:
+        the clip's phrase, or a sentence's meaning; anything from outside speech is wrong."""
         for text, confidence in o.recognized:
             band = max(b for b in CONFIDENCE_BANDS if confidence >= b)
-            right = normalize(text) == normalize(o.clip.text)
-            self.bands[o.clip.split, band].add(right, right, confidence >= MIN_CONFIDENCE)
+            if o.clip.kind == "sentence":
+                meaning = vocabulary.lookup(text)
+                right = meaning is not None and meaning.name == o.clip.credits
+            else:
+                right = o.clip.kind == "vocabulary" and normalize(text) == normalize(o.clip.text)
+            tally = self.bands[o.clip.split, band]
+            tally.add(right, right, confidence >= MIN_CONFIDENCE)
+            tally.confidence += confidence
 
     def count_other_language(self, o: Outcome, vocabulary: Vocabulary, own: Container[str]) -> None:
         """Speech in another language is outside the engine's vocabulary too; heard as a phrase
@@ -188,14 +206,36 @@ class _Tallies:
         if normalize(c.text) not in own:
             self.outside[c.split, OTHER_LANGUAGE].add(False, False, wrong)
 
+    def count_sentence(self, o: Outcome, vocabulary: Vocabulary) -> None:
+        """A sentence is right when it credits its meaning alone, or nothing when it credits
+        none ("no good"); one that credits none and passes anything is a false accept."""
+        c = o.clip
+        meanings = [m.name if (m := vocabulary.lookup(h)) else h for h in o.heard]
+        right = meanings == ([c.credits] if c.credits else [])
+        self.sentences[c.split, c.text].add(right, right, bool(o.heard))
+        self.synthesizers[c.split, c.synthesizer, SENTENCE].add(right, right, bool(o.heard))
+        if not c.credits:
+            self.outside[c.split, SENTENCE].add(False, False, bool(o.heard))
+
     def count_vocabulary(self, o: Outcome, vocabulary: Vocabulary) -> None:
         """A vocabulary clip: by condition, by voice when clean, by phrase."""
         c, accepted = o.clip, bool(o.heard)
         correct = [normalize(h) for h in o.heard] == [normalize(c.text)]
         meaning = len(o.heard) == 1 and vocabulary.lookup(o.heard[0]) is vocabulary.lookup(c.text)
+        said = vocabulary.lookup(c.text)
+        heard = [vocabulary.lookup(h) for h in o.heard]
+        outcome = (
+            "dropped" if not heard
+            else "inserted" if len(heard) > 1
+            else "right" if heard[0] is said
+            else "misheard, same kind" if heard[0].kind == said.kind
+            else "misheard, other kind"
+        )  # fmt: skip
+        self.confusion[c.split, said.kind][outcome] += 1
         self.conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
         if c.condition == "clean":
             self.voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
+            self.synthesizers[c.split, c.synthesizer, "clean"].add(correct, meaning, accepted)
         if c.split != "tune" or c.condition == "clean":
             self.words[c.language, c.text, c.split].add(correct, meaning, accepted)
 
@@ -234,6 +274,16 @@ class Report:
             "false_accepts": _false_accepts(tallies.outside),
             "calibration": _calibration(tallies.bands),
             "per_word_accuracy": _per_phrase(tallies.words),
+            "sentences": _sentences(tallies.sentences),
+            "synthesizers": _synthesizers(tallies.synthesizers),
+            "confusion": {
+                split: {
+                    kind: dict(n)
+                    for (s, kind), n in sorted(tallies.confusion.items())
+                    if s == split
+                }
+                for split in SPLITS
+            },
         }
 
     def _count(self, vocabulary: Vocabulary) -> _Tallies:
@@ -244,15 +294,18 @@ class Report:
         language = self.language or "en"
         for o in self.outcomes:
             c = o.clip
-            if c.kind == "vocabulary" and c.language == language:
-                tallies.count_confidences(o)
+            if c.language == language:
+                tallies.count_confidences(o, vocabulary)
             if self.language is not None and c.language != self.language:
                 tallies.count_other_language(o, vocabulary, own)
             elif c.kind == "vocabulary":
                 tallies.count_vocabulary(o, vocabulary)
+            elif c.kind == "sentence":
+                tallies.count_sentence(o, vocabulary)
             else:
                 kind = OUTSIDE.get(c.kind, c.kind)
                 tallies.outside[c.split, kind].add(False, False, bool(o.heard))
+                tallies.synthesizers[c.split, c.synthesizer, kind].add(False, False, bool(o.heard))
         return tallies
 
     def _speed(self) -> dict[str, float | None]:
@@ -287,12 +340,38 @@ def _calibration(bands: dict[tuple[str, float], Tally]) -> dict:
     """{split: {band: figures}}: of the phrases recognized in each band, the share right."""
     return {
         split: {
-            f"{band:g}": {"n": t.n, "right": t.correct, "share": _ratio(t.correct, t.n)}
+            f"{band:g}": {
+                "n": t.n,
+                "right": t.correct,
+                "share": _ratio(t.correct, t.n),
+                "confidence": round(t.confidence / t.n, 3) if t.n else None,
+            }
             for (s, band), t in sorted(bands.items())
             if s == split
         }
         for split in SPLITS
     }
+
+
+def _sentences(sentences: dict[tuple[str, str], Tally]) -> dict:
+    """{split: {sentence: {"n", "right"}}}: each sentence credited as it should be."""
+    out: dict = {split: {} for split in SPLITS}
+    for (split, text), t in sorted(sentences.items()):
+        out[split][text] = {"n": t.n, "right": t.correct}
+    return out
+
+
+def _synthesizers(tallies: dict[tuple[str, str, str], Tally]) -> dict:
+    """{split: {synthesizer: {"clean": accuracy, "near": accepted share, ...}}}, the
+    sentences' figure the share credited right."""
+    out: dict = {split: {} for split in SPLITS}
+    for (split, synthesizer, what), t in sorted(tallies.items()):
+        share = t.correct if what in ("clean", SENTENCE) else t.accepted
+        out[split].setdefault(synthesizer or "-", {})[what] = {
+            "n": t.n,
+            "share": _ratio(share, t.n),
+        }
+    return out
 
 
 def _per_phrase(words: dict[tuple[str, str, str], Tally]) -> dict:

@@ -36,6 +36,7 @@ from protocol.vocabulary import Vocabulary, normalize, written_phrases
 from services.runtime.settings import option
 from services.speech import spanish
 from services.speech.recognizer import EngineError, Recognition
+from services.speech.sound_alikes import read_dictionary
 
 MODEL_HINT = (
     "pocketsphinx ships only a US-English model (Spanish is heard with it, its words spelt in "
@@ -82,17 +83,6 @@ def phone_distance(a: tuple[str, ...], b: tuple[str, ...]) -> int:
             current.append(min(previous[j] + 1, current[j - 1] + 1, previous[j - 1] + (x != y)))
         previous = current
     return previous[-1]
-
-
-def read_dictionary(path: Path) -> dict[str, list[tuple[str, ...]]]:
-    """word -> its pronunciations, from a CMU-style dictionary (`word(2)` are variants)."""
-    entries: dict[str, list[tuple[str, ...]]] = {}
-    with path.open(encoding="utf-8", errors="replace") as f:
-        for line in f:
-            parts = line.split()
-            if len(parts) >= 2:
-                entries.setdefault(parts[0].split("(")[0], []).append(tuple(parts[1:]))
-    return entries
 
 
 class PocketsphinxRecognizer:
@@ -222,6 +212,17 @@ class PocketsphinxRecognizer:
 
     # -- recognition ----------------------------------------------------------------------
     def recognize(self, samples: np.ndarray) -> Recognition | None:
+        heard = self.decode(samples)
+        if heard is None:
+            return None
+        phrase, posterior = heard
+        if self.settings.calibrated:
+            return Recognition(phrase, next(p for b, p in PRECISION_BY_POSTERIOR if posterior >= b))
+        return Recognition(phrase, posterior)
+
+    def decode(self, samples: np.ndarray) -> tuple[str, float] | None:
+        """The phrase heard and its lattice posterior, or None (a distractor, or no
+        complete phrase)."""
         audio = np.asarray(samples, dtype=np.float64)
         if self.settings.noise_floor > 0:
             rng = np.random.default_rng(self.settings.seed)
@@ -235,9 +236,6 @@ class PocketsphinxRecognizer:
         if hypothesis is None:
             return None
         phrase = self._phrases.get(tuple(hypothesis.hypstr.split()))
-        if phrase is None:  # a distractor, or no complete phrase
+        if phrase is None:
             return None
-        posterior = float(min(1.0, max(0.0, decoder.get_prob())))
-        if self.settings.calibrated:
-            return Recognition(phrase, next(p for b, p in PRECISION_BY_POSTERIOR if posterior >= b))
-        return Recognition(phrase, posterior)
+        return phrase, float(min(1.0, max(0.0, decoder.get_prob())))

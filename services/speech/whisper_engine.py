@@ -9,22 +9,25 @@ package reads its tokenizer.json and log_mel.py makes its input: nothing is down
 
 Recognition is constrained to the vocabulary, not a free transcript matched afterwards:
 1. the audio (with 1 s of silence after it, 2 s at least) is encoded once;
-2. a free greedy decoding, capped at `FREE_TOKENS` tokens, gives its first token's
-   distribution, and "something else": the likeliest utterance along it that is no phrase,
-   its first k tokens then an end (" Food" then "." for " Food, food");
+2. a free greedy decoding, capped at `FREE_TOKENS` tokens (`SENTENCE_TOKENS` when it is
+   a sentence), gives its first token's distribution, Whisper's own transcript, and "free
+   speech": the likeliest utterance along it that is no phrase, its first k tokens then an
+   end (" Food" then "." for " Food, food");
 3. each phrase is scored by forced decoding: log P(its tokens, then an end: ".", "!", "?",
    "," or the end of text); only the phrases whose first token is among the `SHORTLIST`
-   likeliest phrase starts are scored (and a phrase another engine heard, `hint`);
-4. the best phrase is rejected when something else is likelier, with a prior for the
-   vocabulary (`OTHER_LOG_PRIOR`): "food" heard as "Food" is refused, and so is speech in
-   another language, which Whisper writes as nonsense.
-The confidence is the best phrase's posterior among those scored and something else.
+   likeliest phrase starts are scored (and a phrase another engine heard, `hint`); the same
+   decoding gives, at each of its tokens, how much likelier it is than the words one phone
+   away (sound_alikes.py: " Good" against " Could", " Would", " Hood"...);
+4. decision.py weighs what the best phrase won by (over free speech, its sound-alikes and
+   the phrases of other meanings) into its confidence, and hears it from `ACCEPT`; in a
+   sentence ("Could you go left?") a phrase is spotted in the transcript.
 """
 
 from __future__ import annotations
 
 import os
 import re
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,8 +35,11 @@ import numpy as np
 
 from protocol.messages import SAMPLE_RATE
 from protocol.vocabulary import Vocabulary, normalize, written_phrases
+from services.speech import decision
+from services.speech.decision import Margins
 from services.speech.log_mel import HOP, log_mel
 from services.speech.recognizer import EngineError, Recognition
+from services.speech.sound_alikes import SoundAlikes, cmudict
 
 if TYPE_CHECKING:
     from ctranslate2 import StorageView
@@ -41,12 +47,33 @@ if TYPE_CHECKING:
 INSTALL_HINT = "pip install -e '.[whisper]'"
 MODEL_FILES = ("model.bin", "config.json", "tokenizer.json")
 FREE_TOKENS = 4  # base models loop ("Stop stop stop..."): the free decoding is cut here
+SENTENCE_TOKENS = 12  # ... or here, when its first tokens are words of a sentence
 SHORTLIST = 4  # phrase first tokens scored (a phrase starting otherwise is not heard)
 ENDS = (".", "!", "?", ",")  # with the end of text, what may follow a whole phrase
-# a teacher mostly says phrases: something else is e^1 times less likely a priori than its
-# audio alone says (0, 1, 2, 3 measured on the tuning split: docs/decisions.md)
-OTHER_LOG_PRIOR = -1.0
 PAD_S, MIN_S = 1.0, 2.0  # silence after the speech, and the shortest audio encoded
+
+
+@dataclass(frozen=True)
+class Scored:
+    """Whisper's scores of one utterance: log P of each phrase scored (then an end), each
+    one's margin over its sound-alikes, free speech's log P, and Whisper's transcript with
+    the phrase it spots in it (its margin over its sound-alikes there)."""
+
+    phrases: dict[str, float]
+    sound_alike: dict[str, float]
+    free: float
+    transcript: str = ""
+    spotted: tuple[str, float] | None = None
+
+    def best(self) -> str:
+        return max(self.phrases, key=self.phrases.__getitem__)
+
+    def margins(self, phrase: str, meanings: dict[str, str]) -> Margins:
+        """What `phrase` (one of those scored) won by; `meanings`: phrase -> meaning."""
+        mine = self.phrases[phrase]
+        others = [s for p, s in self.phrases.items() if meanings[p] != meanings[phrase]]
+        rival = max(others, default=-np.inf)
+        return Margins(mine - self.free, self.sound_alike[phrase], mine - rival)
 
 
 def default_model() -> Path:
@@ -139,36 +166,80 @@ class WhisperRecognizer:
         self._eot = special("<|endoftext|>")
         self._ends = [self._eot, *(self._tokens_of(e)[0] for e in ENDS)]
         self._phrases = written_phrases(vocabulary, language)  # normalized -> as written
+        self._meanings = {w: vocabulary.lookup(w).name for w in self._phrases.values()}
         # as Whisper writes a phrase said alone: " Go left"
         self._tokens = {
             written: self._tokens_of(" " + written.capitalize())
             for written in self._phrases.values()
         }
+        alikes = SoundAlikes(cmudict()) if language == "en" else None
+        self._alikes = {p: self._alike_tokens(p, alikes) for p in self._tokens}
+        self.weights = decision.WEIGHTS["whisper"]
+        self._negations = [  # as single tokens: " No", " not"...
+            t[0]
+            for word in decision.NEGATIONS
+            for t in (self._tokens_of(" " + word), self._tokens_of(" " + word.capitalize()))
+            if len(t) == 1
+        ]
+
+    def _alike_tokens(self, phrase: str, alikes: SoundAlikes | None) -> list[tuple[int, int]]:
+        """(k, token): the phrase's sound-alikes that Whisper writes as its own tokens with
+        the k-th alone replaced (" Could" for " Good", " Go lift" for " Go left")."""
+        if alikes is None:
+            return []
+        mine, out = self._tokens[phrase], []
+        for text in alikes.of_phrase(tuple(phrase.casefold().split())):
+            if normalize(text) in self._phrases:
+                continue  # a phrase of the vocabulary is scored as one
+            theirs = self._tokens_of(" " + text.capitalize())
+            if len(theirs) != len(mine):
+                continue
+            differ = [k for k, (a, b) in enumerate(zip(mine, theirs, strict=True)) if a != b]
+            if len(differ) == 1:
+                out.append((differ[0], theirs[differ[0]]))
+        return sorted(set(out))
+
+    def has_sound_alikes(self, phrase: str) -> bool:
+        return bool(self._alikes.get(phrase))
+
+    def margins(self, scored: Scored, phrase: str) -> Margins:
+        return scored.margins(phrase, self._meanings)
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        """The likeliest phrase, or None when something else Whisper would write is likelier."""
-        phrase, something_else = self.likeliest(samples)
-        return None if something_else else phrase
+        """The best phrase when its confidence reaches decision.ACCEPT, else a phrase spotted
+        in a sentence, else None."""
+        scored = self.likeliest(samples)
+        best = scored.best()
+        heard = decision.confidence(self.margins(scored, best), self.weights)
+        if heard >= decision.ACCEPT:
+            return Recognition(best, heard)
+        return self.spotted(scored)
 
-    def likeliest(self, samples: np.ndarray, hint: str | None = None) -> tuple[Recognition, bool]:
-        """The likeliest phrase of those scored (`hint`, a phrase another engine heard, is
-        scored too), and whether something else Whisper would write is likelier."""
+    def spotted(self, scored: Scored) -> Recognition | None:
+        """The phrase spotted in a sentence of Whisper's transcript, when it beats its
+        sound-alikes there by decision.SPOT_MARGIN; its confidence is the gate's least."""
+        if scored.spotted is None or scored.spotted[1] < decision.SPOT_MARGIN:
+            return None
+        return Recognition(scored.spotted[0], decision.ACCEPT)
+
+    def likeliest(self, samples: np.ndarray, hint: str | None = None) -> Scored:
+        """The scores of the phrases likeliest to start the utterance (and `hint`, a phrase
+        another engine heard), of free speech, and of the phrase spotted in a sentence."""
         encoded = self._encode(samples)
-        first, other = self._free(encoded)
-        starts = sorted({t[0] for t in self._tokens.values()}, key=lambda t: -first[t])
+        tokens, log_p = self._free(encoded)
+        starts = sorted({t[0] for t in self._tokens.values()}, key=lambda t: -log_p[0, t])
         shortlist = [p for p, t in self._tokens.items() if t[0] in starts[:SHORTLIST]]
         if hint in self._tokens and hint not in shortlist:
             shortlist.append(hint)
-        scores = self._score(encoded, [self._tokens[p] for p in shortlist])
-        everything = np.logaddexp.reduce(np.append(scores, other))
-        ranked = np.argsort(-scores)
-        best, alternatives = ranked[0], ranked[1:3]
-        phrase = Recognition(
-            shortlist[best],
-            float(np.exp(scores[best] - everything)),
-            tuple((shortlist[i], float(np.exp(scores[i] - everything))) for i in alternatives),
+        scores, alike = self._score(encoded, shortlist)
+        transcript = first_unit(self._text_of(tokens))
+        return Scored(
+            dict(zip(shortlist, scores, strict=True)),
+            dict(zip(shortlist, alike, strict=True)),
+            self._free_speech(tokens, log_p),
+            transcript,
+            self._spot(transcript, tokens, log_p),
         )
-        return phrase, bool(other > scores[best])
 
     def _encode(self, samples: np.ndarray) -> StorageView:
         """The encoder's output for the audio, with silence after it."""
@@ -181,27 +252,72 @@ class WhisperRecognizer:
         mel = log_mel(audio, self._model.n_mels)[:, :frames]
         return self._model.encode(_storage(mel[None]), to_cpu=True)
 
-    def _free(self, encoded: StorageView) -> tuple[np.ndarray, float]:
-        """Whisper's free greedy decoding: the log-probabilities of its first token, and the
-        log-probability of the likeliest utterance along it that is no phrase: its first k
-        tokens then an end, for the best k ("Go" then "." for "Go, go, go")."""
+    def _free(self, encoded: StorageView) -> tuple[list[int], np.ndarray]:
+        """Whisper's free greedy decoding: its tokens and each step's log-probabilities;
+        `SENTENCE_TOKENS` of them when its first ones are words of a sentence."""
+        tokens, log_p = self._greedy(encoded, [], FREE_TOKENS)
+        said = first_unit(self._text_of(tokens))
+        if len(tokens) >= FREE_TOKENS and len(said.split()) >= 2 and not self._begins(said):
+            tokens, log_p = self._greedy(encoded, tokens, SENTENCE_TOKENS)
+        return tokens, log_p
+
+    def _begins(self, said: str) -> bool:
+        """Whether words are the beginning of a phrase, or a whole one ("turn to your")."""
+        return any(f"{p} ".startswith(f"{said} ") for p in self._phrases)
+
+    def _greedy(self, encoded: StorageView, prefix: list[int], n: int) -> tuple[list, np.ndarray]:
         result = self._model.generate(
             encoded,
-            [self._start],
+            [self._start + prefix],
             beam_size=1,
-            max_length=len(self._start) + 2 * FREE_TOKENS,  # steps: see _score
+            max_length=len(self._start) + 2 * n,  # steps: see _score
             return_logits_vocab=True,
         )[0]
-        tokens, log_p = result.sequences_ids[0], _log_softmax(result.logits[0])
+        return result.sequences_ids[0], _log_softmax(result.logits[0])
+
+    def _free_speech(self, tokens: list[int], log_p: np.ndarray) -> float:
+        """log P of the likeliest utterance along the free decoding that is no phrase: its
+        first k tokens then an end, for the best k ("Go" then "." for "Go, go, go")."""
         said, other = 0.0, -np.inf
-        for k in range(1, min(len(tokens), len(log_p) - 1) + 1):
+        for k in range(1, min(len(tokens), len(log_p) - 1, FREE_TOKENS) + 1):
             said += log_p[k - 1, tokens[k - 1]]
             if first_unit(self._text_of(tokens[:k])) not in self._phrases:
                 other = max(other, said + self._log_p_end(log_p[k]))
-        return log_p[0], float(other) + OTHER_LOG_PRIOR
+        return float(other)
 
-    def _score(self, encoded: StorageView, sequences: list[list[int]]) -> np.ndarray:
-        """log P(sequence, then an end) for each token sequence, by forced decoding."""
+    def _spot(
+        self, transcript: str, tokens: list[int], log_p: np.ndarray
+    ) -> tuple[str, float] | None:
+        """The phrase inside a sentence of the transcript ("could you go left"), not negated,
+        and by how much its tokens there beat its sound-alikes' (nats)."""
+        phrase, negated = decision.spot(transcript, self._phrases)
+        if phrase is None or negated or len(transcript.split()) <= len(phrase.split()):
+            return None
+        for form in (" " + phrase, " " + phrase.capitalize()):
+            mine = self._tokens_of(form)
+            for at in range(len(tokens) - len(mine) + 1):
+                if tokens[at : at + len(mine)] == mine and at + len(mine) <= len(log_p):
+                    if at > 0 and self._maybe_negation(log_p[at - 1], tokens[at - 1]):
+                        return None
+                    rows = log_p[at : at + len(mine)]
+                    return phrase, self._alike_margin(phrase, mine, rows)
+        return None
+
+    def _maybe_negation(self, log_p: np.ndarray, said: int) -> bool:
+        """Whether the word before a phrase may have been a negation: one is within
+        decision.NEGATION_DOUBT nats of the word Whisper wrote ("Now good" for "no good")."""
+        return max(log_p[t] for t in self._negations) >= log_p[said] - decision.NEGATION_DOUBT
+
+    def _alike_margin(self, phrase: str, tokens: list[int], log_p: np.ndarray) -> float:
+        """min over the phrase's sound-alikes of log P(its token) - log P(theirs), where they
+        differ; log_p: one row per token of the phrase."""
+        gaps = [log_p[k, tokens[k]] - log_p[k, t] for k, t in self._alikes[phrase]]
+        return float(min(gaps, default=decision.MARGIN_CAP))
+
+    def _score(self, encoded: StorageView, phrases: list[str]) -> tuple[list[float], list[float]]:
+        """log P(phrase, then an end) for each phrase, by forced decoding, and its margin
+        over its sound-alikes."""
+        sequences = [self._tokens[p] for p in phrases]
         batch = _storage(np.repeat(np.asarray(encoded), len(sequences), axis=0))
         longest = max(len(s) for s in sequences)
         results = self._model.generate(
@@ -214,12 +330,13 @@ class WhisperRecognizer:
             suppress_blank=False,
             suppress_tokens=[],
         )
-        scores = []
-        for sequence, result in zip(sequences, results, strict=True):
+        scores, alike = [], []
+        for phrase, sequence, result in zip(phrases, sequences, results, strict=True):
             log_p = _log_softmax(result.logits[0][: len(sequence) + 1])  # one row per step
             said = sum(log_p[i, token] for i, token in enumerate(sequence))
             scores.append(float(said + self._log_p_end(log_p[len(sequence)])))
-        return np.array(scores)
+            alike.append(self._alike_margin(phrase, sequence, log_p))
+        return scores, alike
 
     def _tokens_of(self, text: str) -> list[int]:
         return self._tokenizer.encode(text, add_special_tokens=False).ids
