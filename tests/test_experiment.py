@@ -151,7 +151,7 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     out = tmp_path / "paper"
     argv = one_run_of_task_1(out, "rl", episodes=1)
     assert main([*argv, "--set", "goal_sectors=nine"]) == 2
-    assert "goal_sectors takes a int" in capsys.readouterr().err and not out.exists()
+    assert "goal_sectors takes an int" in capsys.readouterr().err and not out.exists()
     assert main([*argv, "--set", "goal_sectors=8"]) == 0
     results = json.loads((out / "results.json").read_text())
     assert results["learner_settings"] == ["goal_sectors=8"]

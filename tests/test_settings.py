@@ -5,7 +5,9 @@ which overrides the default; `--set` takes only the fields without a flag of the
 from __future__ import annotations
 
 import argparse
+import json
 import re
+import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -14,16 +16,22 @@ import pytest
 import yaml
 
 from services.cli import COMMANDS, parser
+from services.learner.config import LearnerConfig, with_settings
 from services.runtime.settings import (
+    SETTINGS_FILE,
     ConfigError,
     SettingsError,
     add_options,
     add_settings_argument,
+    from_record,
     option,
     read_options,
+    read_settings,
+    record,
     replaced,
+    write_settings,
 )
-from tests.conftest import ROOT
+from tests.conftest import ROOT, VOXSHAPE
 
 
 @dataclass(frozen=True)
@@ -140,3 +148,74 @@ def _variables_in_help(command: str) -> set[str]:
         if isinstance(action, argparse._SubParsersAction)
     )
     return set(re.findall(r"VOXSHAPE_[A-Z_]+", sub.format_help()))
+
+
+FIVE = 'velocities={"stop": [0, 0], "forward": [0.5, 0], "back": [-0.3, 0], "left": [0.3, 1], %s}'
+REFUSED = [
+    ("traces=replace", 'traces "replace" is not one of replacing, accumulating'),
+    ("shaping=bias", 'shaping "bias" is not one of additive, action_bias'),
+    (
+        'velocities={"left": [0.3, 1.0]}',
+        "velocities takes every key of stop, forward, back, left, right "
+        "(missing stop, forward, back, right)",
+    ),
+    (
+        FIVE % '"right": [0.3, -1], "jump": [1, 1]',
+        "velocities takes every key of stop, forward, back, left, right (not jump)",
+    ),
+    (FIVE % '"right": [0.3]', "velocities[right] takes 2 values, not [0.3]"),
+    (FIVE % '"right": [0.3, "x"]', 'velocities[right][1] takes a float, not "x"'),
+    ("tilings=2.5", "tilings takes an int, like 8, not 2.5"),
+    ("use_sonar=1", "use_sonar takes a bool, like true, not 1"),
+    ('distance_edges=[1, "far"]', 'distance_edges[1] takes a float, not "far"'),
+    ("ask.open_s=soon", 'open_s takes a float, like 8.0, not "soon"'),
+]
+
+
+@pytest.mark.parametrize(("setting", "error"), REFUSED)
+def test_a_setting_out_of_its_type_is_refused_naming_what_is_allowed(setting, error):
+    with pytest.raises(SettingsError, match=re.escape(f"--set {setting!r}: {error}")):
+        with_settings([setting])
+
+
+def test_a_whole_dict_and_the_choices_of_a_literal_are_taken():
+    config = with_settings(["traces=accumulating", FIVE % '"right": [0.2, -1]'])
+    assert config.traces == "accumulating"
+    assert config.velocities["right"] == (0.2, -1.0) and config.velocities["stop"] == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("setting", [s for s, _ in REFUSED[:3]])
+def test_the_experiment_command_refuses_a_bad_setting_in_one_line(setting, tmp_path):
+    """The real command: exit 2 before any run, one line naming the setting and the choices."""
+    argv = [VOXSHAPE, "experiment", "paper", "--set", setting, "--out", str(tmp_path / "out")]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    error = dict(REFUSED)[setting]
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.strip().splitlines() == [f"voxshape experiment: --set {setting!r}: {error}"]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_record_reads_back_as_the_settings_it_was(tmp_path):
+    config = with_settings(["alpha=0.1", "traces=accumulating", "ask.open_s=3", "near_range=null"])
+    assert from_record(LearnerConfig, json.loads(json.dumps(record(config))), "x") == config
+    assert from_record(LearnerConfig, {}, "x") == LearnerConfig()  # written before a field was
+    write_settings(tmp_path, "learner", config)
+    write_settings(tmp_path, "other", Inner(level=2))  # another section, kept beside it
+    assert read_settings(tmp_path, "learner", LearnerConfig) == config
+    assert read_settings(tmp_path, "other", Inner) == Inner(level=2)
+    assert read_settings(tmp_path / "none", "learner", LearnerConfig) is None
+
+
+@pytest.mark.parametrize(
+    ("written", "error"),
+    [
+        ({"learner": {"traces": "replace"}}, 'learner: traces "replace" is not one of'),
+        ({"learner": {"alpah": 0.1}}, "learner: no setting alpah in LearnerConfig"),
+        ({"learner": {"ask": {"open_s": "x"}}}, "learner ask: open_s takes a float"),
+        ([1, 2], "not an object of sections"),
+    ],
+)
+def test_a_record_that_does_not_fit_is_refused_naming_it(tmp_path, written, error):
+    (tmp_path / SETTINGS_FILE).write_text(json.dumps(written))
+    with pytest.raises(SettingsError, match=re.escape(error)):
+        read_settings(tmp_path, "learner", LearnerConfig)

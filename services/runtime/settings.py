@@ -295,18 +295,137 @@ def _value(config: object, field: dataclasses.Field, setting: str, raw: str, fla
             f"{flag} {setting!r}: {key} is not a single value; set its fields as "
             f"{key}.FIELD=VALUE, FIELD one of {names}"
         )
-    if isinstance(current, tuple) and isinstance(value, list):
-        value = tuple(value)
-    if type(value) is int and "float" in str(field.type):  # float, float | None
-        value = float(value)
-    ok = (
-        type(value) is type(current)
-        or (current is None and isinstance(value, float))
-        or (value is None and "None" in str(field.type))
-    )
-    if not ok:
-        raise SettingsError(
-            f"{flag} {setting!r}: {key} takes a {type(current).__name__}, "
-            f"like {json.dumps(current)}"
-        )
-    return value
+    try:
+        return checked(typing.get_type_hints(type(config))[key], value, current, key)
+    except ValueError as e:
+        raise SettingsError(f"{flag} {setting!r}: {e}") from None
+
+
+def checked(hint: Any, value: Any, default: Any, name: str) -> Any:
+    """`value` (as JSON gives it) as a value of type `hint`: a Literal's choices, a number's
+    kind, a tuple's items and a dict's keys (every one of the `default`'s, no other) and
+    values checked; ValueError names `name`, the value and what is allowed."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if origin is typing.Literal:
+        if value not in args:
+            allowed = ", ".join(map(str, args))
+            raise ValueError(f"{name} {json.dumps(value)} is not one of {allowed}")
+        return value
+    if isinstance(hint, types.UnionType) or origin is typing.Union:
+        if value is None and type(None) in args:
+            return None
+        arms = [a for a in args if a is not type(None)]
+        return checked(arms[0] if len(arms) == 1 else Any, value, default, name)
+    if origin in (tuple, list) and isinstance(value, list | tuple):
+        return _items(origin, args, value, default, name)
+    if origin is dict and isinstance(value, dict):
+        return _entries(args, value, default, name)
+    return _scalar(hint, value, default, name)
+
+
+def _scalar(hint: Any, value: Any, default: Any, name: str) -> Any:
+    """A number, text, path or flag as `hint` (int is a float too); other hints: a value of
+    the default's type."""
+    if hint is float and type(value) in (int, float):
+        return float(value)
+    if hint is Path and isinstance(value, str):
+        return Path(value)
+    want = hint if hint in (str, int, bool) else type(default)
+    if hint is Any or type(value) is want:
+        return value
+    like = f", like {json.dumps(default, default=str)}" if default is not None else ""
+    kind = getattr(hint, "__name__", None) or want.__name__
+    article = "an" if kind[0] in "aeiou" else "a"
+    raise ValueError(f"{name} takes {article} {kind}{like}, not {json.dumps(value, default=str)}")
+
+
+def _items(origin: Any, args: tuple, value: list | tuple, default: Any, name: str) -> Any:
+    """A tuple's (or list's) items, each of its type: tuple[X, ...] any number of them."""
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        if len(value) != len(args):
+            raise ValueError(f"{name} takes {len(args)} values, not {json.dumps(value)}")
+        kinds = list(args)
+    else:
+        kinds = [args[0] if args else Any] * len(value)
+    pairs = enumerate(zip(kinds, value, strict=True))
+    items = [checked(k, v, None, f"{name}[{i}]") for i, (k, v) in pairs]
+    return tuple(items) if origin is tuple else items
+
+
+def _entries(args: tuple, value: dict, default: Any, name: str) -> dict:
+    """A dict with every key of the default's (when it has some) and no other, each value of
+    its type."""
+    if isinstance(default, dict) and default:
+        missing = [k for k in default if k not in value]
+        unknown = [k for k in value if k not in default]
+        if missing or unknown:
+            said = f"missing {', '.join(missing)}" if missing else f"not {', '.join(unknown)}"
+            raise ValueError(f"{name} takes every key of {', '.join(default)} ({said})")
+    kind = args[1] if len(args) == 2 else Any
+    return {k: checked(kind, v, None, f"{name}[{k}]") for k, v in value.items()}
+
+
+def record(config: object) -> dict[str, Any]:
+    """A config dataclass as JSON-ready data (nested ones as dicts, tuples as lists, paths as
+    text): what `from_record` reads back."""
+    return json.loads(json.dumps(dataclasses.asdict(config), default=str))  # type: ignore[call-overload]
+
+
+def from_record(cls: type[Config], data: Mapping[str, Any], where: str) -> Config:
+    """The config dataclass `cls` that `record` wrote as `data`, each value checked as a
+    `--set` is; a field the record lacks (written before it existed) keeps its default.
+    SettingsError names `where` the record came from and the field that does not fit."""
+    defaults, hints = cls(), typing.get_type_hints(cls)
+    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - fields)
+    if unknown:
+        raise SettingsError(f"{where}: no setting {', '.join(unknown)} in {cls.__name__}")
+    changes = {}
+    for key, value in data.items():
+        current = getattr(defaults, key)
+        try:
+            if dataclasses.is_dataclass(current):
+                changes[key] = from_record(type(current), value, f"{where} {key}")
+            else:
+                changes[key] = checked(hints[key], value, current, key)
+        except (ValueError, TypeError) as e:
+            raise SettingsError(f"{where}: {e}") from None
+    try:
+        return dataclasses.replace(defaults, **changes)
+    except ValueError as e:
+        raise SettingsError(f"{where}: {e}") from None
+
+
+SETTINGS_FILE = "settings.json"  # a run's effective settings, by section: {"learner": {...}}
+
+
+def write_settings(folder: Path, section: str, config: object) -> Path:
+    """Records `config` as `section` of `folder`'s settings.json (the other sections kept),
+    atomically: the settings a run or an experiment ran with."""
+    path = folder / SETTINGS_FILE
+    folder.mkdir(parents=True, exist_ok=True)
+    sections = _sections(path)
+    sections[section] = record(config)
+    part = path.with_name(f".{SETTINGS_FILE}.{os.getpid()}")
+    part.write_text(json.dumps(sections, indent=1) + "\n", "utf-8")
+    part.replace(path)
+    return path
+
+
+def read_settings(folder: Path, section: str, cls: type[Config]) -> Config | None:
+    """The `cls` recorded as `section` of `folder`'s settings.json; None if none is (a run
+    made before runs recorded it). SettingsError names a record that does not fit."""
+    data = _sections(folder / SETTINGS_FILE).get(section)
+    return None if data is None else from_record(cls, data, f"{folder / SETTINGS_FILE} {section}")
+
+
+def _sections(path: Path) -> dict[str, Any]:
+    try:
+        sections = json.loads(path.read_text("utf-8"))
+    except FileNotFoundError:
+        return {}
+    except (OSError, ValueError) as e:
+        raise SettingsError(f"{path}: unreadable ({e}); move it aside to write it anew") from None
+    if not isinstance(sections, dict):
+        raise SettingsError(f"{path}: not an object of sections; move it aside")
+    return sections
