@@ -32,7 +32,7 @@ from pathlib import Path
 
 from protocol import EpisodeEvent, LearningSummary, TeachingStats, robot_key
 from services import launcher
-from services.learner.config import LearnerConfig
+from services.learner.config import with_settings
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.logger.run import RUNS, RunDir, RunError
 from services.report import load_run, write_report
@@ -96,12 +96,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def demo_task() -> str:
-    """The task the demo runs and judges convergence by: VOXSHAPE_TASK (a task number or a
-    map file), else task 1."""
-    return os.environ.get("VOXSHAPE_TASK") or TASK
-
-
 def task_title(task: str, m: Map) -> str:
     """`task 2`, or `map mine.toml (Office)` for a map file."""
     return f"task {task}" if task in ("1", "2", "3", "4") else f"map {Path(task).name} ({m.name})"
@@ -143,13 +137,12 @@ class StallWatch:
 @dataclass
 class ConvergenceWatch:
     """Episodes of one robot and the arbiter's interventions per episode, to convergence
-    (pure: messages in, lines out), judged by the map of the task run (demo_task)."""
+    (pure: messages in, lines out), judged by `convergence` (the map run, the learner's
+    settings: `watch_of`)."""
 
     robot: str
     max_episodes: int
-    convergence: Convergence = field(
-        default_factory=lambda: convergence_on(load_map(demo_task()), LearnerConfig())
-    )
+    convergence: Convergence
     episodes: list[ShownEpisode] = field(default_factory=list)
     interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
     _shown: int = 0
@@ -198,6 +191,12 @@ class ConvergenceWatch:
         return self._shown >= len(self.episodes)
 
 
+def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
+    """The first robot's watch, judged by the map of --task and the learner's --set."""
+    convergence = convergence_on(load_map(args.task), with_settings(args.set))
+    return ConvergenceWatch(args.robots[0], args.max_episodes, convergence)
+
+
 def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
     """demo.md: every episode the event log holds and the counts of the report's summary.md
     (services/logger/report.count_episodes), so the two files agree."""
@@ -234,20 +233,17 @@ def speech_mode(choice: str) -> str:
     return "audio" if shutil.which("espeak-ng") and shutil.which("sox") else "mock"
 
 
-def prepare_environment(args: argparse.Namespace, mode: str) -> str:
-    """The variables compose.yaml and the services read (the shell's own win, but for those
-    of --task, --rtf and --robots, whose defaults are the shell's); the session. The
-    simulated teacher teaches the first robot. Each demo is a session of its own, named by
-    when it starts; --resume goes on with the latest (or --session's)."""
+def session_name(args: argparse.Namespace) -> str:
+    """Each demo is a session of its own, named by when it starts; --resume goes on with the
+    latest (or --session's)."""
     session = args.session or (latest_demo() if args.resume else None)
-    session = session or time.strftime("demo-%Y%m%d-%H%M%S")
-    os.environ["VOXSHAPE_SESSION"] = session
-    os.environ["VOXSHAPE_TASK"] = args.task
-    os.environ["VOXSHAPE_RTF"] = f"{args.rtf:g}"
-    os.environ["VOXSHAPE_ROBOTS"] = ",".join(args.robots)
-    os.environ["VOXSHAPE_ROBOT"] = args.robots[0]
-    defaults = {
-        "VOXSHAPE_SESSION": session,
+    return session or time.strftime("demo-%Y%m%d-%H%M%S")
+
+
+def demo_variables(mode: str) -> dict[str, str]:
+    """The demo's defaults of the variables compose.yaml gives the services (the shell's own
+    win; --session, --task, --rtf and --robots win over both)."""
+    return {
         "VOXSHAPE_CLOCK": "paced",
         "VOXSHAPE_SPEECH_ENGINE": DEFAULT_ENGINE if mode == "audio" else "mock",
         # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
@@ -255,9 +251,6 @@ def prepare_environment(args: argparse.Namespace, mode: str) -> str:
         "VOXSHAPE_ROBOT_TIME": TEACHER,
         "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
     }
-    for name, value in defaults.items():
-        os.environ.setdefault(name, value)
-    return os.environ["VOXSHAPE_SESSION"]
 
 
 def latest_demo(runs: Path = RUNS) -> str | None:
@@ -267,19 +260,22 @@ def latest_demo(runs: Path = RUNS) -> str | None:
     return names[-1] if names else None
 
 
-def teacher_spec(session: launcher.LocalSession, mode: str, seed: int, profile: str) -> ServiceSpec:
-    """The simulated teacher as one more service of the session (on the learner's bus
-    settings), started last."""
+def teacher_spec(
+    session: launcher.LocalSession, args: argparse.Namespace, mode: str
+) -> ServiceSpec:
+    """The simulated teacher of the first robot as one more service of the session (on the
+    learner's bus settings), started last."""
     bus = next(s for s in session.specs if s.name == "learner").environment
-    command = ["voxshape", "sim-teacher", "--seed", str(seed), "--teacher-profile", profile]
+    command = ["voxshape", "sim-teacher", "--seed", str(args.seed)]
+    command += ["--teacher-profile", args.teacher_profile]
     if mode == "audio":
         command.append("--audio")
     environment = {
         **bus,
         "VOXSHAPE_NODE": TEACHER,
         "VOXSHAPE_TEACHER": TEACHER,
-        "VOXSHAPE_ROBOT": os.environ["VOXSHAPE_ROBOT"],
-        "VOXSHAPE_TASK": os.environ["VOXSHAPE_TASK"],
+        "VOXSHAPE_ROBOT": args.robots[0],
+        "VOXSHAPE_TASK": args.task,
     }
     return ServiceSpec("sim-teacher", tuple(command), environment, ("router", "speech"), ())
 
@@ -291,8 +287,8 @@ def run(args: argparse.Namespace) -> int:
         print("voxshape demo: error: --max-episodes must be >= 3 and --rtf > 0")
         return 2
     mode = speech_mode(args.speech)
-    session_id = prepare_environment(args, mode)
-    session = launcher.local_session(args)
+    session_id = args.session = session_name(args)
+    session = launcher.local_session(args, demo_variables(mode))
     simulated = not args.web or args.sim_teacher
     problem = _arrange_services(session, args, mode, simulated)
     if problem is not None:
@@ -300,7 +296,7 @@ def run(args: argparse.Namespace) -> int:
         return 2
     _introduce(session, session_id, args, mode, simulated)
     robot = args.robots[0]
-    progress = ConvergenceWatch(robot, args.max_episodes)  # judged by VOXSHAPE_TASK's map
+    progress = watch_of(args)
     session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
     session.input("teaching", robot_key(session_id, robot, "teaching"))
     session.input("learning", robot_key(session_id, robot, "learning"))  # its steps
@@ -311,7 +307,7 @@ def run(args: argparse.Namespace) -> int:
     minutes = (time.monotonic() - t0) / 60
     if code == 0:
         code = _verdict(session, progress, args.max_episodes, minutes)
-    return outputs(session, session_id, progress) or code
+    return outputs(session, session_id, progress, args.task) or code
 
 
 def _arrange_services(
@@ -322,7 +318,7 @@ def _arrange_services(
     if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
         return "compose.yaml lacks a service the demo needs (sim, learner, ...)"
     if simulated:
-        session.specs.append(teacher_spec(session, mode, args.seed, args.teacher_profile))
+        session.specs.append(teacher_spec(session, args, mode))
     if not args.web:  # the page only when a person teaches
         session.specs = [s for s in session.specs if s.name != "web"]
     elif launcher.web_page(session) is None:
@@ -459,7 +455,9 @@ def voxshape_command() -> str:
     return os.path.relpath(mine) if mine.is_relative_to(Path.cwd()) else str(mine)
 
 
-def outputs(session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch) -> int:
+def outputs(
+    session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch, task: str
+) -> int:
     """Writes the report and the episode table; says where everything is."""
     run_dir = Path("runs") / session_id
     try:
@@ -473,7 +471,7 @@ def outputs(session: launcher.LocalSession, session_id: str, progress: Convergen
     counts = loaded.counts()[progress.robot]
     session.say(counts.describe())
     table = run_dir / "demo.md"
-    table.write_text(demo_table(robot, counts, task_title(demo_task(), loaded.map)), "utf-8")
+    table.write_text(demo_table(robot, counts, task_title(task, loaded.map)), "utf-8")
     recording = run_dir / "recording.rrd"
     session.say(f"written under {run_dir}/:")
     for path in [recording, table, *written]:

@@ -5,6 +5,7 @@ interventions, to convergence or the episode bound."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -12,7 +13,9 @@ import subprocess
 import pytest
 
 from protocol import EpisodeEvent, TeachingStats
-from services.demo import FINAL_WAIT_S, ConvergenceWatch, StallWatch, demo_table, task_title
+from services.cli import parser
+from services.demo import FINAL_WAIT_S, StallWatch, demo_table, task_title, watch_of
+from services.learner.config import LearnerConfig
 from services.report.counts import count_episodes
 from services.report.summary import RobotSummary
 from services.world.maps import load_map
@@ -27,6 +30,7 @@ DEMO_TIMEOUT_S = 600  # measured: 28 episodes in 97 s at 20x (task 1, 2 loaded c
 def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(session_id, tmp_path):
     port = str(free_port())
     argv = [VOXSHAPE, "demo", "--speech", "mock", "--rtf", "20", "--max-episodes", "100"]
+    argv += ["--set", "converge_slack=3"]  # the learner's, on record and judged by
     result = subprocess.run(
         [*argv, "--port", port],
         capture_output=True,
@@ -43,6 +47,8 @@ def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(se
     (run_dir,) = (tmp_path / "runs").iterdir()
     table = (run_dir / "demo.md").read_text()
     assert converged.group(0) in table
+    assert json.loads((run_dir / "settings.json").read_text())["learner"]["converge_slack"] == 3
+    assert "each within 3x the map's shortest time" in table
     interventions = [int(n) for n in re.findall(r"\| (\d+) \|\s*$", table, re.MULTILINE)]
     assert sum(interventions) > 0, table  # the teacher was heard
     assert (run_dir / "recording.rrd").stat().st_size > 10_000
@@ -77,8 +83,13 @@ def stats(episode: int, interventions: int, final: bool) -> TeachingStats:
     )
 
 
+def watch(max_episodes: int, *argv: str):
+    """The demo's watch of `voxshape demo --max-episodes N *argv` (task 1 unless --task)."""
+    return watch_of(parser("demo").parse_args(["demo", "--max-episodes", str(max_episodes), *argv]))
+
+
 def test_an_episode_is_shown_once_its_interventions_are_final_or_waited_for():
-    progress = ConvergenceWatch("r1", max_episodes=10)
+    progress = watch(10)
     progress.on_episode(ended(0, 900, "timeout"), now=0.0)
     progress.on_teaching(stats(0, 4, final=False))
     assert progress.due_lines(now=1.0) == []
@@ -91,7 +102,7 @@ def test_an_episode_is_shown_once_its_interventions_are_final_or_waited_for():
 
 
 def test_it_is_done_at_convergence_and_marks_the_episode():
-    progress = ConvergenceWatch("r1", max_episodes=10)
+    progress = watch(10)
     for n, steps in enumerate([2000, 400, 150, 160, 170]):
         progress.on_episode(ended(n, steps), now=0.0)
     assert progress.done and progress.convergence.n_episodes == 5
@@ -100,7 +111,7 @@ def test_it_is_done_at_convergence_and_marks_the_episode():
 
 
 def test_it_gives_up_at_the_episode_bound_and_ignores_other_robots():
-    progress = ConvergenceWatch("r1", max_episodes=3)
+    progress = watch(3)
     progress.on_episode(EpisodeEvent(**{**ended(0, 10).__dict__, "robot": "r2"}), now=0.0)
     assert progress.episodes == []
     for n in range(3):
@@ -118,19 +129,22 @@ def test_a_stall_is_steps_that_stop_not_a_long_episode():
     assert watch.on_step(1000, now=106.0) and not watch.stalled(now=106.0)  # going again
 
 
-def test_convergence_is_judged_by_the_map_the_demo_runs(monkeypatch):
+def test_convergence_is_judged_by_the_map_and_the_settings_the_demo_runs(monkeypatch):
     # Goal episodes of about 28 s: slow on task 1 (10.3 s at best), good in the long room
-    # (19 s at best): the demo running the long room must not judge it by task 1.
+    # (19 s at best): the demo running the long room must not judge it by task 1, nor one
+    # whose learner goes at half speed (38 s at best) by the default speeds.
     monkeypatch.delenv("VOXSHAPE_TASK", raising=False)
-    on_task_1 = ConvergenceWatch("r1", max_episodes=10)
-    monkeypatch.setenv("VOXSHAPE_TASK", str(LONG_ROOM))
-    on_its_map = ConvergenceWatch("r1", max_episodes=10)
+    slow = {a: [v / 2, w] for a, (v, w) in LearnerConfig().velocities.items()}
+    on_task_1 = watch(10)
+    on_its_map = watch(10, "--task", str(LONG_ROOM))
+    slower = watch(10, "--task", str(LONG_ROOM), "--set", f"velocities={json.dumps(slow)}")
     for n, steps in enumerate([900, 280, 285, 290]):
-        on_task_1.on_episode(ended(n, steps), now=0.0)
-        on_its_map.on_episode(ended(n, steps), now=0.0)
+        for progress in (on_task_1, on_its_map, slower):
+            progress.on_episode(ended(n, steps), now=0.0)
     assert not on_task_1.convergence.converged
     assert on_its_map.convergence.converged and on_its_map.convergence.n_episodes == 4
     assert "(19.0 s)" in on_its_map.convergence.rule()
+    assert "(38.0 s)" in slower.convergence.rule()
 
 
 def test_demo_md_states_the_counts_of_the_report_and_names_the_map():
@@ -140,7 +154,7 @@ def test_demo_md_states_the_counts_of_the_report_and_names_the_map():
         robot.on_episode(ended(n, steps))
         robot.on_teaching(stats(n, heard, final=n < 4))
     m = load_map(LONG_ROOM)
-    counts = count_episodes(robot, m)
+    counts = count_episodes(robot, m, LearnerConfig())
     table = demo_table(robot, counts, task_title(str(LONG_ROOM), m))
     assert table.startswith("# Demo: robot r1, map long-room.toml (Long room), taught")
     assert counts.describe() in table  # the very sentence of the report's summary.md

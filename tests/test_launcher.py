@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import signal
@@ -47,7 +48,7 @@ def start_up(spawn, session_id: str, cwd: Path, *extra: str) -> tuple[subprocess
 
 
 def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id, tmp_path):
-    up, port = start_up(spawn, session_id, tmp_path)
+    up, port = start_up(spawn, session_id, tmp_path, "--set", "alpha=0.1")
     lines = read_until(up, r"ready in")
     lines += read_until(up, r"teach in a browser: http://127\.0\.0\.1:\d+/")
     children = [int(m.group(1)) for line in lines if (m := re.search(r"\(pid (\d+)\)", line))]
@@ -79,6 +80,8 @@ def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id, tmp
         assert (
             not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
         )
+    recorded = json.loads((tmp_path / "runs" / session_id / "settings.json").read_text())
+    assert recorded["learner"]["alpha"] == 0.1  # --set reached the learner, which recorded it
 
 
 def compose_with(tmp_path: Path, services: str) -> Path:

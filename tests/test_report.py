@@ -4,16 +4,20 @@ pictures whose axes stay readable."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from protocol import EpisodeEvent, TeachingStats
+from services.learner.config import LearnerConfig, with_settings
 from services.logger.eventlog import read_events
 from services.logger.run import RunDir, RunError, describe_session, write_session_info
 from services.report import load_run, write_report
 from services.report.counts import count_episodes
 from services.report.pictures import pick_episodes, robust_limits
 from services.report.summary import RobotSummary, summarize
+from services.runtime.settings import write_settings
 from services.world.maps import load_map
 from tests.logger_support import LONG_ROOM, scripted_session, write_script
 
@@ -52,7 +56,7 @@ def test_a_simulator_restarting_within_a_log_starts_a_new_run_never_merged(resta
     # the arbiter's count of the second run's episode 0 is its own, not the first run's
     assert [e.interventions for e in robot.ended] == [0, 1, 0, 1, 0]
     assert [e.final for e in robot.ended] == [True, True, False, True, False]  # never settled
-    counts = count_episodes(robot, load_map("1"))
+    counts = count_episodes(robot, load_map("1"), LearnerConfig())
     assert (counts.ended, counts.interventions, counts.provisional) == (5, 2, 2)
 
     with pytest.raises(RunError, match="episode 0 in runs 1 and 2"):
@@ -116,12 +120,12 @@ def test_convergence_is_judged_by_the_map_run_and_counts_to_it_and_in_all():
     teaching(robot, 5, 3, final=False)
 
     # task 1's shortest time is 10.3 s: 28 s episodes are 2.7 times that, not learnt
-    on_task_1 = count_episodes(robot, load_map("1"))
+    on_task_1 = count_episodes(robot, load_map("1"), LearnerConfig())
     assert not on_task_1.convergence.converged
     assert on_task_1.describe().startswith("The robot did not converge within the 5 episodes")
 
     # the long room's is 19 s: the same episodes have learnt it
-    counts = count_episodes(robot, load_map(LONG_ROOM))
+    counts = count_episodes(robot, load_map(LONG_ROOM), LearnerConfig())
     assert counts.convergence.converged and counts.converged_at == "3"
     assert (counts.convergence.n_episodes, counts.convergence.interventions) == (4, 10)
     assert (counts.ended, counts.interventions) == (5, 10)
@@ -151,6 +155,20 @@ def test_the_summary_states_the_counts_and_what_they_mean(tmp_path):
     assert counts.describe() in text
     assert "each within 2.5x the map's shortest time (19.0 s)" in text  # the map run
     assert "interventions are the utterances the arbiter understood" in text
+
+
+def test_a_run_is_judged_with_the_settings_its_learner_recorded(tmp_path):
+    """Half the speeds: the long room's shortest time doubles, and the summary says so."""
+    run = RunDir(tmp_path / "runs" / "s1")
+    write_session_info(run, describe_session("s1", str(LONG_ROOM), {}))
+    write_script(run.events, "s1", scripted_session("s1", episodes=3, steps=20))
+    slow = {a: (v / 2, w) for a, (v, w) in LearnerConfig().velocities.items()}
+    learner = with_settings([f"velocities={json.dumps(slow)}", "converge_slack=3"])
+    write_settings(run.path, "learner", learner)
+    loaded = load_run(run)
+    assert loaded.learner == learner
+    text = write_report(run, loaded=loaded)[-1].read_text()
+    assert "each within 3x the map's shortest time (38.0 s)" in text
 
 
 def test_robust_limits_keep_a_first_episodes_huge_return_from_squashing_the_rest():

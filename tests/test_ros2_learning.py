@@ -15,8 +15,11 @@ import pytest
 from protocol import EpisodeEvent, TeachingStats, robot_key
 from services.demo import ConvergenceWatch
 from services.launcher import LoopbackSession, ServiceDied
+from services.learner.config import LearnerConfig
+from services.learner.convergence import convergence_on
 from services.runtime import Input
 from services.topology import ServiceSpec
+from services.world.maps import load_map
 from tests.conftest import ROOT, free_port
 
 RTF = 10  # 20x overloaded a 2-core machine running the suite: its robot fell behind
@@ -66,7 +69,7 @@ def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, s
         "VOXSHAPE_ROBOT_TIME": "simteacher",  # the arbiter's: its delays are robot seconds
     }
     session = LoopbackSession(session_id, variables=variables, cwd=tmp_path, logs=tmp_path / "logs")
-    progress = ConvergenceWatch("r1", MAX_EPISODES)
+    progress = ConvergenceWatch("r1", MAX_EPISODES, convergence_on(load_map("1"), LearnerConfig()))
     session.input("episode", robot_key(session_id, "r1", "episode"))
     session.input("teaching", robot_key(session_id, "r1", "teaching"))
     t0 = time.monotonic()

@@ -219,3 +219,13 @@ def test_a_record_that_does_not_fit_is_refused_naming_it(tmp_path, written, erro
     (tmp_path / SETTINGS_FILE).write_text(json.dumps(written))
     with pytest.raises(SettingsError, match=re.escape(error)):
         read_settings(tmp_path, "learner", LearnerConfig)
+
+
+@pytest.mark.parametrize("command", ["up", "demo"])
+def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_path):
+    argv = [VOXSHAPE, command, "--compose", str(ROOT / "compose.yaml"), "--set", "shaping=bias"]
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert done.returncode == 2, done.stdout + done.stderr
+    error = f"voxshape {command}: error: --set 'shaping=bias': {dict(REFUSED)['shaping=bias']}"
+    assert done.stderr.strip().splitlines() == [error]
+    assert not (tmp_path / "runs").exists()  # nothing started, no run folder made

@@ -22,6 +22,7 @@ from typing import IO
 from protocol import ProtocolError, check_id
 from services.launcher.session import LaunchAborted, LocalSession, ServiceDied
 from services.learner import checkpoint
+from services.learner.config import add_settings_argument, with_settings
 from services.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
 from services.runtime import BusError, ConfigError, free_loopback_port
 from services.runtime.config import tcp_address
@@ -94,6 +95,7 @@ def add_arguments(
         help="a service that dies stops the session (default: restarted as compose.yaml's "
         "`restart` says)",
     )
+    add_settings_argument(parser)  # the learner's; it records them in runs/<session>/
 
 
 def add_up_arguments(parser: argparse.ArgumentParser) -> None:
@@ -142,9 +144,12 @@ def robot_list(text: str) -> tuple[str, ...]:
     return robots
 
 
-def session_variables(args: argparse.Namespace) -> dict[str, str]:
-    """The variables compose.yaml is read with: the local ones, the shell's, then the flags."""
-    variables = local_variables()
+def session_variables(
+    args: argparse.Namespace, defaults: Mapping[str, str] | None = None
+) -> dict[str, str]:
+    """The variables compose.yaml is read with: the local ones, the command's `defaults`, the
+    shell's, then the flags."""
+    variables = local_variables({**(defaults or {}), **os.environ})
     if args.session is not None:
         variables["VOXSHAPE_SESSION"] = args.session
     if args.port is not None:
@@ -167,14 +172,18 @@ def session_variables(args: argparse.Namespace) -> dict[str, str]:
     return variables
 
 
-def local_session(args: argparse.Namespace) -> LocalSession:
-    """The session of compose.yaml with the flags' variables, its run directory prepared
-    (ConfigError if its router's port is taken: another session runs)."""
-    variables = session_variables(args)
+def local_session(
+    args: argparse.Namespace, defaults: Mapping[str, str] | None = None
+) -> LocalSession:
+    """The session of compose.yaml with the flags' variables (over the shell's, over
+    `defaults`), its run directory prepared (ConfigError if its router's port is taken:
+    another session runs)."""
+    variables = session_variables(args, defaults)
     path = args.compose or find_compose_file()
     specs = load_topology(path, variables, tuple(args.profile))
     if getattr(args, "no_sim", False):
         specs = without_simulator(specs)
+    specs = with_learner_settings(specs, args.set)
     session = LocalSession(
         specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout, getattr(args, "restart", True)
     )
@@ -188,6 +197,14 @@ def local_session(args: argparse.Namespace) -> LocalSession:
     said, session.run_lock = prepare_run(RUNS / session.session_id, args.resume, args.command)
     session.say(said)
     return session
+
+
+def with_learner_settings(specs: list[ServiceSpec], settings: list[str]) -> list[ServiceSpec]:
+    """The learner given the `--set` settings (checked here first: SettingsError names a bad
+    one before anything starts)."""
+    with_settings(settings)
+    added = tuple(a for setting in settings for a in ("--set", setting))
+    return [replace(s, command=s.command + added) if s.name == "learner" else s for s in specs]
 
 
 def busy_endpoints(endpoints: str) -> list[str]:

@@ -50,7 +50,7 @@ from services.runtime import (
     fields,
 )
 from services.runtime.logs import worth_logging
-from services.runtime.settings import add_options, option, read_options
+from services.runtime.settings import add_options, option, read_options, write_settings
 from services.world.maps import load_map, task_option
 
 MAX_PENDING = 100_000  # messages looked through for feedback when stopping
@@ -182,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
     bus = bus_config("learner", args)
     paths = {r: checkpoint_path(options.checkpoint, bus.session, r, len(robots)) for r in robots}
     config = with_settings(args.set)
+    write_settings(paths[robots[0]].parent, "learner", config)  # the run's, on record
     seeds = {r: None if options.seed is None else options.seed + i for i, r in enumerate(robots)}
     restored = {r: restore(paths[r], config, seeds[r], options.fresh) for r in robots}
     with Node("learner", bus) as node:

@@ -15,6 +15,7 @@ from services.report.counts import EpisodeCounts, count_episodes
 from services.report.pictures import draw_learning, draw_rewards, draw_trajectories, pick_episodes
 from services.report.summary import SessionSummary, summarize
 from services.report.summary_md import markdown
+from services.runtime.settings import read_settings
 from services.world.maps import Map
 
 
@@ -25,9 +26,13 @@ class LoadedRun:
     summary: SessionSummary
     map: Map
     log: EventLog
+    learner: LearnerConfig  # the settings the run's learner recorded (learning_settings)
 
-    def counts(self, config: LearnerConfig | None = None) -> dict[str, EpisodeCounts]:
-        return {n: count_episodes(r, self.map, config) for n, r in self.summary.robots.items()}
+    def counts(self) -> dict[str, EpisodeCounts]:
+        """Each robot's, judged by the run's map and its learner's settings."""
+        return {
+            n: count_episodes(r, self.map, self.learner) for n, r in self.summary.robots.items()
+        }
 
 
 def load_run(run: RunDir, task: str | None = None) -> LoadedRun:
@@ -41,7 +46,13 @@ def load_run(run: RunDir, task: str | None = None) -> LoadedRun:
         session = read_session_info(run).session
     except RunError:
         session = log.header.session
-    return LoadedRun(summarize(log.records, session), m, log)
+    return LoadedRun(summarize(log.records, session), m, log, learning_settings(run))
+
+
+def learning_settings(run: RunDir) -> LearnerConfig:
+    """The settings the run's learner recorded in its settings.json; a run made before
+    learners recorded them ran with the defaults of its day, taken as today's."""
+    return read_settings(run.path, "learner", LearnerConfig) or LearnerConfig()
 
 
 def write_report(

@@ -56,12 +56,11 @@ class EpisodeCounts:
         return text
 
 
-def count_episodes(
-    robot: RobotSummary, m: Map, config: LearnerConfig | None = None
-) -> EpisodeCounts:
-    """Episodes and interventions to convergence (judged by map `m`'s shortest time, the
-    learner's rule) and in all; the one count every file of a run states."""
-    convergence = convergence_on(m, config or LearnerConfig())
+def count_episodes(robot: RobotSummary, m: Map, config: LearnerConfig) -> EpisodeCounts:
+    """Episodes and interventions to convergence (judged by map `m`'s shortest time and the
+    run's learner `config`, the learner's rule) and in all; the one count every file of a
+    run states."""
+    convergence = convergence_on(m, config)
     ended = robot.ended
     for e in ended:
         convergence.add(EpisodeResult(e.outcome, e.steps, e.seconds, e.interventions))

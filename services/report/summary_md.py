@@ -5,7 +5,7 @@ from __future__ import annotations
 import statistics
 from pathlib import Path
 
-from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts, count_episodes
+from services.report.counts import INTERVENTIONS_ARE, EpisodeCounts
 from services.report.summary import MOVING_AVERAGE, SessionSummary
 from services.world.maps import Map
 
@@ -14,11 +14,10 @@ def markdown(
     summary: SessionSummary,
     m: Map,
     pictures: dict[str, list[Path]],
-    counts: dict[str, EpisodeCounts] | None = None,
+    counts: dict[str, EpisodeCounts],
 ) -> str:
     """summary.md: the session's traffic, then per robot its counts (count_episodes), a table
     of its numbers and its pictures."""
-    counts = counts or {name: count_episodes(r, m) for name, r in summary.robots.items()}
     lines = [f"# Session {summary.session}", ""]
     duration = (summary.last_wall or 0) - (summary.first_wall or 0)
     lines += [
