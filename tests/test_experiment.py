@@ -152,9 +152,13 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     argv = one_run_of_task_1(out, "rl", episodes=1)
     assert main([*argv, "--set", "goal_sectors=nine"]) == 2
     assert "goal_sectors takes an int" in capsys.readouterr().err and not out.exists()
-    assert main([*argv, "--set", "goal_sectors=8"]) == 0
+    assert main([*argv, "--set", "goal_sectors=8", "--set", "converge_margin=0.3"]) == 0
     results = json.loads((out / "results.json").read_text())
-    assert results["learner_settings"] == ["goal_sectors=8"]
+    assert results["learner_settings"] == ["goal_sectors=8", "converge_margin=0.3"]
+    recorded = json.loads((out / "settings.json").read_text())  # the effective settings
+    assert recorded["learner"]["goal_sectors"] == 8 and recorded["learner"]["alpha"] == 0.2
+    assert "the slowest within 30% of the fastest" in (out / "report.md").read_text()
+    assert recorded["teacher"]["words_per_robot_minute"] == 4.0  # the person's
 
 
 def test_first_seed_runs_other_seeds_and_says_which(tmp_path):
@@ -185,6 +189,9 @@ def test_pooled_experiments_are_the_experiment_of_all_their_seeds(tmp_path, caps
         assert pooled[key] == both[key]
     assert pooled["pooled"] == [str(tmp_path / "first"), str(tmp_path / "second")]
     assert "seeds 0-1" in (tmp_path / "pooled" / "report.md").read_text()
+    assert (tmp_path / "pooled" / "settings.json").read_text() == (
+        tmp_path / "both" / "settings.json"
+    ).read_text()
     capsys.readouterr()
 
     def refused(*dirs: str) -> str:
@@ -299,8 +306,8 @@ def test_sweep_needs_something_to_sweep(capsys):
 
 def test_the_distributed_run_learns_exactly_what_the_in_process_run_learns():
     """Every service its own process over zenoh, on the lockstep clock: same seed, same
-    episodes, step for step."""
-    spec = RunSpec("1", "rl", seed=0, max_episodes=2)
+    episodes, step for step; the bus's learner given the same settings (and judged by them)."""
+    spec = RunSpec("1", "rl", seed=0, max_episodes=2, learner=("alpha=0.5", "min_hold=2"))
     local, bus = distributed.in_process(spec), distributed.over_zenoh(spec, timeout_s=300)
     assert bus.durations_s == local.durations_s and len(bus.durations_s) == 2
 

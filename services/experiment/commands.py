@@ -18,7 +18,7 @@ from services.experiment.runner import ResumeError, RunsFailed
 from services.experiment.sweep import sweep
 from services.learner.config import add_settings_argument, with_settings
 from services.logger.run import keep_earlier_run
-from services.runtime.settings import SettingsError, replaced
+from services.runtime.settings import SettingsError, replaced, write_settings
 from services.teacher.simulated.teacher import PROFILES, TeacherProfile
 from services.world.maps import MapError, load_map
 
@@ -246,6 +246,17 @@ def run(args: argparse.Namespace) -> int:
         return 1
 
 
+def record_settings(
+    out: Path, learner: list[str], profile: str | None = None, teacher: list[str] = ()
+) -> None:
+    """The settings every run of an experiment learned and was taught with, in `out`'s
+    settings.json beside its results: the learner's and the simulated teacher's (none in
+    `distributed`, whose teacher is each setting's)."""
+    write_settings(out, "learner", with_settings(list(learner)))
+    if profile is not None:
+        write_settings(out, "teacher", replaced(PROFILES[profile], list(teacher), "--teacher"))
+
+
 def run_paper(args: argparse.Namespace) -> int:
     command = command_line()
     summary = experiment(
@@ -257,6 +268,7 @@ def run_paper(args: argparse.Namespace) -> int:
         command,
         **_running(args),
     )
+    record_settings(args.out, args.set, args.teacher_profile, args.teacher)
     _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({summary['wall_time_s'] / 60:.1f} min)")  # fmt: skip
     return 0
@@ -288,6 +300,12 @@ def run_pool(args: argparse.Namespace) -> int:
     except PoolError as e:
         print(f"voxshape experiment pool: {e}", file=sys.stderr)
         return 2
+    record_settings(
+        args.out,
+        summary.get("learner_settings", []),
+        summary.get("teacher_profile"),  # results of before profiles: no teacher section
+        summary.get("teacher_settings", []),
+    )
     _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({len(summary['runs'])} runs of {len(args.dirs)} experiments)")  # fmt: skip
     return 0
@@ -311,6 +329,7 @@ def run_sweep(args: argparse.Namespace) -> int:
         args.rate,
         **_running(args),
     )
+    record_settings(args.out, args.set, args.teacher_profile, args.teacher)
     _show(args.out, "sweep.md", "sweep.json, sweep.md, sweep.png")
     return 0
 
@@ -323,6 +342,7 @@ def run_distributed(args: argparse.Namespace) -> int:
     (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
     text = distributed.report(comparison) + f"\n\nReproduce: `{comparison['command']}`"
     (args.out / "distributed.md").write_text(text + "\n")
+    record_settings(args.out, [])
     print(text)
     print(f"wrote {args.out / 'distributed.json'}, distributed.md")
     return 0

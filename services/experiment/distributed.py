@@ -31,6 +31,7 @@ from services.launcher import LoopbackSession
 from services.learner.config import LearnerConfig
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.runtime import Input, Node
+from services.runtime.settings import read_settings
 from services.sim.task import SimConfig
 from services.teacher.simulated.teacher import Confusion
 from services.topology import ServiceSpec
@@ -88,6 +89,7 @@ def _services(spec: RunSpec, session: LoopbackSession, folder: Path) -> list[Ser
     in-process run's traces (the simulator is apart: it starts last)."""
     services = _teacher_services(spec, session) if SETTINGS[spec.setting].feedback else []
     learner = ["--robot", ROBOT, "--fresh", "--seed", str(spec.seed)]
+    learner += [a for setting in spec.learner for a in ("--set", setting)]
     learner += ["--checkpoint", str(folder / "learner.npz")]
     if book := initial_traces(spec):  # the in-process run's traces, replayed alike
         book.save(folder / "traces.npz")
@@ -131,7 +133,11 @@ def _follow(
         # The simulator starts last, once the others are present: in lockstep it waits for an
         # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
         session.add(_simulator(spec, session))
-        progress = convergence_on(load_map(spec.task), LearnerConfig())
+        # judged with the settings the learner ran with, as it recorded them
+        learner = read_settings(folder, "learner", LearnerConfig)
+        if learner is None:
+            raise RuntimeError(f"the learner recorded no settings in {folder}")
+        progress = convergence_on(load_map(spec.task), learner)
         return progress, _watch(node, session, progress, spec.max_episodes, deadline)
 
 

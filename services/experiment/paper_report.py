@@ -18,7 +18,7 @@ from services.experiment.published import (
     TASKS,
     paper_average,
 )
-from services.learner.config import LearnerConfig
+from services.learner.config import with_settings
 from services.learner.convergence import Convergence
 
 
@@ -156,7 +156,7 @@ def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
         "Learning time is the robot's simulated time until convergence ("
-        + Convergence(LearnerConfig()).rule()
+        + Convergence(with_settings(summary.get("learner_settings", []))).rule()
         + ", the shortest time of each task's map). **Censored runs**: a run that did not "
         "converge within the episode limit counts with its time so far, so its cell's mean "
         f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored{named}).",
