@@ -17,9 +17,10 @@ the question's step, questions.py), or becomes a command (credited to the curren
 at once) or a judgement: its onset
 (not its recognition or arrival time: recognition latency must not move the credit) goes from
 the teacher's clock to the simulator's (clocks.py), the teacher's reaction-delay window
-(credit.py) picks the steps, the merge policy (merge.py) combines teachers, and the reward
-bound g clips the result. Understood utterances are the interventions, counted per episode of
-the step they credit and published (TeachingStats) with each teacher's statistics.
+(credit.py) picks the steps and the merge policy (merge.py) combines teachers; the reward goes
+out unbounded (the bound g is the learner's, `feedback_bound`). Understood utterances are the
+interventions, counted per episode of the step they credit and published (TeachingStats) with
+each teacher's statistics.
 """
 
 from __future__ import annotations
@@ -332,7 +333,7 @@ class Arbiter:
         scale: float,
     ) -> tuple[list[Message], int] | None:
         """A qualifier or the goal, credited to the steps the teacher saw (None: too late):
-        the feedback to send now (merge policy, bound g) and the episode it is about. `scale`:
+        the feedback to send now (by the merge policy) and the episode it is about. `scale`:
         wall seconds per second of the teacher's delays."""
         onset = self._onset_on_sim_clock(utterance, robot, now)
         polarity = 1 if reward > 0 else -1 if reward < 0 else 0

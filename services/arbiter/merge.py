@@ -7,7 +7,8 @@ Policies (judgements "about the same steps" have credited step ranges within `sl
   steps become one feedback with the weighted mean reward and the weighted mean credits.
 - majority: like mean, but only the side (positive or negative) with the greater total teacher
   weight counts; a tie sends nothing (counted as `conflict_tie`).
-The reward bound g is applied after merging, by the arbiter.
+The merged reward goes to the learner as it is: the bound g is the learner's (`credit` clips f
+to `feedback_bound`).
 """
 
 from __future__ import annotations

@@ -12,8 +12,10 @@ One control step (`Learner.step`), with s the previous state and a the action ta
     choose a' from s'          the teacher's command if one is pending, else the policy
                                derived from Q (epsilon-greedy, or the blend), never the turn
                                that undoes the policy's own turn a, `_select`
-    update                     delta = G + gamma^k Q(s', a') - Q(s, a)   (0 for Q(s', a')
-                               when s' is terminal; a timeout is a truncation: it bootstraps)
+    update                     delta = G + F + gamma^k Q(s', a') - Q(s, a), with the words'
+                               shaping F = gamma^k Phi(s') - Phi(s)   (0 for Q(s', a') and
+                               Phi(s') when s' is terminal; a timeout is a truncation: it
+                               bootstraps)
                                e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
                                Q <- Q + alpha delta e;  e <- gamma^k lambda e,  `_update`
     s <- s', a <- a'
