@@ -182,11 +182,6 @@ def load_credentials(path: Path) -> dict[str, str]:
     return credentials
 
 
-def password_of(path: Path, user: str) -> str | None:
-    """The password of `user` in a credentials file, None if the user is not in it."""
-    return load_credentials(path).get(user)
-
-
 def _key(session: str, user: User, scope: str, owner: str, topic: str) -> list[str]:
     owners = {"self": [user.name], "robots": list(user.robots)}.get(owner, [owner])
     make = robot_key if scope == "robot" else teacher_key

@@ -48,14 +48,6 @@ def read_wav(path: str | Path) -> np.ndarray:
     return pcm_to_samples(frames)
 
 
-def write_wav(path: str | Path, samples: np.ndarray) -> None:
-    with wave.open(str(path), "wb") as w:
-        w.setnchannels(1)
-        w.setsampwidth(2)
-        w.setframerate(SAMPLE_RATE)
-        w.writeframes(samples_to_pcm(samples))
-
-
 def level_dbfs(samples: np.ndarray) -> float:
     """RMS level in dB relative to full scale; digital silence is -100."""
     if len(samples) == 0:
