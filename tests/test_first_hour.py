@@ -208,20 +208,6 @@ def test_a_remote_teacher_joins_a_secured_session_as_the_readme_says(tmp_path, s
     assert up.exitstatus == 0, stopped[-3000:]
 
 
-def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):
-    (line,) = re.findall(r'`(gym\.make\("[^`]+\))`', README)
-    child = pexpect.spawn(
-        str(Path(VOXSHAPE).parent / "python"),
-        ["-I", "-c", f"import gymnasium as gym; env = {line}; env.reset(seed=0); print('ok')"],
-        cwd=str(tmp_path),
-        encoding="utf-8",
-        timeout=60,
-    )
-    child.expect(pexpect.EOF)
-    child.close()
-    assert child.exitstatus == 0 and "ok" in child.before, child.before
-
-
 @pytest.mark.timeout(300)
 @pytest.mark.long
 def test_the_demo_on_a_map_file_converges_and_says_so(tmp_path, session_id):
