@@ -27,7 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import percentile, spread
-from protocol import CreditedFeedback, robot_key, teacher_key
+from protocol import CreditedFeedback
 from services.arbiter.scripted import ScriptedTeacher, observation, rehearse, utterance
 from services.launcher import LoopbackSession
 from services.runtime import Input, Node, Output, Presence
@@ -50,11 +50,10 @@ def measure_latency(utterances: int = 1000, warmup_s: float = 1.2) -> dict:
         LoopbackSession(f"bench{uuid.uuid4().hex[:8]}", logs=Path(logs)) as session,
         Node("bench", session.client_config("bench"), quiet=True) as node,
     ):
-        s = session.session_id
-        node.input("feedback", robot_key(s, ROBOT, "feedback"))
+        node.subscribe("feedback", ROBOT)
         node.watch_presence(role="arbiter")
-        stream = _ObservationStream(node.output("obs", robot_key(s, ROBOT, "obs")))
-        said = node.output("utterance", teacher_key(s, TEACHER, "utterance"))
+        stream = _ObservationStream(node.advertise("obs", ROBOT))
+        said = node.advertise("utterance", TEACHER)
         session.add(session.service("arbiter", *UNLIMITED))
         _wait_for_arbiter(node, stream, said)
         deadline = time.monotonic() + warmup_s

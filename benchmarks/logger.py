@@ -31,7 +31,7 @@ import zenoh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import checkout_environment
-from protocol import EpisodeEvent, encode, robot_key
+from protocol import EpisodeEvent, encode
 from protocol.examples import example_messages
 from services.launcher import LoopbackSession
 from services.logger.eventlog import EventLogWriter, EventRecord, read_events
@@ -62,7 +62,7 @@ def session_step_rate(
         Node("bench", session.client_config("bench"), quiet=True) as node,
     ):
         run = _start_watcher(session, watcher, work)
-        node.input("episode", robot_key(session_id, "r1", "episode"))
+        node.subscribe("episode", "r1")
         checkpoint = str(work / f"{session_id}.npz")
         session.add(
             session.service("learner", "--fresh", "--seed", "0", "--checkpoint", checkpoint)
@@ -154,7 +154,7 @@ from services.runtime import Node, bus_config
 delay = float(sys.argv[1])
 config = bus_config("slow")
 with Node("slow", config, quiet=True) as node:
-    node.zenoh.declare_subscriber(f"voxshape/{config.session}/**", lambda s: time.sleep(delay))
+    node.zenoh.declare_subscriber(node.everything, lambda s: time.sleep(delay))
     for event in node.events():
         pass
 """

@@ -22,8 +22,6 @@ from protocol import (
     Said,
     TeacherNotice,
     Utterance,
-    robot_key,
-    teacher_key,
 )
 from services.runtime import BusConfig, Input, Node, Presence
 
@@ -93,13 +91,12 @@ class Probe:
             return set(self.seen.obs)
 
     def _run(self) -> None:
-        s = self.config.session
         with Node("bench", self.config, quiet=True) as node:
             node.watch_presence()
             for topic in ("obs", "action", "feedback"):
-                node.input(topic, robot_key(s, "*", topic))
+                node.subscribe(topic)
             for topic in ("said", "utterance", "notice"):
-                node.input(topic, teacher_key(s, "*", topic))
+                node.subscribe(topic)
             self.ready.set()
             while not self._stop.is_set():
                 event = node.poll(0.2)

@@ -32,7 +32,7 @@ import zenoh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import is_max, percentile, spread
-from protocol import Action, Observation, robot_key
+from protocol import Action, Observation
 from services.launcher import LoopbackSession
 from services.ros2 import msgs, rmw
 from services.runtime import Input, Node, free_loopback_port
@@ -97,8 +97,8 @@ def measure(
         robot.declare_publisher(keys["odom"]),
     )
     with Node("bench", session.client_config("learner"), quiet=True) as learner:
-        learner.input("obs", robot_key(SESSION, "r1", "obs"))
-        out = learner.output("action", robot_key(SESSION, "r1", "action"))
+        learner.subscribe("obs", "r1")
+        out = learner.advertise("action", "r1")
         stop = threading.Event()
         seen: set[int] = set()  # scans (by count) whose observation came
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from protocol import Action, Observation, robot_key
+from protocol import Action, Observation
 from services.launcher import LoopbackSession
 from services.runtime import Input, Node, Output
 from services.sim.task import SimConfig, Simulation
@@ -56,8 +56,8 @@ def bus_lockstep(task: str, steps: int, warmup: int = 200) -> tuple[float, float
         LoopbackSession(f"bench{uuid.uuid4().hex[:8]}", logs=Path(logs)) as session,
         Node("bench", session.client_config("bench"), quiet=True) as node,
     ):
-        node.input("obs", robot_key(session.session_id, "r1", "obs"))
-        act = node.output("action", robot_key(session.session_id, "r1", "action"))
+        node.subscribe("obs", "r1")
+        act = node.advertise("action", "r1")
         session.add(session.service("sim", *sim))
         return _answer(node, act, warmup, steps)
 

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.common import spread  # noqa: E402
-from protocol import Observation, Utterance, robot_key, teacher_key  # noqa: E402
+from protocol import Observation, Utterance  # noqa: E402
 from services.launcher import LoopbackSession  # noqa: E402
 from services.runtime import Input, Node, free_loopback_port  # noqa: E402
 from services.runtime.audio import read_wav  # noqa: E402
@@ -170,7 +170,7 @@ def page_latencies(
     context, page = open_page(browser, url, "bench")
     latency = draw_latency(page, args.seconds)
     with Node("bench", session.client_config("words")) as node:
-        node.input("utterance", teacher_key(session.session_id, "bench", "utterance"))
+        node.subscribe("utterance", "bench")
         time.sleep(0.5)
         words = spoken_words(page, node, args.words)
     context.close()
@@ -196,7 +196,7 @@ def step_rates(
     lockstep = ("--robot", "r1", "--clock", "lockstep", "--seed", "1")
     session.add(session.service("sim", *lockstep, named="sim-lockstep"))
     with Node("bench", session.client_config("steps")) as node:
-        node.input("obs", robot_key(session.session_id, "r1", "obs"))
+        node.subscribe("obs", "r1")
         time.sleep(3.0)  # the learner and the simulator find their pace
         alone = step_rate(node, seconds)
         pages = [open_page(browser, url, f"watch{i}") for i in range(2)]

@@ -30,7 +30,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from protocol import EpisodeEvent, LearningSummary, TeachingStats, robot_key
+from protocol import EpisodeEvent, LearningSummary, TeachingStats
 from services import launcher
 from services.learner.config import with_settings
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
@@ -297,9 +297,9 @@ def run(args: argparse.Namespace) -> int:
     _introduce(session, session_id, args, mode, simulated)
     robot = args.robots[0]
     progress = watch_of(args)
-    session.input("episode", robot_key(session_id, robot, "episode"))  # from the first one
-    session.input("teaching", robot_key(session_id, robot, "teaching"))
-    session.input("learning", robot_key(session_id, robot, "learning"))  # its steps
+    session.subscribe("episode", robot)  # from the first one
+    session.subscribe("teaching", robot)
+    session.subscribe("learning", robot)  # its steps
     t0 = time.monotonic()
     code = _train_session(session, progress, args)
     for line in progress.due_lines(time.monotonic(), flush=True):

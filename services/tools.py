@@ -18,7 +18,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from protocol import Key, dataflow, load_vocabulary, parse_key, presence_key, session_keys, to_wire
+from protocol import Key, dataflow, load_vocabulary, parse_key, to_wire
 from services.runtime import Input, Node, add_bus_arguments, bus_config
 
 
@@ -39,7 +39,7 @@ def status(args: argparse.Namespace) -> int:
     if args.mode is None and config.mode == "peer":
         config = replace(config, mode="client")  # a one-shot look needs no listener
     with Node("status", config, quiet=True) as node:
-        replies = node.zenoh.liveliness().get(presence_key(node.session_id), timeout=2.0)
+        replies = node.zenoh.liveliness().get(node.presences, timeout=2.0)
         present = []
         for reply in replies:
             if reply.ok is not None:
@@ -135,7 +135,7 @@ def listen(args: argparse.Namespace) -> int:
     received = 0
     deadline = time.monotonic() + args.duration if args.duration else None
     with Node("listen", bus_config("listen", args)) as node:
-        node.input("all", args.key or session_keys(node.session_id))
+        node.input("all", args.key or node.everything)
         node.log.info("listening", extra={"voxshape_fields": {"key": args.key or "session"}})
         for event in node.events(tick=0.2):
             if isinstance(event, Input):

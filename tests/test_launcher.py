@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from protocol import CreditedFeedback, LearningSummary, robot_key
+from protocol import CreditedFeedback, LearningSummary
 from services.cli import parser
 from services.launcher import (
     LocalSession,
@@ -215,7 +215,7 @@ def test_an_input_declared_before_start_hears_the_first_episode(session_id, tmp_
     """The demo counts episodes from the first: the launcher's inputs declared before start()
     are there when it joins the bus, before the simulator starts and announces episode 0."""
     session = router_and_sim(session_id, tmp_path, monkeypatch)
-    session.input("episode", robot_key(session_id, "r1", "episode"))
+    session.subscribe("episode", "r1")
     try:
         session.start()
         assert session.bus is not None
@@ -389,7 +389,7 @@ def learning_of(session_id: str, port: int, robots: tuple[str, ...]) -> dict[str
     states: dict[str, int] = {}
     with Node("test", watcher(session_id, port)) as node:
         for robot in robots:
-            node.input("learning", robot_key(session_id, robot, "learning"))
+            node.subscribe("learning", robot)
         deadline = time.monotonic() + 60
         while min((states.get(r, 0) for r in robots), default=0) < 3:
             assert time.monotonic() < deadline, f"learning within 60 s: {states}"
@@ -468,7 +468,7 @@ def test_up_with_the_simulated_teacher_profile_teaches_through_pocketsphinx(
     up, port = start_up(spawn, session_id, tmp_path, "--profile", "simteacher", "--rtf", "2")
     read_until(up, r"ready in")
     with Node("test", watcher(session_id, port)) as node:
-        node.input("feedback", robot_key(session_id, "r1", "feedback"))
+        node.subscribe("feedback", "r1")
         deadline, credited = time.monotonic() + 150, []
         while not credited:
             assert time.monotonic() < deadline, "no word of the simulated teacher reached r1"

@@ -96,3 +96,63 @@ def test_a_relative_import_across_services_is_caught(tmp_path, monkeypatch):
     assert wrong_imports(speech, {"speech"}) == [
         "services/speech/node.py imports services.arbiter.config"
     ]
+
+
+# The functions of protocol/keys.py that build a key of the bus.
+KEY_BUILDERS = {
+    "robot_key",
+    "teacher_key",
+    "presence_key",
+    "session_keys",
+    "message_key",
+    "router_access_key",
+}
+# Where keys are built: the runtime (Node.subscribe, advertise, key), and services/deploy,
+# which writes the router's access rules from the same dataflow table.
+BUILDS_KEYS = ("services/runtime/", "services/deploy/")
+
+
+def hand_built_keys(source: str) -> list[str]:
+    """Where `source` builds a key of the bus: a call of a key builder, or a formatted string
+    that starts with the keys' root (every key holds its session, so a literal one is none)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Call):
+            name = getattr(node.func, "id", None) or getattr(node.func, "attr", None)
+            if name in KEY_BUILDERS:
+                found.append(f"line {node.lineno}: {name}(...)")
+        elif isinstance(node, ast.JoinedStr) and node.values:
+            first = node.values[0]
+            text = first.value if isinstance(first, ast.Constant) else None
+            root = (
+                isinstance(first, ast.FormattedValue) and getattr(first.value, "id", "") == "ROOT"
+            )
+            if root or (isinstance(text, str) and text.startswith("voxshape/")):
+                found.append(f"line {node.lineno}: f-string {ast.unparse(node)}")
+    return found
+
+
+def test_no_key_is_built_by_hand_outside_the_runtime():
+    """A node names a topic and whose it is (Node.subscribe, advertise); the runtime builds
+    the key and checks it against the node's row of protocol/dataflow.py."""
+    wrong = []
+    for folder in ("services", "benchmarks"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            where = path.relative_to(ROOT).as_posix()
+            if not where.startswith(BUILDS_KEYS):
+                wrong += [f"{where} {w}" for w in hand_built_keys(path.read_text("utf-8"))]
+    assert not wrong, "\n".join(wrong)
+
+
+@pytest.mark.parametrize(
+    "source",
+    [
+        'node.input("obs", robot_key(node.session_id, "r1", "obs"))',
+        "import protocol\nprotocol.teacher_key(s, t, 'notice')",
+        'node.output("x", f"voxshape/{session}/robot/r1/obs")',
+        'key = f"{ROOT}/{session}/**"',
+    ],
+)
+def test_a_key_built_by_hand_is_caught(source):
+    assert hand_built_keys(source)
+    assert not hand_built_keys('node.subscribe("obs", "r1")\nENV_ID = "voxshape/Navigation-v0"')

@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-from protocol import EpisodeEvent, TeachingStats, robot_key
+from protocol import EpisodeEvent, TeachingStats
 from services.demo import ConvergenceWatch
 from services.launcher import LoopbackSession, ServiceDied
 from services.learner.config import LearnerConfig
@@ -70,8 +70,8 @@ def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, s
     }
     session = LoopbackSession(session_id, variables=variables, cwd=tmp_path, logs=tmp_path / "logs")
     progress = ConvergenceWatch("r1", MAX_EPISODES, convergence_on(load_map("1"), LearnerConfig()))
-    session.input("episode", robot_key(session_id, "r1", "episode"))
-    session.input("teaching", robot_key(session_id, "r1", "teaching"))
+    session.subscribe("episode", "r1")
+    session.subscribe("teaching", "r1")
     t0 = time.monotonic()
     try:
         session.start()

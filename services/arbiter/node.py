@@ -40,8 +40,6 @@ from protocol import (
     Utterance,
     load_vocabulary,
     parse_key,
-    robot_key,
-    teacher_key,
 )
 from services.arbiter.arbiter import Arbiter
 from services.arbiter.config import ArbiterConfig
@@ -89,10 +87,10 @@ def run(args: argparse.Namespace) -> int:
     vocabulary = load_vocabulary(read_options(ArbiterOptions, args).vocabulary)
     arbiter = Arbiter(config, vocabulary, started_at=time.time())
     with Node("arbiter", bus_config("arbiter", args)) as node:
-        node.input("obs", robot_key(node.session_id, "*", "obs"))  # recovered
-        node.input("utterance", teacher_key(node.session_id, "*", "utterance"))  # recovered
-        node.input("clock", teacher_key(node.session_id, "*", "clock"))
-        node.input("help", robot_key(node.session_id, "*", "help"))
+        node.subscribe("obs")  # recovered
+        node.subscribe("utterance")  # recovered
+        node.subscribe("clock")
+        node.subscribe("help")
         node.log.info(
             "arbitrating",
             extra=fields(

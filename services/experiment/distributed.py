@@ -24,7 +24,7 @@ import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-from protocol import EpisodeEvent, TeacherNotice, robot_key, teacher_key
+from protocol import EpisodeEvent, TeacherNotice
 from services.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from services.experiment.intervals import mean_ci
 from services.launcher import LoopbackSession
@@ -126,8 +126,8 @@ def _follow(
     """Starts the services, the simulator last, and follows the run to convergence or its
     episode limit: its progress and interventions."""
     with Node("equivalence", session.client_config("equivalence")) as node:
-        node.input("episode", robot_key(session.session_id, ROBOT, "episode"))
-        node.input("notice", teacher_key(session.session_id, TEACHER, "notice"))
+        node.subscribe("episode", ROBOT)
+        node.subscribe("notice", TEACHER)
         session.add(*_services(spec, session, folder))
         time.sleep(0.5)  # their subscriptions reach the router with their tokens
         # The simulator starts last, once the others are present: in lockstep it waits for an

@@ -99,7 +99,7 @@ class LocalSession:
         self._print_lock = threading.Lock()
         self._width = max((len(s.name) for s in specs), default=2)
         self._stop_requested = False
-        self._inputs: list[tuple[str, str]] = []  # the launcher node's, declared on joining
+        self._inputs: list[tuple[str, str]] = []  # the launcher node's (topic, of), on joining
         self.run_lock: IO[str] | None = None  # runs/<session>/ held while it runs (up.py)
 
     @property
@@ -114,13 +114,13 @@ class LocalSession:
         return spec.environment.get(name) if spec else None
 
     # -- starting -----------------------------------------------------------------------
-    def input(self, name: str, key: str) -> None:
-        """An input of the launcher's own node. Declared before start() is, it is there as soon
-        as the node joins the bus, before any service but the router starts, so none of their
-        messages on it is missed."""
-        self._inputs.append((name, key))
+    def subscribe(self, topic: str, of: str) -> None:
+        """An input of the launcher's own node (Node.subscribe). Declared before start() is, it
+        is there as soon as the node joins the bus, before any service but the router starts,
+        so none of their messages on it is missed."""
+        self._inputs.append((topic, of))
         if self.bus is not None:
-            self.bus.input(name, key)
+            self.bus.subscribe(topic, of)
 
     def start(self) -> float:
         """Starts every service; returns seconds until all were present."""
@@ -220,8 +220,8 @@ class LocalSession:
                     raise
                 continue
             node.watch_presence()
-            for name, key in self._inputs:
-                node.input(name, key)
+            for topic, of in self._inputs:
+                node.subscribe(topic, of)
             return node
 
     def _wait_until(self, condition: Callable[[], bool], what: str) -> None:

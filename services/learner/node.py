@@ -33,7 +33,6 @@ from protocol import (
     RobotLimits,
     check_id,
     parse_key,
-    robot_key,
 )
 from services.learner import checkpoint
 from services.learner.config import LearnerConfig, add_settings_argument, with_settings
@@ -196,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
                 case Input(message=Observation() as obs, key=key):
                     one = driven[parse_key(key).owner]
                     if not one.fitted:  # before its first action: its limits may come later
-                        limits = node.latest(robot_key(node.session_id, one.robot, "limits"))
+                        limits = node.latest("limits", one.robot)
                         fit(node, one, limits)
                     one.observe(obs)
                 case Input(message=CreditedFeedback() as feedback, key=key):
@@ -269,10 +268,10 @@ def drive(
         replayed = initial.replay(learner)
         node.log.info("learnt from initial traces", extra=fields(robot=robot, steps=replayed))
     online = OnlineLearner(learner, bookmark, initial, node.counters, timeout_s)
-    node.input("obs", robot_key(node.session_id, robot, "obs"))
-    node.input("feedback", robot_key(node.session_id, robot, "feedback"))
-    node.input("limits", robot_key(node.session_id, robot, "limits"))
-    act = node.output("action", robot_key(node.session_id, robot, "action"))
-    summary = node.output("learning", robot_key(node.session_id, robot, "learning"))
-    ask = node.output("help", robot_key(node.session_id, robot, "help"))
+    node.subscribe("obs", robot)
+    node.subscribe("feedback", robot)
+    node.subscribe("limits", robot)
+    act = node.advertise("action", robot)
+    summary = node.advertise("learning", robot)
+    ask = node.advertise("help", robot)
     return Driven(robot, path, learner, bookmark, online, act, summary, ask)

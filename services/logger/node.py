@@ -36,8 +36,7 @@ from typing import Any
 import zenoh
 from zenoh.ext import AdvancedSubscriber, Miss
 
-from protocol import MAX_PAYLOAD_BYTES, presence_key, session_keys
-from protocol.keys import ROOT
+from protocol import MAX_PAYLOAD_BYTES
 from services.logger.eventlog import EventLogError, EventLogWriter, EventRecord, pack_gap
 from services.logger.renderer import start_renderer, stop_renderer
 from services.logger.replay import ScanThinning, add_thinning_arguments
@@ -71,9 +70,9 @@ class Receiver:
     """Appends each raw sample to the event log and counts it, and marks what was missed for
     good as a gap, nothing else."""
 
-    def __init__(self, writer: EventLogWriter, session: str) -> None:
+    def __init__(self, writer: EventLogWriter, everything: str) -> None:
         self.writer = writer
-        self.session = session
+        self.everything = everything  # the session's key expression: a gap of unknown source
         self.counts: Counter[str] = Counter()
         self.record_seconds = 0.0
         self.record_max = 0.0
@@ -106,7 +105,7 @@ class Receiver:
         than they are kept): a gap record in their place, and counted."""
         try:
             source = (str(miss.source.zid), miss.source.eid)
-            key = self.keys.get(source, f"{ROOT}/{self.session}")
+            key = self.keys.get(source, self.everything)
             payload = pack_gap(miss.nb, f"{source[0]}/{source[1]}")
             self.writer.append(EventRecord(time.time(), key, "gap", payload))
             self.counts[f"missed.{key.split('/')[-1]}"] += miss.nb
@@ -173,11 +172,11 @@ def run(args: argparse.Namespace) -> int:
     settings = _settings(options, bus, port)
     with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up
         writer = _open_event_log(node, run_dir, bus.session, options.task, settings)
-        receiver = Receiver(writer, bus.session)
+        receiver = Receiver(writer, node.everything)
         # Recovering what kept outputs dropped for it while it was stopped or slow (they never
         # wait for it); nothing older on joining (a restarted logger would log it twice).
         samples = recovering_subscriber(
-            node.zenoh, session_keys(bus.session), zenoh.handlers.FifoChannel(RECEIVE_QUEUE), 0
+            node.zenoh, node.everything, zenoh.handlers.FifoChannel(RECEIVE_QUEUE), 0
         )
         gaps = samples.sample_miss_listener(receiver.missed)
         drainer = threading.Thread(
@@ -185,7 +184,7 @@ def run(args: argparse.Namespace) -> int:
         )
         drainer.start()
         presence = node.zenoh.liveliness().declare_subscriber(  # rare: a callback will do
-            presence_key(bus.session), receiver.record, history=True
+            node.presences, receiver.record, history=True
         )
         renderer = (
             None

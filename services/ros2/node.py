@@ -32,8 +32,6 @@ from protocol import (
     Placed,
     RobotLimits,
     check_id,
-    robot_key,
-    teacher_key,
 )
 from services.ros2.bridge import Bridge, BridgeConfig, BridgeOutput, InsideRadius
 from services.ros2.contact import ContactConfig
@@ -197,13 +195,13 @@ def run(args: argparse.Namespace) -> int:
     with Node("ros2", bus) as node:
         robot = bridge_config.robot
         outputs = {
-            "obs": node.output("obs", robot_key(node.session_id, robot, "obs")),
-            "episode": node.output("episode", robot_key(node.session_id, robot, "episode")),
+            "obs": node.advertise("obs", robot),
+            "episode": node.advertise("episode", robot),
         }
         limits = bridge_config.limits  # the learner fits its actions to them: none clipped
         node.publish(RobotLimits(robot=robot, max_speed=limits.max_speed, max_turn=limits.max_turn))
-        node.input("action", robot_key(node.session_id, robot, "action"))
-        node.input("placed", teacher_key(node.session_id, "*", "placed"))
+        node.subscribe("action", robot)
+        node.subscribe("placed")
         link = open_link(link_config, node)
         bridge = Bridge(bridge_config, time.monotonic())
         node.log.info("bridging", extra=fields(robot=robot, **describe(link)))

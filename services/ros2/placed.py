@@ -12,7 +12,7 @@ import getpass
 import os
 import time
 
-from protocol import Placed, check_id, teacher_key
+from protocol import Placed, check_id
 from services.runtime import Node, add_bus_arguments, bus_config, fields
 
 SETTLE_S = 0.5  # for the subscription of a bridge to meet this short-lived publisher
@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     teacher = check_id(args.teacher or bus.user or _login(), "teacher")
     robot = check_id(args.robot, "robot")
     with Node("teacher", bus, quiet=True) as node:
-        out = node.output("placed", teacher_key(node.session_id, teacher, "placed"))
+        out = node.advertise("placed", teacher)
         time.sleep(SETTLE_S)
         out.put(Placed(teacher=teacher, robot=robot))
         node.log.info("said it is placed", extra=fields(robot=robot, teacher=teacher))

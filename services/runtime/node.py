@@ -1,15 +1,18 @@
 """A service's handle on the bus: a small loop over typed events.
 
     with Node("sim", bus_config("sim", args)) as node:
-        obs = node.output("obs", robot_key(node.session_id, "r1", "obs"))
-        node.input("action", robot_key(node.session_id, "r1", "action"))
+        obs = node.advertise("obs", "r1")        # robot r1's observations
+        node.subscribe("action", "r1")            # its actions, as Input(name="action")
         for event in node.events(tick=0.1):
             match event:
                 case Input(name="action", message=action): ...
                 case Tick(): obs.put(...)
 
-Inputs are decoded strictly with the type their key carries; a malformed message is counted
-and logged, never delivered and never fatal. Outputs never wait for a slow subscriber and keep
+A node names the topic and whose it is (a robot's or a teacher's id, "*" for all of the
+session's); its key is built here alone (protocol/keys.py), and checked against the role's row
+of protocol/dataflow.py, which says how it is delivered. Inputs are decoded strictly with the
+type their key carries; a malformed message is counted and logged, never delivered and never
+fatal. Outputs never wait for a slow subscriber and keep
 their last N messages (zenoh's advanced publisher), as their topic's delivery in
 protocol/dataflow.py says; what must survive a stop or a restart of its subscriber or of the
 router comes in on a recovering input (an advanced subscriber that fetches what it missed,
@@ -37,9 +40,9 @@ from collections.abc import Callable, Iterator
 import zenoh
 from zenoh.ext import Miss
 
-from protocol import Message, ProtocolError, decode, parse_key, presence_key
-from protocol.dataflow import Direction, check, delivery_of, flow_of
-from protocol.keys import message_key
+from protocol import Message, ProtocolError, decode, parse_key, presence_key, session_keys
+from protocol.dataflow import ANY, Direction, check, delivery_of, flow_of
+from protocol.keys import SCOPES, message_key, robot_key, teacher_key
 from services.runtime.config import BusConfig
 from services.runtime.flows import (
     Event,
@@ -104,6 +107,34 @@ class Node:
         )
 
     # -- declarations -------------------------------------------------------------------
+    def subscribe(self, topic: str, of: str = ANY, *, recover: float | None = None) -> str:
+        """Subscribes to `topic` of the robot or teacher `of` (ANY: all of the session's), as
+        this role's row of protocol/dataflow.py says; messages arrive as Input(topic, ...).
+        Returns the key."""
+        key = self.key(topic, of)
+        self.input(topic, key, recover=recover)
+        return key
+
+    def advertise(self, topic: str, of: str, *, keep: int | None = None) -> Output:
+        """The output of `topic` of the robot or teacher `of`, as this role's row says."""
+        return self.output(topic, self.key(topic, of), keep=keep)
+
+    def key(self, topic: str, of: str = ANY) -> str:
+        """The key of `topic` (a robot's or a teacher's, protocol/keys.py) of `of` here."""
+        scope = next((s for s, topics in SCOPES.items() if topic in topics), "robot")
+        make = robot_key if scope == "robot" else teacher_key
+        return make(self.session_id, of, topic)  # ProtocolError names an unknown topic
+
+    @property
+    def everything(self) -> str:
+        """The key expression of every message of the session (the logger's, listen's)."""
+        return session_keys(self.session_id)
+
+    @property
+    def presences(self) -> str:
+        """The key expression of every node's presence token in the session."""
+        return presence_key(self.session_id)
+
     def declare(self, direction: Direction, key: str) -> None:
         """Checks `key` against this role's row of protocol/dataflow.py (DataflowError if it
         is not there) and notes it; `output` and `input` call it, as must other publishers
@@ -191,12 +222,12 @@ class Node:
         self.counters[f"refetched.{name}"] += 1
         query_history(self.zenoh, key, on_sample, seconds)
 
-    def latest(self, key: str, timeout: float = 1.0) -> Message | None:
-        """The newest message the kept outputs on `key` hold, asked now and waited for (at
-        most `timeout` seconds; None if none answered): what a node must know before it goes
-        on, which its recovering input may bring only later."""
+    def latest(self, topic: str, of: str, timeout: float = 1.0) -> Message | None:
+        """The newest message the kept outputs of `topic` of `of` hold, asked now and waited
+        for (at most `timeout` seconds; None if none answered): what a node must know before
+        it goes on, which its recovering input may bring only later."""
         found = []
-        for sample in kept_now(self.zenoh, key, timeout):
+        for sample in kept_now(self.zenoh, self.key(topic, of), timeout):
             try:
                 expected = parse_key(str(sample.key_expr)).message_type
                 found.append(decode(sample.payload.to_bytes(), expected))

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Literal
 
-from protocol import Action, EpisodeEvent, RobotLimits, check_id, parse_key, robot_key
+from protocol import Action, EpisodeEvent, RobotLimits, check_id, parse_key
 from services.runtime import (
     ConfigError,
     Input,
@@ -100,14 +100,9 @@ def run(args: argparse.Namespace) -> int:
         with Node("sim", bus) as node:
             stepper = Stepper(sim, options.clock, timeout, node.counters)
             for r in robots:
-                node.input("action", robot_key(node.session_id, r, "action"))
-            obs = {
-                r: node.output("obs", robot_key(node.session_id, r, "obs"), keep=kept)
-                for r in robots
-            }
-            episode = {
-                r: node.output("episode", robot_key(node.session_id, r, "episode")) for r in robots
-            }
+                node.subscribe("action", r)
+            obs = {r: node.advertise("obs", r, keep=kept) for r in robots}
+            episode = {r: node.advertise("episode", r) for r in robots}
             fast, turn = config.model.max_speed, config.model.max_turn
             for r in robots:  # how fast it may be driven: the learner fits its actions to it
                 node.publish(RobotLimits(robot=r, max_speed=fast, max_turn=turn))

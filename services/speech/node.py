@@ -27,7 +27,6 @@ from protocol import (
     Vocabulary,
     load_vocabulary,
     parse_key,
-    teacher_key,
 )
 from services.recognition.confusion import MOCK
 from services.runtime import (
@@ -109,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         # The input this engine cannot hear, taken only to tell its senders so.
         unheard_kind = "audio" if engine is not None else "said"
         unheard = Unheard(options.engine, node.counters)
-        node.input(unheard_kind, teacher_key(node.session_id, "*", unheard_kind), recover=0.0)
+        node.subscribe(unheard_kind, recover=0.0)
         publish = _publisher(node)
         for event in node.events(tick=TICK_S):
             now = time.time()
@@ -162,7 +161,7 @@ def _transcriber(
     either subscribes to its input, which recovers what it missed."""
     if engine is not None:
         core = MockTranscriber(engine, node.counters)
-        node.input("said", teacher_key(node.session_id, "*", "said"))  # recovered
+        node.subscribe("said")  # recovered
         error_rate = engine.settings.error_rate
         node.log.info("listening", extra=fields(engine="mock", error_rate=error_rate))
         return core
@@ -171,7 +170,7 @@ def _transcriber(
     report = _reporter(node)
     streams = AudioStreams(limits=limits, counters=node.counters, report=report)
     audio = AudioTranscriber(recognizer, streams, report)
-    node.input("audio", teacher_key(node.session_id, "*", "audio"))  # recovered
+    node.subscribe("audio")  # recovered
     node.log.info("listening", extra=fields(engine=options.engine, language=options.language))
     return audio
 

@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from protocol import Utterance, Vocabulary, check_id, load_vocabulary, robot_key
+from protocol import Utterance, Vocabulary, check_id, load_vocabulary
 from services.runtime import ConfigError, Node, Output, add_bus_arguments, bus_config
 from services.runtime.audio import AudioError
 from services.runtime.settings import add_options, option, read_options
@@ -125,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         node = stack.enter_context(Node("teacher", bus, quiet=True))
         outputs = _join(node, stack, teacher, options, screen)
         for topic in ("obs", "episode", "feedback", "help", "answer"):
-            node.input(topic, robot_key(node.session_id, robot, topic))
+            node.subscribe(topic, robot)
         speech = SpeechWatch(_speech_use(options))
         node.watch_presence(role="speech")
         if options.wav or options.mic or options.through_speech:

@@ -9,7 +9,7 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 
-from protocol import AudioChunk, Message, Placed, Said, Utterance, teacher_key
+from protocol import AudioChunk, Message, Placed, Said, Utterance
 from services.runtime import Node, Output
 from services.runtime.clock import ClockEstimate, ClockSync
 
@@ -38,13 +38,9 @@ def join_as_teacher(
     clock exchange (closed with `stack`). What it says is kept as its flows in
     protocol/dataflow.py say, unless `kept` says otherwise per topic. The outputs come by the
     type of message each carries."""
-    session = node.session_id
     if echo:
-        node.input("utterance", teacher_key(session, teacher, "utterance"))
-    node.input("notice", teacher_key(session, teacher, "notice"))
+        node.subscribe("utterance", teacher)
+    node.subscribe("notice", teacher)
     stack.enter_context(ClockSync(node, teacher, synced=synced, problem=problem, clock=clock))
     kept = kept or {}
-    return {
-        SAYS[topic]: node.output(topic, teacher_key(session, teacher, topic), keep=kept.get(topic))
-        for topic in says
-    }
+    return {SAYS[topic]: node.advertise(topic, teacher, keep=kept.get(topic)) for topic in says}

@@ -45,7 +45,6 @@ from protocol import (
     TeacherNotice,
     check_id,
     load_vocabulary,
-    robot_key,
 )
 from services.runtime import (
     ConfigError,
@@ -201,9 +200,9 @@ def run(args: argparse.Namespace) -> int:
         teacher = DisplayTeacher(
             core, options.traces, options.max_words_per_robot_s, counters=node.counters
         )
-        node.input("obs", robot_key(node.session_id, robot, "obs"))
+        node.subscribe("obs", robot)
         if profile.answers:
-            node.input("help", robot_key(node.session_id, robot, "help"))
+            node.subscribe("help", robot)
         topic = "audio" if voice else "said"
         out = _join(node, stack, teacher_id, topic, clock)
         node.log.info(

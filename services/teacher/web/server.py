@@ -27,7 +27,6 @@ from protocol import (
     Observation,
     TeachingStats,
     parse_key,
-    robot_key,
 )
 from services.deploy.access import compare_with_router
 from services.deploy.enforced import ask_access
@@ -108,7 +107,7 @@ class PageServer(LoginFlow):
         if self.access is not None:
             await self._same_access_as_the_router(*self.access)
         for topic in ("obs", "episode", "feedback", "teaching", "help", "answer"):
-            self.node.input(topic, robot_key(self.node.session_id, "*", topic))
+            self.node.subscribe(topic)
         self._pump = Pump(self.node, self.loop, self._on_robots)
         self._ticker = asyncio.create_task(self._tick())
 
