@@ -1,7 +1,6 @@
 """`voxshape router`: the zenoh router of a session (a Python process in router mode).
 
-Inputs:  nothing
-Outputs: nothing
+Its flows are its `router` row of protocol/dataflow.py (`voxshape dataflow --docstring router`).
 
 It routes every other node's traffic: local services and remote
 teachers and robots connect to it. It holds the presence token `presence/router/<node>`.

@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 import signal
 import subprocess
 import time
@@ -314,7 +315,7 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
         assert feedback.kept and not notice.kept  # as its topic says, or as told
 
 
-# node role -> the module whose docstring shows its row (the learner's: services/learner/node.py)
+# node role -> the module whose docstring names its row (the learner's: services/learner/node.py)
 NODE_MODULES = {
     "sim": "services.sim.node",
     "ros2": "services.ros2.node",
@@ -330,13 +331,12 @@ NODE_MODULES = {
 
 
 @pytest.mark.parametrize("role", NODE_MODULES)
-def test_each_node_docstring_shows_its_row_of_the_table(role):
-    """A node's Inputs and Outputs are its row, rendered: not copied by hand."""
-    module = importlib.import_module(NODE_MODULES[role])
-    assert docstring(role) in (module.__doc__ or ""), (
-        f"{module.__file__}: its docstring's Inputs/Outputs are not its row of "
-        f"protocol/dataflow.py; paste `voxshape dataflow --docstring {role}`"
-    )
+def test_each_node_docstring_names_its_row_and_copies_none(role):
+    """A node's inputs and outputs are written once, in its row: its docstring points there
+    (`voxshape dataflow --docstring ROLE` renders it) rather than keep a copy that drifts."""
+    text = importlib.import_module(NODE_MODULES[role]).__doc__ or ""
+    assert f"`voxshape dataflow --docstring {role}`" in text
+    assert not re.search(r"^(Inputs|Outputs):", text, re.M), f"{role}: a copy of its row"
 
 
 def test_the_docstring_rendering_says_direction_owner_type_and_what_survives():

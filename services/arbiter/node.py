@@ -1,14 +1,7 @@
 """`voxshape arbiter`: the feedback arbiter on the bus (the core is arbiter.py).
 
-Inputs:  voxshape/<session>/robot/*/obs            Observation (recovers 30 s)
-         voxshape/<session>/robot/*/help           HelpRequest
-         voxshape/<session>/teacher/*/utterance    Utterance (recovers 30 s)
-         voxshape/<session>/teacher/*/clock        ClockProbe
-Outputs: voxshape/<session>/robot/*/feedback       CreditedFeedback (keeps 1024)
-         voxshape/<session>/robot/*/teaching       TeachingStats (keeps 256)
-         voxshape/<session>/robot/*/answer         HelpAnswer (keeps 64)
-         voxshape/<session>/teacher/*/notice       TeacherNotice (keeps 256)
-         voxshape/<session>/teacher/*/clock-reply  ClockReply (keeps 64)
+Its flows are its `arbiter` row of protocol/dataflow.py
+(`voxshape dataflow --docstring arbiter`).
 
 From the robots' observations it takes their step timing, bumps, goals and episodes; a
 robot's question is answered by the next word said to it; teachers' utterances become

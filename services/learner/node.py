@@ -1,11 +1,7 @@
 """`voxshape learner`: the learners on the bus, one per robot, in one process.
 
-Inputs:  voxshape/<session>/robot/<robot>/obs       Observation
-         voxshape/<session>/robot/<robot>/feedback  CreditedFeedback (recovers 60 s)
-         voxshape/<session>/robot/<robot>/limits    RobotLimits (recovers what is kept)
-Outputs: voxshape/<session>/robot/<robot>/action    Action (keeps 600)
-         voxshape/<session>/robot/<robot>/learning  LearningSummary (keeps 600)
-         voxshape/<session>/robot/<robot>/help      HelpRequest (keeps 64)
+Its flows are its `learner` row of protocol/dataflow.py
+(`voxshape dataflow --docstring learner`).
 
 For each robot it drives (`--robot`, once per robot, or VOXSHAPE_ROBOTS, as the simulator):
 an action per observation that is not terminal, a summary per step (for the logger), and

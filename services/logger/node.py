@@ -1,7 +1,6 @@
 """`voxshape logger`: records a whole session.
 
-Inputs:  voxshape/<session>/**  everything in the session
-Outputs: nothing
+Its flows are its `logger` row of protocol/dataflow.py (`voxshape dataflow --docstring logger`).
 
 Every message, raw (known types or not), and the presence tokens of nodes joining and
 leaving (presence/**).

@@ -11,11 +11,7 @@ default tcp/127.0.0.1:7447). ROS traffic stays on the robot's side, voxshape's o
 Robot side:  <domain>/<ns>/scan, <domain>/<ns>/odom in; <domain>/<ns>/cmd_vel out
 Bus side (a teacher's placed: the robot is at its start again):
 
-Inputs:  voxshape/<session>/robot/<robot>/action   Action
-         voxshape/<session>/teacher/*/placed       Placed
-Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
-         voxshape/<session>/robot/<robot>/episode  EpisodeEvent (keeps 256)
-         voxshape/<session>/robot/<robot>/limits   RobotLimits (keeps 1)
+Its flows are its `ros2` row of protocol/dataflow.py (`voxshape dataflow --docstring ros2`).
 """
 
 from __future__ import annotations

@@ -1,9 +1,6 @@
 """`voxshape sim`: the simulator on the bus, for each robot it simulates.
 
-Inputs:  voxshape/<session>/robot/<robot>/action   Action
-Outputs: voxshape/<session>/robot/<robot>/obs      Observation (keeps 600)
-         voxshape/<session>/robot/<robot>/episode  EpisodeEvent (keeps 256)
-         voxshape/<session>/robot/<robot>/limits   RobotLimits (keeps 1)
+Its flows are its `sim` row of protocol/dataflow.py (`voxshape dataflow --docstring sim`).
 
 An observation per control step (10 Hz of sim time), an episode event at each start, goal,
 collision and timeout.

@@ -1,9 +1,6 @@
 """`voxshape speech`: the speech service on the bus.
 
-Inputs:  voxshape/<session>/teacher/*/audio      AudioChunk (recovers 30 s)
-         voxshape/<session>/teacher/*/said       Said (recovers 30 s)
-Outputs: voxshape/<session>/teacher/*/utterance  Utterance (keeps 256)
-         voxshape/<session>/teacher/*/notice     TeacherNotice (keeps 256)
+Its flows are its `speech` row of protocol/dataflow.py (`voxshape dataflow --docstring speech`).
 
 The audio engines (cascade, pocketsphinx, vosk, whisper) hear audio, the mock text said; an
 engine's other input is taken only to tell its senders, once, it is not heard. Utterances are

@@ -1,18 +1,7 @@
 """`voxshape teach`: speak, stream recordings or type words to a robot of a session.
 
-Inputs:  voxshape/<session>/teacher/<teacher>/utterance    Utterance
-         voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
-         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
-         voxshape/<session>/robot/*/obs                    Observation
-         voxshape/<session>/robot/*/episode                EpisodeEvent
-         voxshape/<session>/robot/*/feedback               CreditedFeedback
-         voxshape/<session>/robot/*/help                   HelpRequest
-         voxshape/<session>/robot/*/answer                 HelpAnswer
-Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
-         voxshape/<session>/teacher/<teacher>/utterance    Utterance (keeps 256)
-         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
-         voxshape/<session>/teacher/<teacher>/clock        ClockProbe (keeps 64)
-         voxshape/<session>/teacher/<teacher>/placed       Placed (keeps 64)
+Its flows are its `teacher` row of protocol/dataflow.py
+(`voxshape dataflow --docstring teacher`).
 
 It sends microphone or WAV chunks as audio, typed words as utterances (engine "typed"), or,
 with --through-speech, as said text (straight out while no speech service). It hears what was

@@ -1,12 +1,7 @@
 """`voxshape sim-teacher`: the simulated teacher on the bus, speaking through the normal path.
 
-Inputs:  voxshape/<session>/teacher/<teacher>/notice       TeacherNotice
-         voxshape/<session>/teacher/<teacher>/clock-reply  ClockReply
-         voxshape/<session>/robot/*/obs                    Observation
-         voxshape/<session>/robot/*/help                   HelpRequest
-Outputs: voxshape/<session>/teacher/<teacher>/audio        AudioChunk (keeps 800)
-         voxshape/<session>/teacher/<teacher>/said         Said (keeps 256)
-         voxshape/<session>/teacher/<teacher>/clock        ClockProbe (keeps 64)
+Its flows are its `simteacher` row of protocol/dataflow.py
+(`voxshape dataflow --docstring simteacher`).
 
 It watches its robot's observations and answers its questions; the arbiter's notices are
 counted, the clock exchange is a thread (services/runtime/clock.py). Its words go out as said

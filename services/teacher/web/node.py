@@ -5,13 +5,7 @@
 
 Its own node, role "web":
 
-Inputs:  voxshape/<session>/robot/*/obs       Observation
-         voxshape/<session>/robot/*/episode   EpisodeEvent
-         voxshape/<session>/robot/*/feedback  CreditedFeedback
-         voxshape/<session>/robot/*/teaching  TeachingStats
-         voxshape/<session>/robot/*/help      HelpRequest
-         voxshape/<session>/robot/*/answer    HelpAnswer
-Outputs: nothing
+Its flows are its `web` row of protocol/dataflow.py (`voxshape dataflow --docstring web`).
 
 Each logged-in browser gets a teacher node of its own (role "teacher", the browser's user and
 password on a secured session, so the router's access control applies to it as to `voxshape
