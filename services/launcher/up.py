@@ -6,7 +6,8 @@ service dies it stops the others and exits non-zero, naming the service.
 
 Each `voxshape up` (and `voxshape demo`) is a new run: an earlier run in runs/<session>/ is
 kept aside under a dated name and the learners start afresh, unless --resume. Its flags
---task, --rtf and --robots set the variables compose.yaml gives the services.
+--task, --rtf and --robots set the variables compose.yaml gives the services; --set goes to
+the learner, which records its settings in runs/<session>/settings.json.
 """
 
 from __future__ import annotations
