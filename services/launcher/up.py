@@ -21,7 +21,12 @@ from pathlib import Path
 from typing import IO
 
 from protocol import ProtocolError, check_id
-from services.launcher.session import LaunchAborted, LocalSession, ServiceDied
+from services.launcher.session import (
+    INHERITED_SETTINGS,
+    LaunchAborted,
+    LocalSession,
+    ServiceDied,
+)
 from services.learner import checkpoint
 from services.learner.config import add_settings_argument, with_settings
 from services.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
@@ -186,7 +191,12 @@ def local_session(
         specs = without_simulator(specs)
     specs = with_learner_settings(specs, args.set)
     session = LocalSession(
-        specs, variables["VOXSHAPE_ROUTER"], args.ready_timeout, getattr(args, "restart", True)
+        specs,
+        variables["VOXSHAPE_ROUTER"],
+        args.ready_timeout,
+        getattr(args, "restart", True),
+        # settings compose.yaml does not give (the log level): the shell's, else the command's
+        environment={k: variables[k] for k in INHERITED_SETTINGS if k in variables},
     )
     taken = busy_endpoints(session.variable("router", "VOXSHAPE_LISTEN") or "")
     if taken:
