@@ -226,14 +226,15 @@ def test_every_voxshape_command_of_the_docs_parses(page, command, tmp_path, monk
 
 @pytest.mark.skipif(shutil.which("make") is None, reason="no make")
 def test_the_make_targets_run_what_the_readme_says():
-    """`make -n` prints each target's commands without running them."""
+    """`make -n` prints each target's commands without running them (with the Makefile's
+    defaults: not a TEST_WORKERS of the caller's, as `TEST_WORKERS=2 make test` exports)."""
     expected = {
         "demo": [".venv/bin/voxshape demo"],
         "test": [".venv/bin/ruff check .", ".venv/bin/pytest -n 4 --dist loadgroup"],
         "lint": [".venv/bin/ruff check .", ".venv/bin/ruff format --check ."],
     }
     for target, lines in expected.items():
-        result = run(["make", "-n", target], ROOT, timeout=30)
+        result = run(["env", "-u", "TEST_WORKERS", "make", "-n", target], ROOT, timeout=30)
         assert result.returncode == 0, result.stderr
         assert set(lines) <= set(result.stdout.splitlines()), (target, result.stdout)
 
