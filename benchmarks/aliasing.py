@@ -29,7 +29,7 @@ TRACES, SEED = 3, 10_000  # as the experiments dictate them (inprocess.initial_t
 def aliasing(task: str, representation_name: str, apart: float) -> tuple[float, float, int]:
     """(share of the traces' steps aliased, mean share of features such pairs share,
     steps)."""
-    book = dictate(load_map(task), TRACES, seed=SEED)
+    book = dictate(load_map(task), TRACES, seed=SEED).book
     features = representation(LearnerConfig(representation=representation_name))
     aliased, shared, steps = 0, [], 0
     for episode in book.episodes:

@@ -25,8 +25,9 @@ def main() -> None:
     for traces in (args.traces, 0):
         for seed in range(args.seeds):
             spec = RunSpec(args.task, "rl", seed, args.max_episodes, traces=traces)
-            if traces and (book := initial_traces(spec)):
-                shown = [f"{e[-1][0].outcome} in {len(e) - 1} steps" for e in book.episodes]
+            if traces and (dictation := initial_traces(spec)):
+                episodes = dictation.book.episodes
+                shown = [f"{e[-1][0].outcome} in {len(e) - 1} steps" for e in episodes]
                 print(f"<!-- seed {seed}: dictated {', '.join(shown)} -->")
             r = run(spec)
             print(

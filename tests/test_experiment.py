@@ -34,15 +34,13 @@ def test_feedback_goes_through_the_arbiter_into_the_learner():
     c = result.counters
     assert result.episodes == 3 and not result.converged  # censored: too few episodes
     assert result.learning_time_s == pytest.approx(sum(result.durations_s), abs=0.1)
-    assert c["arbiter.judgements"] > 50
+    assert c["arbiter.judgements"] > 20
     assert c["learner.feedback_credited"] >= c["arbiter.judgements"]  # one per credited step
     assert c.get("learner.feedback_dropped.too_old", 0) == 0
     assert c["arbiter.delay_candidates"] > 0  # it reacts to bumps and goals: delay learnt
-    # Misheard (20% noise, half of the errors): some ignored for low confidence, some
-    # heard as commands, which the learner obeys.
-    assert c["arbiter.rejected.low_confidence"] > 0
-    assert c["arbiter.commands"] == c["learner.commands"] > 0
-    assert result.interventions == c["arbiter.notices.understood"]
+    # 28% noise: slips, words not heard (said all the same), a few misheard
+    assert result.interventions > c["arbiter.notices.understood"]
+    assert c.get("arbiter.commands", 0) == c.get("learner.commands", 0)
 
 
 def test_the_default_teacher_keeps_to_a_persons_budget():
@@ -112,7 +110,8 @@ def test_experiment_paper_end_to_end(tmp_path, capsys):
         assert cell["learning_time_s"] > 0 and "learning_time_s_ci95" in cell
     assert results["tasks"]["1"]["rl"]["interventions"] == 0
     assert results["tasks"]["1"]["rl+t+f"]["interventions"] > 0
-    assert set(results["speedup"]) == {"rl+t+f"} and results["speedup_is_lower_bound"]
+    # both censored: neither mean is the truth, so the ratio is no bound either way
+    assert set(results["speedup"]) == {"rl+t+f"} and results["speedup_bound"]["rl+t+f"] == "none"
     low, high = results["speedup_ci95"]["rl+t+f"]
     assert low <= results["speedup"]["rl+t+f"] * 1.0001 and high >= low
     assert set(results["interventions"]) == {"rl+t+f"}
@@ -120,16 +119,16 @@ def test_experiment_paper_end_to_end(tmp_path, capsys):
     assert sorted(map(json.dumps, streamed)) == sorted(map(json.dumps, results["runs"]))
     assert len(results["runs"]) == 4 and all(r["trace_steps"] > 0 for r in results["runs"]
                                              if r["setting"] == "rl+t+f")  # fmt: skip
-    dictated = [r["trace_words"] for r in results["runs"] if r["setting"] == "rl+t+f"]
+    dictated = [r["dictation_words"] for r in results["runs"] if r["setting"] == "rl+t+f"]
     assert all(0 < words < r for words, r in zip(dictated, [r["trace_steps"] for r in
                results["runs"] if r["setting"] == "rl+t+f"], strict=True))  # fmt: skip
-    assert results["trace_words"]["rl+t+f"] == sum(dictated) / 2
+    assert results["dictation_words"]["rl+t+f"] == sum(dictated) / 2
+    assert all(r["dictation_s"] > 0 for r in results["runs"] if r["setting"] == "rl+t+f")
     report = (out / "report.md").read_text()
     assert "Table 2" in report and "Table 3" in report and "103.93" in report
     learning = results["interventions"]["rl+t+f"]
-    assert f"| {learning:.1f} | {sum(dictated) / 2:.1f} | {learning + sum(dictated) / 2:.1f} |" in (
-        report
-    )
+    said = sum(dictated) / 2
+    assert f"| RL + T + F | {said:.1f} | {learning:.1f} | {said + learning:.1f} |" in report
     assert "≥" in report and "censored" in report
     assert (out / "figure2.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "report.md" in capsys.readouterr().out
@@ -243,7 +242,7 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     code = main(
         ["experiment", "sweep", "--tasks", "1", "--seeds", "1", "--max-episodes", "2",
          "--noise", "0,0.5", "--delay", "1.5", "--out", str(out), "--no-progress",
-         "--teacher-profile", "judging"]
+         "--teacher-profile", "judging", "--set", "potential=none"]
     )  # fmt: skip
     assert code == 0
     points = json.loads((out / "sweep.json").read_text())["points"]
@@ -258,7 +257,8 @@ def test_experiment_sweep_end_to_end(tmp_path, capsys):
     assert all(p["speedup"] > 0 and p["runs"] == 1 for p in points)
     assert all(p["speedup_ci95"][0] <= p["speedup"] * 1.0001 for p in points)
     # The arbiter learns the 1.5 s delay from a judging teacher's reactions to bumps and
-    # goals within two episodes; without the correction it keeps TAMER's fixed window.
+    # goals within two episodes (a robot without the potential, which bumps more);
+    # without the correction it keeps TAMER's fixed window.
     assert points[-2]["delay_learned_fraction"] == 1.0
     assert points[-1]["delay_learned_fraction"] == 0.0
     assert "speedup over RL" in (out / "sweep.md").read_text()

@@ -3,7 +3,6 @@ late feedback reaching exactly its steps, commands, traces and checkpoints."""
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,45 +22,15 @@ from services.learner.states import CLEAR, StateSpace
 from services.learner.traces import TraceBook
 from services.runtime import ConfigError
 from services.runtime.settings import SettingsError
-
-FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
-
-
-@dataclass(frozen=True)
-class P:
-    """A crafted percept."""
-
-    laser: tuple
-    sonar: tuple = (1.0,) * 8
-    goal_distance: float = 3.0
-    goal_bearing: float = 0.0
-    theta: float = 0.0
-    reward: float = -1.0
-    outcome: str = "running"
-    step: int = 0
-    x: float = 0.0
-    y: float = 0.0
-    collided: bool = False
-
-
-WALL_LEFT = tuple([0.5] * 90 + [3.0] * 90)  # (beam 0 is on the right)
-WALL_RIGHT = tuple([3.0] * 90 + [0.5] * 90)
-
-EXACT = LearnerConfig(
-    alpha=0.5,
-    gamma=0.9,
-    lam=0.8,
-    blend=False,
-    epsilon_start=0.0,
-    epsilon_end=0.0,
-    max_hold=1,
-    clear_range=None,
-    use_sonar=False,
-    representation="pearson",  # a table: Q's row i is state i
-    pearson_threshold=0.9,
-    near_range=None,
-    goal_sectors=0,
-    shaping="additive",  # the paper's Algorithm 1, computed by hand below
+from tests.learner_support import (
+    ADVISED,
+    EXACT,
+    FORWARD,
+    LEFT,
+    WALL_LEFT,
+    WALL_RIGHT,
+    P,
+    run_episode,
 )
 
 
@@ -212,7 +181,7 @@ def test_the_blend_weights_actions_by_q_and_credits_them_by_weight():
     assert discrete.discrete == 1 and discrete.weights.max() == 1.0
 
 
-def test_late_feedback_reaches_exactly_the_credited_steps():
+def test_late_feedback_reaches_exactly_the_stretch_it_judges():
     learner = Learner(EXACT, seed=0)
     shapes = [WALL_LEFT, WALL_RIGHT, tuple([0.5] * 60 + [3.0] * 120), WALL_LEFT]
     for step, laser in enumerate(shapes):
@@ -220,9 +189,10 @@ def test_late_feedback_reaches_exactly_the_credited_steps():
     before = learner.Q.copy()
     assert learner.credit(step=1, weight=0.5, f=10.0)
     change = learner.Q - before
-    # step 1 was taken in state 1 (WALL_RIGHT); step 0 in state 0, one trace decay earlier
-    assert change[1, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0)
-    assert change[0, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0 * 0.72)
+    # the judged_s (1 s) up to step 1 holds two decisions, steps 0 (state 0) and 1 (state 1),
+    # a step each: half the word's credit each
+    assert change[1, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0 / 2)
+    assert change[0, FORWARD] == pytest.approx(0.5 * 0.5 * 10.0 / 2)
     assert change[2].sum() == 0.0  # step 2 came after: untouched
     assert np.count_nonzero(change) == 2
 
@@ -233,7 +203,8 @@ def test_feedback_is_bounded_and_old_feedback_dropped():
         learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
     before = learner.Q.copy()
     assert learner.credit(step=5, weight=1.0, f=1e6)
-    assert (learner.Q - before)[0, FORWARD] == pytest.approx(0.5 * 50.0 * (1 + 0.72 + 0.72**2))
+    # bounded to 50, spread over the three decisions still remembered, all in state 0
+    assert (learner.Q - before)[0, FORWARD] == pytest.approx(0.5 * 50.0)
     assert not learner.credit(step=1, weight=1.0, f=10.0)
     assert not learner.credit(step=99, weight=1.0, f=10.0)
     assert learner.counters["feedback_dropped.too_old"] == 1
@@ -302,9 +273,6 @@ def test_what_the_teacher_praised_is_kept_after_it_falls_silent_only_with_the_ac
     assert (chosen[-20:] == [FORWARD] * 20) is kept  # additive: -1 a step unlearns the praise
 
 
-ADVISED = replace(EXACT, shaping="action_bias", goal_sectors=8, representation="keys")
-
-
 def test_advice_speaks_for_the_states_that_share_a_tile_with_where_it_was_given():
     learner = Learner(ADVISED, seed=0)  # tiles ignoring the distance, and the sector
     far = P(WALL_LEFT, goal_distance=3.0, theta=0.0, step=0)
@@ -327,16 +295,6 @@ def test_advice_tiles_must_name_fields_of_the_state():
     with pytest.raises(SettingsError, match="name fields of the state, of prototype, near"):
         with_settings(['advice_generalization=["heading"]'])
     assert with_settings(["advice_generalization=[]"]).advice_generalization == ()
-
-
-def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None) -> None:
-    shapes = [WALL_LEFT, WALL_RIGHT, WALL_LEFT, WALL_RIGHT]
-    for step, laser in enumerate(shapes):
-        end = step == len(shapes) - 1
-        p = P(laser, reward=50.0 if end else -1.0, outcome="goal" if end else "running", step=step)
-        if step == command_at:
-            learner.command("left")
-        book.record(p, learner.step(p))
 
 
 def test_a_trace_counts_the_words_a_person_says_to_dictate_it():
@@ -379,7 +337,7 @@ def test_with_tiles_advice_speaks_for_nearby_places_and_headings_not_far_ones():
 
 def test_the_tiled_learner_learns_task_1():
     result = run(RunSpec("1", "rl", seed=1, max_episodes=80, learner=('representation="tiles"',)))
-    assert result.converged and result.states > 1000  # features: many places, headings
+    assert result.converged and result.states > 500  # features: many places, headings
 
 
 def test_traces_are_recorded_saved_and_replayed(tmp_path):
@@ -398,25 +356,22 @@ def test_traces_are_recorded_saved_and_replayed(tmp_path):
     assert np.array_equal(direct.Q, student.Q)
 
 
-def test_with_the_action_bias_a_replayed_trace_teaches_advice_not_values():
+def test_with_the_action_bias_a_replayed_trace_teaches_values_not_advice():
     book = TraceBook()
     run_episode(Learner(EXACT, seed=1), book, command_at=0)  # left, left, left, ..., the goal
     student = Learner(replace(EXACT, shaping="action_bias"), seed=2)
     book.replay(student)
-    assert student.taught.T[:, LEFT].max() > 0  # h's bonus, as the traces' advice
-    assert not student.taught.H.any()  # the words' advice, which fades, is apart
-    assert not student.Q.any()  # the route's values stay untried (optimistic)
+    assert student.Q[:, LEFT].max() > 0  # the goal's reward, back along the trace's steps
+    assert not student.taught.H.any()  # no advice: the commands earn no bonus in a replay
 
 
-def test_the_words_advice_fades_with_the_episodes_the_traces_does_not():
+def test_the_words_advice_fades_with_the_episodes():
     config = replace(EXACT, shaping="action_bias", bias_decay=0.5)
     learner = Learner(config, seed=0)
     s = learner._state_of(P(WALL_LEFT, step=0))
     learner.taught.advise([s], 2.0 * np.eye(len(ACTION_NAMES))[[LEFT]])
-    learner.taught.advise([s], 4.0 * np.eye(len(ACTION_NAMES))[[FORWARD]], traced=True)
     now, later = learner.taught.weighed(s, 0), learner.taught.weighed(s, 3)
     assert now[LEFT] == pytest.approx(2.0) and later[LEFT] == pytest.approx(2.0 * 0.5**3)
-    assert now[FORWARD] == later[FORWARD] == pytest.approx(4.0)
 
 
 def test_traces_keep_the_pose_so_places_and_goal_sectors_replay_as_lived(tmp_path):
@@ -441,96 +396,6 @@ def test_traces_keep_the_pose_so_places_and_goal_sectors_replay_as_lived(tmp_pat
     assert len(student.features) == 3  # one goal sector per heading: three sides of the goal
 
 
-def test_the_words_potential_is_learnt_by_place_and_shapes_every_update():
-    config = replace(ADVISED, potential_rate=0.5, min_hold=1, max_hold=1, traces="replacing")
-    learner = Learner(config, seed=0)
-    far, near = P(WALL_LEFT, goal_distance=3.0, step=0), P(WALL_LEFT, goal_distance=0.5, step=1)
-    learner.step(far, forced=learner.actions.one_hot(FORWARD))
-    s_far = learner.s
-    learner.step(near, forced=learner.actions.one_hot(FORWARD))  # the decision at step 1
-    s_near = learner.s
-    assert not np.array_equal(s_far.place, s_near.place)
-    assert learner.credit(step=1, weight=1.0, f=10.0)  # "good" there
-    assert learner.phi(s_near) == pytest.approx(0.5 * 10.0)  # share 1
-    decay = config.gamma * config.lam  # the far decision, one back: e = gamma lambda
-    assert learner.phi(s_far) == pytest.approx(0.5 * decay * 10.0)
-    before = learner.Q.copy()
-    q_near = learner.q(s_near).copy()
-    learner.step(P(WALL_LEFT, goal_distance=0.5, step=2), forced=learner.actions.one_hot(FORWARD))
-    # the update of (near, forward) gained F = gamma Phi(s') - Phi(s) with s' = s: (gamma-1) Phi
-    r, gamma, alpha = -1.0, config.gamma, config.alpha
-    shaping = (gamma - 1) * learner.phi(s_near)
-    delta = r + shaping + gamma * q_near[FORWARD] - q_near[FORWARD]
-    change = learner.Q[s_near.q] - before[s_near.q]
-    assert change[0, FORWARD] == pytest.approx(alpha * delta)
-
-
-@pytest.mark.parametrize(
-    "config",
-    [EXACT, ADVISED, replace(ADVISED, potential_rate=0.5), LearnerConfig()],
-    ids=["pearson", "keys", "keys-potential", "tiles"],
-)
-def test_checkpoint_round_trip(tmp_path, config):
-    learner = Learner(config, seed=3)
-    run_episode(learner, TraceBook())
-    run_episode(learner, TraceBook())
-    assert learner.credit(step=2, weight=1.0, f=10.0)
-    book = TraceBook()
-    run_episode(Learner(config, seed=4), book, command_at=0)
-    book.replay(learner)  # the traces' advice, T, too
-    path = tmp_path / "learner.npz"
-    checkpoint.save(learner, path)
-    back = checkpoint.load(path, config)
-    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
-    assert np.array_equal(back.taught.T, learner.taught.T)
-    assert (config.shaping == "action_bias") == back.taught.T.any()
-    assert np.array_equal(back.taught.Phi, learner.taught.Phi)
-    assert (config.shaping == "action_bias") == back.taught.H.any()
-    assert back.features.coordinates() == learner.features.coordinates()
-    assert back.episode == learner.episode
-    assert back.rng.random() == learner.rng.random()  # the random stream goes on
-    # the same learner: the next episode goes as it would have, late credit included
-    run_episode(back, TraceBook())
-    run_episode(learner, TraceBook())
-    assert back.credit(step=1, weight=1.0, f=-10.0) and learner.credit(step=1, weight=1.0, f=-10.0)
-    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
-    assert np.array_equal(back.taught.Phi, learner.taught.Phi)
-
-
-def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):
-    learner = Learner(EXACT, seed=3)
-    path = tmp_path / "learner.npz"
-    checkpoint.save(learner, path)  # the good one ...
-    run_episode(learner, TraceBook())
-    checkpoint.save(learner, path)  # ... becomes .prev
-    path.write_bytes(path.read_bytes()[:100])  # torn write
-    with pytest.raises(checkpoint.CheckpointError, match="corrupt checkpoint"):
-        checkpoint.load(path, EXACT)
-    back = checkpoint.load_latest(path, EXACT)
-    assert back.episode == 0 and "using the previous one" in caplog.text
-    checkpoint.previous(path).write_bytes(b"garbage")
-    with pytest.raises(checkpoint.CheckpointError, match=r"learner.prev.npz: corrupt"):
-        checkpoint.load_latest(path, EXACT)
-
-
-def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
-    path = tmp_path / "learner.npz"
-    checkpoint.save(Learner(EXACT), path)
-    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
-        checkpoint.load(path, replace(EXACT, laser_sectors=6))
-    assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
-
-
-def test_a_checkpoint_is_peeked_at_without_restoring_it(tmp_path):
-    learner = Learner(EXACT, seed=3)
-    run_episode(learner, TraceBook())
-    path = tmp_path / "learner.npz"
-    checkpoint.save(learner, path)
-    assert checkpoint.peek(path) == (learner.episode, len(learner.Q)) != (0, 0)
-    path.write_bytes(b"garbage")
-    assert checkpoint.peek(path) is None and checkpoint.peek(tmp_path / "none.npz") is None
-
-
 def test_the_learner_service_drives_every_robot_each_with_its_own_checkpoint():
     environ = {"VOXSHAPE_ROBOTS": "r1, r2,r1", "VOXSHAPE_ROBOT": "r9"}
     assert learner_node.robots_of(None, environ) == ("r1", "r2")  # as the simulator's list
@@ -545,22 +410,6 @@ def test_the_learner_service_drives_every_robot_each_with_its_own_checkpoint():
     assert learner_node.checkpoint_path(template, "s", "r2", 2) == Path("ckpt/r2.npz")
     with pytest.raises(ConfigError, match=r"put \{robot\} in it"):
         learner_node.checkpoint_path(Path("x.npz"), "s", "r1", 2)
-
-
-def test_goal_sectors_must_match_and_checkpoints_of_another_version_are_refused(tmp_path):
-    path = tmp_path / "learner.npz"
-    learner = Learner(EXACT, seed=0)
-    run_episode(learner, TraceBook())
-    checkpoint.save(learner, path)
-    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
-        checkpoint.load(path, replace(EXACT, goal_sectors=8))
-    with np.load(path) as saved:
-        arrays = dict(saved)
-    meta = json.loads(str(arrays["meta"]))
-    meta["version"] = 2  # saved by a build whose states were a table
-    np.savez(path, **(arrays | {"meta": np.array(json.dumps(meta))}))
-    with pytest.raises(checkpoint.CheckpointError, match=r"version 2, .* start afresh"):
-        checkpoint.load(path, EXACT)
 
 
 def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():

@@ -13,10 +13,11 @@ import pybullet as pb
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from services.learner.config import LearnerConfig
 from services.sim.gym_env import NavigationEnv
 from services.sim.sensors import Sensors
 from services.sim.task import Rewards, SimConfig, Simulation
-from services.sim.world import RECOIL, SENSOR_HEIGHT, World
+from services.sim.world import SENSOR_HEIGHT, World
 from services.world.maps import TASKS, MapError, Pose, load_map
 from services.world.robot import RobotModel
 
@@ -136,21 +137,26 @@ def test_a_collision_stops_the_robot_before_it_overlaps_and_ends_the_episode():
     assert r.reward == Rewards().step + Rewards().collision
     front = r.pose.x + MODEL.length / 2
     # stopped within one sub-step of the wall, then backed off by the bumper reflex
-    assert 6.0 - RECOIL - 0.7 * 0.1 / 4 <= front < 6.0 - RECOIL + 1e-9
+    assert 6.0 - MODEL.recoil - 0.7 * 0.1 / 4 <= front < 6.0 - MODEL.recoil + 1e-9
     slant = math.cos(math.radians(0.5))  # beam 90 points 0.5 degrees left of ahead
     assert r.laser[90] == pytest.approx((6.0 - (r.pose.x + MODEL.laser_x)) / slant, abs=1e-9)
 
 
-def test_a_bump_backs_the_robot_off_so_it_can_turn_away_from_the_wall():
+@pytest.mark.parametrize("turn", [1, -1])
+def test_a_bump_backs_the_robot_off_so_that_an_arc_turns_away_from_the_wall(turn):
     sim = open_room(collision="continue")
     sim.reset("r1")
     sim.world.place(0, Pose(5.0, 3.0, 0.0))  # squarely facing the east wall at x = 6
     for _ in range(30):
         r = sim.step({"r1": (0.7, 0.0)})["r1"]
-    assert r.pose.x + MODEL.length / 2 <= 6.0 - RECOIL + 1e-9
-    for _ in range(15):  # 90 degrees at 60 degrees/s: no corner reaches the wall
-        r = sim.step({"r1": (0.0, math.radians(60))})["r1"]
-    assert not r.collided and r.pose.theta == pytest.approx(math.pi / 2, abs=0.02)
+        if r.collided:
+            break
+    assert r.collided and r.pose.x + MODEL.length / 2 <= 6.0 - MODEL.recoil + 1e-9
+    arc = LearnerConfig().velocities["left"]  # the learner's arc: 0.3 m/s at 60 degrees/s
+    for _ in range(15):  # 90 degrees along the arc: no corner reaches the wall
+        r = sim.step({"r1": (arc[0], turn * arc[1])})["r1"]
+        assert not r.collided
+    assert r.pose.theta == pytest.approx(turn * math.pi / 2, abs=0.02)
 
 
 def test_collision_can_cost_a_penalty_and_go_on():
@@ -178,7 +184,7 @@ def test_robots_collide_with_each_other_and_see_each_other():
     assert "collision" in {r["a"].outcome, r["b"].outcome}
     gap = (r["b"].pose.x - r["a"].pose.x) - MODEL.length
     # they stopped within one sub-step, not overlapping; the one that bumped backed off
-    assert RECOIL < gap < RECOIL + 0.7 * 0.1 / 4
+    assert MODEL.recoil < gap < MODEL.recoil + 0.7 * 0.1 / 4
 
 
 # -- sensors against PyBullet's own ray test ----------------------------------------------

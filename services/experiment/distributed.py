@@ -91,8 +91,8 @@ def _services(spec: RunSpec, session: LoopbackSession, folder: Path) -> list[Ser
     learner = ["--robot", ROBOT, "--fresh", "--seed", str(spec.seed)]
     learner += [a for setting in spec.learner for a in ("--set", setting)]
     learner += ["--checkpoint", str(folder / "learner.npz")]
-    if book := initial_traces(spec):  # the in-process run's traces, replayed alike
-        book.save(folder / "traces.npz")
+    if dictation := initial_traces(spec):  # the in-process run's traces, replayed alike
+        dictation.book.save(folder / "traces.npz")
         learner += ["--traces", str(folder / "traces.npz")]
     return [*services, session.service("learner", *learner)]
 

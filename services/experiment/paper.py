@@ -116,7 +116,7 @@ def pool(dirs: list[Path], out: Path, command: str) -> dict:
         path = d / "results.json"
         try:
             results = json.loads(path.read_text())
-            runs += [RunResult(**r) for r in results["runs"]]
+            runs += [RunResult.from_json(r) for r in results["runs"]]
         except (OSError, ValueError, KeyError, TypeError) as e:
             raise PoolError(
                 f"{path}: not the results.json of `voxshape experiment paper` ({e})"

@@ -49,7 +49,7 @@ def _built_in_row(
     summary: dict, built_in: list[str], settings: list[str], key: str, paper: dict
 ) -> str:
     """The row of the built-in tasks alone, ours beside the paper's (minutes or counts)."""
-    scale = 60 if key == "learning_time_s" else 1
+    scale = 60 if key == "robot_time_s" else 1
     cells = []
     for s in settings:
         ours = _over(summary, built_in, s, key)
@@ -157,7 +157,8 @@ def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
         "Learning time is the robot's simulated time until convergence ("
         + Convergence(with_settings(summary.get("learner_settings", []))).rule()
-        + ", the shortest time of each task's map). **Censored runs**: a run that did not "
+        + ", the shortest time of each task's map); with initial traces, the robot's time "
+        "they took to dictate comes first and is counted. **Censored runs**: a run that did not "
         "converge within the episode limit counts with its time so far, so its cell's mean "
         f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored{named}).",
         "",
@@ -170,35 +171,40 @@ def _table2(summary: dict, scope: _Scope) -> list[str]:
     lines = ["## Table 2: episodes (left) and learning time in minutes (right)", ""]
     lines += ["Episodes:", "", *_head(settings)]
     lines += _task_rows(summary, scope.tasks, settings, "episodes", PAPER_EPISODES)
-    lines += ["", "Learning time (minutes):", "", *_head(settings)]
-    lines += _task_rows(summary, scope.tasks, settings, "learning_time_s", PAPER_MINUTES, 60)
-    minutes = {s: summary["mean_learning_time_s"][s] / 60 for s in settings}
-    lines += _average_rows(summary, scope, settings, "learning_time_s", minutes, "minutes")
+    lines += ["", "Robot time (minutes), the dictation of traces included:", "", *_head(settings)]
+    lines += _task_rows(summary, scope.tasks, settings, "robot_time_s", PAPER_MINUTES, 60)
+    minutes = {s: summary["mean_robot_time_s"][s] / 60 for s in settings}
+    lines += _average_rows(summary, scope, settings, "robot_time_s", minutes, "minutes")
     note = paper_note(scope.tasks, scope.built_in)
     return lines + (["", note] if note else [])
 
 
+BOUND_MARKS = {"exact": "", "lower": "≥ ", "upper": "≤ ", "none": "~ "}
+BOUND_NOTES = {
+    "lower": "≥: only RL had censored runs, so the speedup is a lower bound.",
+    "upper": "≤: only the setting had censored runs, so the speedup is an upper bound.",
+    "none": "~: both RL and the setting had censored runs: the speedup is no bound either way.",
+}
+
+
 def _speedups(summary: dict, scope: _Scope) -> list[str]:
-    """Each setting's speedup over RL with its bootstrap interval, beside the paper's."""
-    bound = "≥ " if summary["speedup_is_lower_bound"] else ""
-    lines = ["", "Speedup over RL (mean RL learning time over the tasks / the setting's):", ""]
+    """Each setting's speedup over RL with its bootstrap interval, beside the paper's, marked
+    where censored runs make it a bound."""
+    lines = ["", "Speedup over RL (mean RL robot time over the tasks / the setting's):", ""]
     lines += ["| setting | ours | 95% interval | paper |", "|---|---|---|---|"]
+    bounds = summary["speedup_bound"]
     for setting, value in summary["speedup"].items():
         theirs = "-" if scope.mixed else _figure(scope.paper["speedup"].get(setting))
         low, high = summary["speedup_ci95"][setting]
-        lines.append(f"| {label(setting)} | {bound}{value:.2f} | {low:.2f}-{high:.2f} | {theirs} |")
+        mark = BOUND_MARKS[bounds[setting]]
+        lines.append(f"| {label(setting)} | {mark}{value:.2f} | {low:.2f}-{high:.2f} | {theirs} |")
     if scope.mixed and summary["speedup"]:
-        lines += _built_in_speedups(summary, scope, bound)
-    if bound:
-        lines += [
-            "",
-            "RL did not always converge within the episode limit: its mean is a lower bound, "
-            "so the speedups are lower bounds too.",
-        ]
-    return lines
+        lines += _built_in_speedups(summary, scope)
+    notes = [BOUND_NOTES[b] for b in dict.fromkeys(bounds.values()) if b in BOUND_NOTES]
+    return lines + (["", " ".join(notes)] if notes else [])
 
 
-def _built_in_speedups(summary: dict, scope: _Scope, bound: str) -> list[str]:
+def _built_in_speedups(summary: dict, scope: _Scope) -> list[str]:
     """The speedups over the built-in tasks alone, against the paper's over them."""
     lines = [
         "",
@@ -208,9 +214,10 @@ def _built_in_speedups(summary: dict, scope: _Scope, bound: str) -> list[str]:
         "| setting | ours | paper |",
         "|---|---|---|",
     ]
-    rl = _over(summary, scope.built_in, "rl", "learning_time_s")
+    rl = _over(summary, scope.built_in, "rl", "robot_time_s")
     for setting in summary["speedup"]:
-        ours = _over(summary, scope.built_in, setting, "learning_time_s")
+        ours = _over(summary, scope.built_in, setting, "robot_time_s")
+        bound = BOUND_MARKS[summary["speedup_bound"][setting]]
         value = "-" if rl is None or not ours else f"{bound}{rl / ours:.2f}"
         lines.append(
             f"| {label(setting)} | {value} | {_figure(scope.paper['speedup'].get(setting))} |"
@@ -276,21 +283,52 @@ def _average_rows(
 
 
 def _teacher_words(summary: dict, scope: _Scope) -> list[str]:
-    """Every word a teacher says per run: while the robot learns, and dictating the traces."""
+    """Every word a person says per run, and what each bought: the robot seconds saved over
+    plain RL, per word."""
+    taught = list(summary["words"])
+    if not taught:
+        return []
     lines = [
         "",
-        "Every word a teacher says per run, mean over the tasks: the words understood while "
-        "the robot learns, the commands said to dictate the initial traces (a command lasts "
-        "`command_steps` steps, so a run of one command takes a word per that many steps), "
-        "and their sum.",
+        "Every word the person says per run, mean over the tasks: the commands said to dictate "
+        "the initial traces, the words understood while the robot learns, their sum, the "
+        "robot minutes the dictation took, and the robot seconds each word saved (plain RL's "
+        "mean robot time less the setting's, dictation included, over its words).",
         "",
-        "| setting | while learning | dictating traces | in all |",
+        "| setting | dictating traces | while learning | in all | dictation min "
+        "| seconds saved a word |",
+        "|---|---|---|---|---|---|",
+    ]
+    saved = summary["seconds_saved_per_word"]
+    for s in taught:
+        learning, dictating = summary["interventions"][s], summary["dictation_words"][s]
+        per_word = f"{saved[s]:.1f}" if s in saved else "-"
+        lines.append(
+            f"| {label(s)} | {dictating:.1f} | {learning:.1f} | {learning + dictating:.1f} | "
+            f"{summary['mean_dictation_s'][s] / 60:.1f} | {per_word} |"
+        )
+    return lines
+
+
+def _time_lost(summary: dict, scope: _Scope) -> list[str]:
+    """Where the robot's learning time went: bump bouts, timeouts, and where the words'
+    credit landed."""
+    lines = [
+        "",
+        "Where the robot's time went until convergence, per setting: the share in bump bouts "
+        "of 10 s or more (a robot pinned to a wall), the share in episodes that timed out, and "
+        "the share of the judging words' credit that landed on the decision each word was "
+        "credited to by the arbiter.",
+        "",
+        "| setting | bump bouts | timeouts | credit on the judged decision |",
         "|---|---|---|---|",
     ]
-    for s in scope.feedback:
-        learning, dictating = summary["interventions"][s], summary["trace_words"][s]
+    judged = summary["credit_on_judged"]
+    for s in scope.settings:
+        on = f"{judged[s]:.2f}" if s in judged else "-"
         lines.append(
-            f"| {label(s)} | {learning:.1f} | {dictating:.1f} | {learning + dictating:.1f} |"
+            f"| {label(s)} | {summary['bump_bout_share'][s]:.3f} | "
+            f"{summary['timeout_share'][s]:.2f} | {on} |"
         )
     return lines
 
@@ -315,7 +353,7 @@ def _asking(summary: dict, scope: _Scope) -> list[str]:
         "| answers | words while learning |",
         "|---|---|---|---|---|---|---|",
     ]
-    means, share = summary["mean_learning_time_s"], summary["timeout_share"]
+    means, share = summary["mean_robot_time_s"], summary["timeout_share"]
     for ask, plain in pairs:
         asked = summary["questions"][ask]
         lines.append(
@@ -338,14 +376,14 @@ def _noisy_against_perfect(summary: dict, scope: _Scope) -> list[str]:
         return []
     lines = [
         "",
-        "Task 2 with initial traces, noisy (20%) against perfect feedback (PF):",
+        "Task 2 with initial traces, noisy (28%) against perfect feedback (PF):",
         "",
         "| | time (min) ours | paper | interventions ours | paper |",
         "|---|---|---|---|---|",
     ]
     for setting, name in ((noisy, "T2"), (perfect, "T2 PF")):
         lines.append(
-            f"| {name} | {_cell(summary, '2', setting, 'learning_time_s', 60)} | "
+            f"| {name} | {_cell(summary, '2', setting, 'robot_time_s', 60)} | "
             f"{_paper(PAPER_MINUTES, setting, '2')} | "
             f"{_cell(summary, '2', setting, 'interventions')} | "
             f"{_paper(PAPER_INTERVENTIONS, setting, '2')} |"
@@ -375,6 +413,7 @@ SECTIONS: tuple[Callable[[dict, _Scope], list[str]], ...] = (
     _speedups,
     _table3,
     _teacher_words,
+    _time_lost,
     _asking,
     _noisy_against_perfect,
     _figure2,

@@ -48,7 +48,7 @@ def resumed(log: Path, specs: list[RunSpec]) -> dict[str, RunResult]:
     lines = log.read_text().splitlines()
     for number, line in enumerate(lines, 1):
         try:
-            result = RunResult(**json.loads(line))
+            result = RunResult.from_json(json.loads(line))
         except (ValueError, TypeError):
             if number == len(lines):
                 continue  # written when the experiment was stopped

@@ -31,7 +31,7 @@ from services.learner.config import LearnerConfig
 from services.learner.features import State
 from services.learner.sarsa import Learner, Visit
 
-VERSION = 4
+VERSION = 5  # 5: no Phi over keys (Phi is over the place), advice over the place too
 # Settings that decide what a state or an action is: a table learnt with others is useless.
 REPRESENTATION = (
     "representation",
@@ -50,10 +50,11 @@ REPRESENTATION = (
     "near_range",
     "near_sectors",
     "goal_sectors",
+    "advice_place_tilings",
 )
-PARTS = ("q", "advice", "place", "view")  # a state's features, for Q, H and Phi, its key
+PARTS = ("q", "advice", "view")  # a state's features, for Q and H, and its key
 # The recent visits: their steps, episode and action weights, and their state's features.
-ARRAYS = ("Q", "H", "T", "Phi", "meta", "visits", "visit_weights", *(f"visit_{p}" for p in PARTS))
+ARRAYS = ("Q", "H", "meta", "visits", "visit_weights", *(f"visit_{p}" for p in PARTS))
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.learner")
 
@@ -108,8 +109,6 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
             f,
             Q=learner.Q,
             H=learner.taught.H,
-            T=learner.taught.T,
-            Phi=learner.taught.Phi,
             meta=np.array(json.dumps(meta)),
             visits=np.array([(v.first, v.last, v.episode) for v in visits], dtype=np.int64).reshape(
                 len(visits), 3
@@ -158,22 +157,22 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
         )
     learner = Learner(config, seed)
     learner.features.restore(meta["features"])
-    q, h, t, phi = arrays["Q"], arrays["H"], arrays["T"], arrays["Phi"]
-    sizes_ok = (len(q), len(h), len(phi)) == learner.features.sizes and h.shape == t.shape
+    q, h = arrays["Q"], arrays["H"]
+    sizes_ok = (len(q), len(h)) == learner.features.sizes and h.shape[1:] == (N_ACTIONS,)
     if not sizes_ok or q.shape[1:] != (N_ACTIONS,):
         raise CheckpointError(
-            f"{path}: inconsistent tables {q.shape}, {h.shape}, {phi.shape} for "
+            f"{path}: inconsistent tables {q.shape}, {h.shape} for "
             f"{learner.features.sizes} features; start afresh with another file"
         )
     learner.Q, learner.e = q.copy(), np.zeros_like(q)
-    learner.taught.H, learner.taught.T, learner.taught.Phi = h.copy(), t.copy(), phi.copy()
+    learner.taught.H = h.copy()
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]
     learner.recent.extend(
-        Visit(int(first), int(last), int(episode), State(x, advice, place, int(view)), w.copy())
-        for (first, last, episode), w, x, advice, place, view in zip(
+        Visit(int(first), int(last), int(episode), State(x, advice, int(view)), w.copy())
+        for (first, last, episode), w, x, advice, view in zip(
             arrays["visits"],
             arrays["visit_weights"],
             *(arrays[f"visit_{part}"] for part in PARTS),

@@ -113,11 +113,25 @@ class LearnerConfig:
     # With "keys": fields of the key the advice generalizes over, one coarse tiling per
     # field ignoring it; the policy's H(s) is the mean of the state's own and its tiles'.
     advice_generalization: tuple[str, ...] = ("distance", "sector")
+    # With "keys": H also reads this many tilings of the pose (x, y, heading; tile_width,
+    # heading_tiles), so advice speaks for where and which way the robot was (0: off).
+    advice_place_tilings: int = 8
 
-    # The potential the teacher's words imply: Phi over the state's place features, moved
-    # towards each word's reward at this rate (0: off); every update's reward
-    # gains F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum).
-    potential_rate: float = 0.25
+    # The potential Phi over the place (potential.py); every update's reward gains
+    # F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum), and the
+    # policy looks ahead along it. "straight_line": minus the straight line to the goal;
+    # "oracle": minus the map's true shortest path (experiments only: the ceiling of a
+    # potential over places); "none": neither.
+    potential: Literal["straight_line", "oracle", "none"] = "straight_line"
+    potential_scale: float = 40.0  # reward per metre of Phi
+    # The policy also ranks each action by the progress Phi expects of it: beta_Phi times
+    # potential_scale times Phi(where a leads within lookahead_s, as far as the laser shows
+    # it free) - Phi(here), fading with bias_decay as the words' advice does (0: off).
+    lookahead_weight: float = 3.0
+    lookahead_s: float = 1.0
+    # A judging word's credit is spread over the decisions of the stretch it judges: the
+    # judged_s of robot time up to the step the arbiter credits (the person's last look).
+    judged_s: float = 1.0
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...

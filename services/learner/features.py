@@ -1,17 +1,16 @@
 """What the learner sees of a percept: a state as the indices of its active binary features.
 
-Q, the teacher's advice H and the potential Phi are linear over them (Sutton & Barto,
-chapters 9-12): a value of a state is the mean of its active features' weights, so one
-update moves it as a table's entry would move, and every state sharing a feature a little.
-A `State` names three sets of features, one for each: `q` (Q and its traces), `advice`
-(H) and `place` (Phi). Each `representation` fills them its own way:
+Q and the teacher's advice H are linear over them (Sutton & Barto, chapters 9-12): a value
+of a state is the mean of its active features' weights, so one update moves it as a table's
+entry would move, and every state sharing a feature a little. A `State` names two sets of
+features, one for each: `q` (Q and its traces) and `advice` (H). Each `representation` fills
+them its own way:
 
 - "keys", the default: one feature per key (near bits and goal bins, states.py), with the
-  advice tiles (coarser keys, `advice_generalization`) as further features of H alone, and
-  Phi over the key's goal distance and sector;
+  advice tiles (coarser keys, `advice_generalization`) as further features of H alone;
 - "tiles": tile coding of the pose the observation carries, `tilings` offset grids of
   `tile_width` metres by `heading_tiles` headings (Sutton's asymmetric offsets), plus the
-  key as `key_tilings` more features; Q, H and Phi share them, so what a teacher says at one
+  key as `key_tilings` more features; Q and H share them, so what a teacher says at one
   place speaks for nearby places and headings more than for far ones (which share the key);
 - "pearson": the paper's states, "keys" with Pearson prototypes of the sensor readings.
 
@@ -38,12 +37,11 @@ class PosePercept(Percept, Protocol):
 
 @dataclass(frozen=True, eq=False)
 class State:
-    """The active features of a state, for Q, H and Phi (indices into their arrays), and
+    """The active features of a state, for Q and H (indices into their arrays), and
     what the robot sees there (its key: a policy action is held while it stays the same)."""
 
     q: np.ndarray
     advice: np.ndarray
-    place: np.ndarray
     view: int
 
 
@@ -80,7 +78,7 @@ class Representation(Protocol):
     def __len__(self) -> int:
         """States (or features) seen so far."""
 
-    sizes: tuple[int, int, int]  # features of Q, H and Phi so far
+    sizes: tuple[int, int]  # features of Q and H so far
     reach: float | None  # how far the sensors must see (StateSpace.reach)
 
     def coordinates(self) -> dict[str, list]: ...
@@ -101,9 +99,9 @@ class Tiles:
         return len(self.numbering)
 
     @property
-    def sizes(self) -> tuple[int, int, int]:
+    def sizes(self) -> tuple[int, int]:
         n = len(self.numbering)
-        return n, n, n
+        return n, n
 
     @property
     def reach(self) -> float | None:
@@ -117,7 +115,7 @@ class Tiles:
         key = (self.keys.near_bits(p), *self.keys.goal_bins(p))
         keys = [("key", k, *key) for k in range(c.key_tilings)]
         x = self.numbering([*pose, *keys])
-        return State(x, x, x, view=int(x[-1])), None
+        return State(x, x, view=int(x[-1])), None
 
     def coordinates(self) -> dict[str, list]:
         return {"features": [list(c) for c in self.numbering.index]}
@@ -128,22 +126,21 @@ class Tiles:
 
 class Keys:
     """A feature per key of states.py (Pearson prototypes with "pearson"); H also reads
-    the key's advice tiles, Phi its goal distance and sector."""
+    the key's advice tiles."""
 
     def __init__(self, config: LearnerConfig) -> None:
         self.config = config
         self.space = StateSpace(config)
         self.ignored = [KEY_FIELDS.index(name) for name in config.advice_generalization]
         self.advice = Numbering()  # ("state", s) and (tiling, the key without a field)
-        self.places = Numbering()  # (distance bin, goal sector)
         self.states: list[State] = []  # each state's features, made when it is born
 
     def __len__(self) -> int:
         return len(self.space)
 
     @property
-    def sizes(self) -> tuple[int, int, int]:
-        return len(self.space), len(self.advice), len(self.places)
+    def sizes(self) -> tuple[int, int]:
+        return len(self.space), len(self.advice)
 
     @property
     def reach(self) -> float | None:
@@ -153,7 +150,14 @@ class Keys:
         s, parent = self.space.classify(p)
         if s == len(self.states):
             self.states.append(self._state(s))
-        return self.states[s], parent
+        state, c = self.states[s], self.config
+        if not c.advice_place_tilings:
+            return state, parent
+        heading = (p.theta % math.tau) / math.tau * c.heading_tiles
+        w = c.tile_width
+        tiles = pose_tiles(p.x / w, p.y / w, heading, c.advice_place_tilings, c.heading_tiles)
+        place = self.advice([("place", *t) for t in tiles])
+        return State(state.q, np.concatenate([state.advice, place]), view=s), parent
 
     def _state(self, s: int) -> State:
         key = self.space.key_of[s]
@@ -161,7 +165,6 @@ class Keys:
         return State(
             np.array([s], dtype=np.int64),
             self.advice([("state", s), *coarse]),
-            self.places([(key[3], key[4])]),
             view=s,
         )
 
@@ -170,13 +173,11 @@ class Keys:
             "keys": [list(k) for k in self.space.key_of],
             "prototypes": [p.tolist() for p in self.space.prototypes],
             "advice": [list(c) for c in self.advice.index],
-            "places": [list(c) for c in self.places.index],
         }
 
     def restore(self, saved: dict[str, list]) -> None:
         self.space.restore(saved["prototypes"], saved["keys"])
         self.advice.restore(saved["advice"])
-        self.places.restore(saved["places"])
         self.states = [self._state(s) for s in range(len(self.space))]
 
 

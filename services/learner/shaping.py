@@ -5,10 +5,11 @@
   the step the teacher chose, g's f moves Q where the arbiter credits it, and a replayed trace
   runs the SARSA update like the robot's own steps.
 - `ActionBias` (the default, TAMER+RL's action biasing): the words go to a table H of their
-  own and a replayed trace's commands to T (advice.py); the policy ranks
-  Q + beta (T + bias_decay^episode H), Q learns from R_RL alone, on the robot's own steps.
+  own (advice.py); the policy ranks Q + beta bias_decay^episode H, and Q learns from R_RL
+  alone, on the robot's own steps and a replayed trace's (whose commands earn no bonus: a
+  dictated trace teaches by where it went, not as advice).
 
-Both leave the potential Phi to the learner: it moves with every word whatever the rule.
+Both leave the potential Phi (potential.py) as it is: words do not move it.
 """
 
 from __future__ import annotations
@@ -24,7 +25,6 @@ from services.learner.features import State
 
 
 class Shaping(Protocol):
-    replays_learn_q: bool  # a replayed trace runs the Q update (else it teaches the words)
 
     def chosen(
         self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
@@ -41,8 +41,6 @@ class Shaping(Protocol):
 
 
 class Additive:
-    replays_learn_q = True
-
     def __init__(self, config: LearnerConfig, taught: Advice) -> None:
         pass
 
@@ -59,15 +57,14 @@ class Additive:
 
 
 class ActionBias:
-    replays_learn_q = False
-
     def __init__(self, config: LearnerConfig, taught: Advice) -> None:
         self.alpha, self.beta, self.taught = config.alpha, config.bias_weight, taught
 
     def chosen(
         self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
     ) -> float:
-        self.taught.advise([s], (self.alpha * bonus * weights)[None, :], traced=replayed)
+        if not replayed:  # a dictated trace teaches Q, by its own steps' rewards
+            self.taught.advise([s], (self.alpha * bonus * weights)[None, :])
         return r
 
     def credit(self, Q: np.ndarray, states: Sequence[State], changes: np.ndarray) -> None:

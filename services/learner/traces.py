@@ -32,6 +32,7 @@ class TracePercept:
     theta: float  # the pose: heading (goal sectors) and position (tiles)
     x: float
     y: float
+    collided: bool = False
 
 
 @dataclass
@@ -57,6 +58,7 @@ class TraceBook:
                     float(p.theta),
                     float(p.x),
                     float(p.y),
+                    bool(p.collided),
                 ),
                 decision,
             )

@@ -24,7 +24,7 @@ import sys
 import numpy as np
 
 from services.world.maps import Box, Map, Pose
-from services.world.robot import RobotModel
+from services.world.robot import RobotModel, unicycle
 
 # `import pybullet` prints "pybullet build time: ..." from C (measured here: on stderr);
 # keep it out of every service's log.
@@ -43,9 +43,7 @@ SENSOR_HEIGHT = 0.2
 CYLINDER_SIDES = 32
 ALL_GROUPS = (1 << 30) - 1
 MAX_ROBOTS = 28  # one collision-group bit each, above the two PyBullet uses
-RECOIL = 0.1  # metres a bump backs the robot off: room to turn in place (a 0.45 x 0.38 m box
-# sweeps 0.29 m turning, 0.07 m more than its half-length)
-RECOIL_STEPS = 5  # checked for contact every 2 cm
+RECOIL_STEP = 0.02  # metres: the bumper reflex checks for contact this often as it backs off
 # Clearance (metres) beyond the circumradius past which a pose cannot touch anything: more
 # than PyBullet's contact threshold (0.02) and the cylinders' polygons' excess (< 0.01).
 SURELY_FREE = 0.1
@@ -77,20 +75,6 @@ def shape_outline(shape: object) -> list[tuple[float, float]]:
         (shape.x + r * math.cos(a), shape.y + r * math.sin(a))
         for a in np.linspace(0, math.tau, CYLINDER_SIDES, endpoint=False)
     ]
-
-
-def _drive(
-    x: float, y: float, theta: float, v: float, omega: float, h: float
-) -> tuple[float, float, float]:
-    """The unicycle's exact pose after h seconds at (v, omega)."""
-    if abs(omega) < 1e-9:
-        x, y = x + v * h * math.cos(theta), y + v * h * math.sin(theta)
-    else:
-        x, y = (
-            x + v / omega * (math.sin(theta + omega * h) - math.sin(theta)),
-            y - v / omega * (math.cos(theta + omega * h) - math.cos(theta)),
-        )
-    return x, y, math.remainder(theta + omega * h, math.tau)
 
 
 class World:
@@ -178,23 +162,25 @@ class World:
         reach = (abs(v) + self.model.circumradius * abs(omega)) * dt
         if self.cull and self._settled[i] and self._surely_free(i, p, reach):
             for _ in range(self.substeps):
-                x, y, theta = _drive(x, y, theta, v, omega, h)
+                x, y, theta = unicycle(x, y, theta, v, omega, h)
             self.poses[i] = Pose(x, y, theta)
             self._stale.add(i)
             return False
         for _ in range(self.substeps):
-            x, y, theta = _drive(x, y, theta, v, omega, h)
+            x, y, theta = unicycle(x, y, theta, v, omega, h)
             if not self._try(i, Pose(x, y, theta)):
                 self.recoil(i, -1.0 if v >= 0 else 1.0)
                 return True
         return False
 
     def recoil(self, i: int, direction: float) -> None:
-        """The bumper reflex: RECOIL metres straight back from a bump (forward after a bump
-        while reversing), as far as it is free. A box pressed squarely to a wall cannot turn
-        either way (a corner would enter the wall): without it the robot is pinned there."""
-        d = direction * RECOIL / RECOIL_STEPS
-        for _ in range(RECOIL_STEPS):
+        """The bumper reflex: the model's `recoil` metres straight back from a bump (forward
+        after a bump while reversing), as far as it is free. A box pressed squarely to a wall
+        cannot turn either way (a corner would enter the wall): without it the robot is
+        pinned there."""
+        steps = max(1, round(self.model.recoil / RECOIL_STEP))
+        d = direction * self.model.recoil / steps
+        for _ in range(steps):
             p = self.poses[i]
             if not self._try(
                 i, Pose(p.x + d * math.cos(p.theta), p.y + d * math.sin(p.theta), p.theta)

@@ -10,6 +10,20 @@ import numpy as np
 CONTROL_PERIOD_S = 0.1  # seconds per control step: the robot is driven at 10 Hz
 
 
+def unicycle(
+    x: float, y: float, theta: float, v: float, omega: float, seconds: float
+) -> tuple[float, float, float]:
+    """The exact pose of a differential robot after `seconds` at (v, omega)."""
+    if abs(omega) < 1e-9:
+        return x + v * seconds * math.cos(theta), y + v * seconds * math.sin(theta), theta
+    turned = theta + omega * seconds
+    return (
+        x + v / omega * (math.sin(turned) - math.sin(theta)),
+        y - v / omega * (math.cos(turned) - math.cos(theta)),
+        math.remainder(turned, math.tau),
+    )
+
+
 @dataclass(frozen=True)
 class RobotModel:
     length: float = 0.45  # metres, along the heading
@@ -28,6 +42,10 @@ class RobotModel:
     sonar_rays: int = 3  # rays sampling each cone
     sonar_min: float = 0.1
     sonar_max: float = 5.0
+    # The bumper reflex: metres the robot backs off from a bump, room for an arc to turn away
+    # (the learner's arcs turn on a radius of 0.29 m); with less, an arc meets the wall again
+    # and a robot whose every action moves forward is pinned there (docs/decisions.md).
+    recoil: float = 0.3
 
     @property
     def circumradius(self) -> float:

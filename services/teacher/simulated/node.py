@@ -123,7 +123,7 @@ def profile_from(args: argparse.Namespace) -> TeacherProfile:
     try:
         profile = replaced(profile, args.set, taken=SimTeacherOptions)
         # Over the bus the speech service mishears: the teacher's own errors are slips.
-        return replace(profile, confusion=Confusion(wrong_qualifier=1.0, misheard=0.0))
+        return replace(profile, confusion=Confusion(wrong_qualifier=1.0, misheard=0.0, dropped=0.0))
     except ValueError as e:
         raise ConfigError(f"sim-teacher: {e}") from None
 

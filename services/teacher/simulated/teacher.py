@@ -74,15 +74,17 @@ class FeedbackSchedule:
 class Confusion:
     """Relative weights of the kinds of error, when one is made."""
 
-    wrong_qualifier: float = 0.5  # the teacher's slip: the opposite judgement
-    misheard: float = 0.5  # the recognizer's: another phrase of the vocabulary
+    # The default: the person's slips 10% of words, and what the default speech engine made
+    # of the project's held-out vocabulary clips (docs/speech.md): 17% not heard, 1% heard as
+    # another phrase; with noise 0.28, words come out wrong in those shares.
+    wrong_qualifier: float = 0.10  # the teacher's slip: the opposite judgement
+    misheard: float = 0.01  # the recognizer's: another phrase of the vocabulary
+    dropped: float = 0.17  # the recognizer's: nothing heard (the word was said all the same)
 
     def __post_init__(self) -> None:
-        if (
-            min(self.wrong_qualifier, self.misheard) < 0
-            or self.wrong_qualifier + self.misheard <= 0
-        ):
-            raise ValueError("confusion weights must be >= 0 and not both 0")
+        weights = (self.wrong_qualifier, self.misheard, self.dropped)
+        if min(weights) < 0 or sum(weights) <= 0:
+            raise ValueError("confusion weights must be >= 0 and not all 0")
 
 
 @dataclass(frozen=True)
@@ -185,12 +187,12 @@ class Speech:
 
     meant: str  # the meaning the teacher had in mind
     said: str  # the text the teacher spoke
-    heard: str  # the text recognized
+    heard: str  # the text recognized ("": nothing was)
     confidence: float
     onset: float  # teacher's clock
     end: float  # of speech
     heard_at: float  # end of speech plus recognition
-    error: str | None  # None, "wrong_qualifier" or "misheard"
+    error: str | None  # None, "wrong_qualifier", "misheard" or "dropped"
 
 
 class GeodesicDistance:
@@ -242,11 +244,48 @@ def downhill_heading(m: Map, x: float, y: float) -> float | None:
     return math.atan2(best[0], best[1]) if best else None
 
 
-def path_command(m: Map, x: float, y: float, theta: float) -> str:
-    """The command that follows the shortest path: forward when facing it, else turn to it."""
+def way_ahead(m: Map, x: float, y: float, lookahead: float) -> tuple[float, float] | None:
+    """The point `lookahead` metres down the shortest way from (x, y), with the widest berth
+    from the walls that leads from the start to the goal (from the nearest cell with that
+    berth when nearer a wall than it): where a person steering by eye aims. None in the goal
+    or boxed in."""
+    grid = m.grid
+    start = grid.cell(m.start.x, m.start.y)
+    berth = next((b for b in BERTHS if math.isfinite(grid.distances_to_goal(b)[start])), BERTHS[-1])
+    distance = grid.distances_to_goal(berth)
+    row, col = grid.cell(x, y)
+    if not math.isfinite(distance[row, col]):
+        r0, c0 = max(0, row - RETURN_CELLS), max(0, col - RETURN_CELLS)
+        window = distance[r0 : row + RETURN_CELLS + 1, c0 : col + RETURN_CELLS + 1]
+        free = np.argwhere(np.isfinite(window))
+        if not len(free):
+            return None
+        dr, dc = free[np.argmin(np.hypot(*(free - (row - r0, col - c0)).T))] + (r0, c0)
+        row, col = int(dr), int(dc)
+    walked = 0.0
+    while walked < lookahead:
+        best = None
+        for dr in (-1, 0, 1):
+            for dc in (-1, 0, 1):
+                r, c = row + dr, col + dc
+                if 0 <= r < grid.rows and 0 <= c < grid.cols and distance[r, c] < distance[
+                    best or (row, col)
+                ]:
+                    best = (r, c)
+        if best is None:
+            break
+        walked += math.hypot(best[0] - row, best[1] - col) * grid.resolution
+        row, col = best
+    ax, ay = (col + 0.5) * grid.resolution, (row + 0.5) * grid.resolution
+    return None if math.hypot(ax - x, ay - y) < grid.resolution else (ax, ay)
+
+
+def path_command(m: Map, x: float, y: float, theta: float, facing: float = FACING) -> str:
+    """The command that follows the shortest path: forward when facing it (within `facing`
+    radians), else turn to it."""
     heading = downhill_heading(m, x, y)
     error = 0.0 if heading is None else math.remainder(heading - theta, math.tau)
-    if abs(error) < FACING:
+    if abs(error) < facing:
         return "forward"
     return "left" if error > 0 else "right"
 
@@ -289,6 +328,9 @@ class SimulatedTeacher:
         if new_episode:
             self._trend, self._stuck_said, self._neared = 0, False, False
             self._off_route_since = None
+            if previous is not None:  # the pause between episodes is no robot time
+                self._refill(previous.time)
+                self._budget = (self._budget[0], look.time)
         if new_episode or distance <= self._progress[0] - p.small_change:
             self._progress = (distance, look.time)
         looks = not new_episode and look.time - previous.time >= p.interval - 1e-9
@@ -368,14 +410,22 @@ class SimulatedTeacher:
 
     def _afford(self, now: float) -> bool:
         """Whether the word budget has a word left (and spends it)."""
-        p = self.profile
-        if not p.words_per_robot_minute:
+        if not self.profile.words_per_robot_minute:
             return True
+        tokens = self._refill(now)
+        if tokens < 1:
+            return False
+        self._budget = (tokens - 1, now)
+        return True
+
+    def _refill(self, now: float) -> float:
+        """The budget refilled for the robot time until `now`: words left."""
+        p = self.profile
         tokens, since = self._budget
         refill = max(0.0, now - since) * p.words_per_robot_minute / 60
         tokens = min(p.words_at_once, tokens + refill)
-        self._budget = (tokens - 1, now) if tokens >= 1 else (tokens, now)
-        return tokens >= 1
+        self._budget = (tokens, now)
+        return tokens
 
     def judge(self, progress: float) -> str | None:
         """The qualifier for `progress` metres towards the goal (negative: away from it)."""
@@ -415,15 +465,19 @@ class SimulatedTeacher:
         if self.rng.random() < p.noise:
             c = p.confusion
             error = self.rng.choices(
-                ("wrong_qualifier", "misheard"), weights=(c.wrong_qualifier, c.misheard)
+                ("wrong_qualifier", "misheard", "dropped"),
+                weights=(c.wrong_qualifier, c.misheard, c.dropped),
             )[0]
             if error == "wrong_qualifier":
                 said = self.phrase(OPPOSITE[meaning])
+            elif error == "dropped":
+                heard = ""
             else:
                 (wrong,) = self.recognizer.hear(said, "en")
                 heard, confidence = wrong.text, wrong.confidence
         end = onset + p.speaking
-        return Speech(meaning, said, heard or said, confidence, onset, end, heard_at, error)
+        heard = said if heard is None else heard
+        return Speech(meaning, said, heard, confidence, onset, end, heard_at, error)
 
     def command(self, x: float, y: float, theta: float) -> str:
         """The command the teacher dictates at this pose (initial traces)."""

@@ -1,0 +1,94 @@
+"""A learner's checkpoint: restored exactly (the person model and its trail too), a torn
+one falls back to the previous, one of other settings or another version refused."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from services.learner import checkpoint
+from services.learner.config import LearnerConfig
+from services.learner.sarsa import Learner
+from services.learner.traces import TraceBook
+from tests.learner_support import ADVISED, EXACT, run_episode
+
+PLACED = replace(ADVISED, potential="straight_line", advice_place_tilings=8)
+
+
+@pytest.mark.parametrize(
+    "config", [EXACT, ADVISED, PLACED, LearnerConfig()], ids=["pearson", "keys", "placed", "tiles"]
+)
+def test_checkpoint_round_trip(tmp_path, config):
+    learner = Learner(config, seed=3)
+    run_episode(learner, TraceBook())
+    run_episode(learner, TraceBook())
+    assert learner.credit(step=2, weight=1.0, f=10.0)
+    book = TraceBook()
+    run_episode(Learner(config, seed=4), book, command_at=0)
+    book.replay(learner)  # a dictated trace's values too
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)
+    back = checkpoint.load(path, config)
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
+    assert (config.shaping == "action_bias") == back.taught.H.any()
+    assert back.features.coordinates() == learner.features.coordinates()
+    assert back.episode == learner.episode
+    assert back.rng.random() == learner.rng.random()  # the random stream goes on
+    # the same learner: the next episode goes as it would have, late credit included
+    run_episode(back, TraceBook())
+    run_episode(learner, TraceBook())
+    assert back.credit(step=1, weight=1.0, f=-10.0) and learner.credit(step=1, weight=1.0, f=-10.0)
+    assert np.array_equal(back.Q, learner.Q) and np.array_equal(back.taught.H, learner.taught.H)
+
+
+def test_corrupt_checkpoint_falls_back_to_the_previous_good_one(tmp_path, caplog):
+    learner = Learner(EXACT, seed=3)
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)  # the good one ...
+    run_episode(learner, TraceBook())
+    checkpoint.save(learner, path)  # ... becomes .prev
+    path.write_bytes(path.read_bytes()[:100])  # torn write
+    with pytest.raises(checkpoint.CheckpointError, match="corrupt checkpoint"):
+        checkpoint.load(path, EXACT)
+    back = checkpoint.load_latest(path, EXACT)
+    assert back.episode == 0 and "using the previous one" in caplog.text
+    checkpoint.previous(path).write_bytes(b"garbage")
+    with pytest.raises(checkpoint.CheckpointError, match=r"learner.prev.npz: corrupt"):
+        checkpoint.load_latest(path, EXACT)
+
+
+def test_checkpoint_of_another_state_representation_is_refused(tmp_path):
+    path = tmp_path / "learner.npz"
+    checkpoint.save(Learner(EXACT), path)
+    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(laser_sectors\)"):
+        checkpoint.load(path, replace(EXACT, laser_sectors=6))
+    assert checkpoint.load_latest(tmp_path / "none.npz", EXACT) is None
+
+
+def test_a_checkpoint_is_peeked_at_without_restoring_it(tmp_path):
+    learner = Learner(EXACT, seed=3)
+    run_episode(learner, TraceBook())
+    path = tmp_path / "learner.npz"
+    checkpoint.save(learner, path)
+    assert checkpoint.peek(path) == (learner.episode, len(learner.Q)) != (0, 0)
+    path.write_bytes(b"garbage")
+    assert checkpoint.peek(path) is None and checkpoint.peek(tmp_path / "none.npz") is None
+
+
+def test_goal_sectors_must_match_and_checkpoints_of_another_version_are_refused(tmp_path):
+    path = tmp_path / "learner.npz"
+    learner = Learner(EXACT, seed=0)
+    run_episode(learner, TraceBook())
+    checkpoint.save(learner, path)
+    with pytest.raises(checkpoint.CheckpointError, match=r"other state settings \(goal_sectors\)"):
+        checkpoint.load(path, replace(EXACT, goal_sectors=8))
+    with np.load(path) as saved:
+        arrays = dict(saved)
+    meta = json.loads(str(arrays["meta"]))
+    meta["version"] = 4  # saved by a build whose potential was over the keys
+    np.savez(path, **(arrays | {"meta": np.array(json.dumps(meta))}))
+    with pytest.raises(checkpoint.CheckpointError, match=r"version 4, .* start afresh"):
+        checkpoint.load(path, EXACT)
