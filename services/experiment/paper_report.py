@@ -228,7 +228,11 @@ def _built_in_speedups(summary: dict, scope: _Scope) -> list[str]:
 def _table3(summary: dict, scope: _Scope) -> list[str]:
     """Table 3: the interventions of each feedback setting, with their averages."""
     feedback = scope.feedback
-    lines = ["", "## Table 3: interventions (understood utterances until convergence)", ""]
+    lines = [
+        "",
+        "## Table 3: interventions (words said while learning, heard or not, until convergence)",
+        "",
+    ]
     lines += _head(feedback)
     lines += _task_rows(summary, scope.tasks, feedback, "interventions", PAPER_INTERVENTIONS)
     interventions = summary["interventions"]
@@ -291,7 +295,7 @@ def _teacher_words(summary: dict, scope: _Scope) -> list[str]:
     lines = [
         "",
         "Every word the person says per run, mean over the tasks: the commands said to dictate "
-        "the initial traces, the words understood while the robot learns, their sum, the "
+        "the initial traces, the words said while the robot learns (heard or not), their sum, the "
         "robot minutes the dictation took, and the robot seconds each word saved (plain RL's "
         "mean robot time less the setting's, dictation included, over its words).",
         "",
