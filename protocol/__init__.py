@@ -18,6 +18,7 @@ from protocol.keys import (
 from protocol.messages import (
     ACTION_NAMES,
     MESSAGE_TYPES,
+    QUESTION_OPEN_S,
     Action,
     Alternative,
     AudioChunk,
@@ -46,6 +47,7 @@ __all__ = [
     "ACTION_NAMES",
     "MAX_PAYLOAD_BYTES",
     "MESSAGE_TYPES",
+    "QUESTION_OPEN_S",
     "ROBOT_TOPICS",
     "SCHEMA_VERSION",
     "TEACHER_TOPICS",

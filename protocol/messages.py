@@ -224,12 +224,15 @@ class CreditedFeedback(Message):
     credits: Annotated[tuple[Credit, ...], Size(min=1, max=256)]
     sources: Annotated[tuple[MessageId, ...], Size(min=1, max=64)]  # utterance ids
     teachers: Annotated[tuple[Id, ...], Size(min=1, max=64)]
+    question: MessageId | None = None  # a command answering a HelpRequest: the question's id
 
     def check(self) -> None:
         if self.kind == "reward" and (self.reward is None or self.command is not None):
             raise ProtocolError("CreditedFeedback.reward", "a reward needs reward and no command")
         if self.kind == "command" and (self.command is None or self.reward is not None):
             raise ProtocolError("CreditedFeedback.command", "a command needs command, no reward")
+        if self.question is not None and self.kind != "command":
+            raise ProtocolError("CreditedFeedback.question", "only a command answers a question")
         total = sum(c.weight for c in self.credits)
         if total > 1.0 + 1e-6:
             raise ProtocolError("CreditedFeedback.credits", f"weights sum to {total:g} > 1")
@@ -322,10 +325,16 @@ class TeacherNotice(Message):
     text: Text  # a sentence for people, e.g. "not understood, please repeat"
 
 
+# A question's lifetime: the first command said within it answers it (the arbiter), and the
+# robot does not ask again while it is open (the learner); seconds of the teacher's clock.
+QUESTION_OPEN_S = 6.0
+
+
 @dataclass(frozen=True, kw_only=True)
 class HelpRequest(Message):
     """The robot asks its teachers "which way?" (learner -> arbiter, teachers): why, and
-    where it is. The arbiter takes the first word said within a few seconds as the answer."""
+    where it is. The first command said within QUESTION_OPEN_S answers it: the arbiter sends
+    it as a command credited to `step` that names this request's id (`question`)."""
 
     TYPE: ClassVar[str] = "help"
 

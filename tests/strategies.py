@@ -92,7 +92,12 @@ def _feedback(draw: st.DrawFn) -> CreditedFeedback:
         credits = credits[:1]
     if draw(st.booleans()):
         return dataclasses.replace(
-            base, kind="reward", reward=draw(st.floats(-1e3, 1e3)), command=None, credits=credits
+            base,
+            kind="reward",
+            reward=draw(st.floats(-1e3, 1e3)),
+            command=None,
+            credits=credits,
+            question=None,  # only a command answers a question
         )
     return dataclasses.replace(
         base,

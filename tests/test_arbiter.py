@@ -593,11 +593,12 @@ def test_the_first_command_after_a_question_answers_it_credited_to_its_step():
     out = a.on_utterance(utterance("bob", "r1", "left", shown(80)), shown(85))  # 2 s later
     (fb,) = feedback(out)
     assert (fb.kind, fb.command, credits(fb)) == ("command", "left", {60: 1.0})
+    assert fb.question == asked.id  # the learner matches it by the question's id
     (answered,) = [m for m in out if isinstance(m, HelpAnswer)]
     assert (answered.question, answered.teacher, answered.meaning) == (asked.id, "bob", "left")
     assert "answer" in notices(out)[0].text
     (second,) = feedback(a.on_utterance(utterance("ana", "r1", "right", shown(86)), shown(87)))
-    assert credits(second) == {99: 1.0}  # answered already: a command for now
+    assert credits(second) == {99: 1.0} and second.question is None  # a command for now
     a.on_help(replace(asked, step=90), shown(90))
     late = a.on_utterance(utterance("ana", "r1", "left", shown(90) + 7.0), shown(99))
     assert not any(isinstance(m, HelpAnswer) for m in late)  # said 7 s after it: not an answer

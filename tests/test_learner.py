@@ -4,15 +4,14 @@ late feedback reaching exactly its steps, commands, traces and checkpoints."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from protocol import ACTION_NAMES, Credit, CreditedFeedback, ProtocolError
+from protocol import ACTION_NAMES, ProtocolError
 from services.experiment.inprocess import RunSpec, run
-from services.learner import checkpoint
 from services.learner import node as learner_node
 from services.learner.actions import ActionSet
 from services.learner.config import LearnerConfig, with_settings
@@ -209,37 +208,6 @@ def test_feedback_is_bounded_and_old_feedback_dropped():
     assert not learner.credit(step=99, weight=1.0, f=10.0)
     assert learner.counters["feedback_dropped.too_old"] == 1
     assert learner.counters["feedback_dropped.unknown_step"] == 1
-
-
-def test_credited_feedback_is_taken_whole_and_names_the_steps_it_dropped():
-    learner = Learner(replace(EXACT, feedback_window=3), seed=0)
-    for step in range(6):
-        learner.step(P(WALL_LEFT, reward=0.0, step=step), forced=learner.actions.one_hot(FORWARD))
-    credits = (Credit(step=1, weight=0.5), Credit(step=5, weight=0.5))
-    reward = CreditedFeedback(
-        robot="r1", kind="reward", reward=10.0, command=None, credits=credits,
-        sources=("u1",), teachers=("ana",),
-    )  # fmt: skip
-    assert learner.take(reward) == [1]  # step 1 left the window; step 5 is credited
-    assert learner.counters["feedback_credited"] == 1
-    command = replace(reward, kind="command", reward=None, command="left")
-    assert learner.take(command) == [] and list(learner.commands) == [LEFT] * EXACT.command_steps
-
-
-def test_online_feedback_is_taken_once_even_when_delivered_again():
-    from collections import Counter
-
-    from services.learner.online import OnlineLearner
-
-    online = OnlineLearner(Learner(EXACT, seed=0), checkpoint.Bookmark(), None, Counter(), 300.0)
-    online.learner.step(P(WALL_LEFT, step=0))
-    feedback = CreditedFeedback(
-        robot="r1", kind="reward", reward=10.0, command=None,
-        credits=(Credit(step=0, weight=1.0),), sources=("u1",), teachers=("ana",),
-    )  # fmt: skip
-    assert online.take(feedback) == [] and online.take(feedback) == []
-    assert online.learner.counters["feedback_credited"] == 1
-    assert online.counters["learner.feedback_taken_before"] == 1
 
 
 def test_a_command_overrides_the_policy_and_earns_h():
@@ -516,85 +484,3 @@ def test_goal_sectors_tell_the_sides_of_the_goal_apart():
     sided = StateSpace(LearnerConfig(goal_sectors=8))
     assert sided.classify(west)[0] != sided.classify(east)[0]
     assert sided.goal_bins(west)[2] == 4 and sided.goal_bins(east)[2] == 0  # goal -> robot
-
-
-# -- asking which way ---------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Seen(P):
-    """A percept with the robot's episode clock and bumps, as the Asker reads it."""
-
-    episode_step: int = 0
-    collided: bool = False
-
-
-def test_a_stuck_robot_asks_once_within_its_budget_and_learns_from_the_answer():
-    from services.learner.asking import Asker
-
-    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
-    asker = Asker(learner, timeout_s=300.0)
-    asked = []
-    for k in range(1500):  # 2.5 robot minutes in one place: nothing gets better
-        p = Seen(WALL_LEFT, step=k, episode_step=k)
-        learner.step(p)
-        if (question := asker.after_step(p, episode=0)) is not None:
-            asked.append(question)
-            if len(asked) == 1:  # answered at once: "left"
-                answer = CreditedFeedback(
-                    robot="r1", kind="command", reward=None, command="left",
-                    credits=(Credit(step=question.step, weight=1.0),), sources=("u1",),
-                    teachers=("ana",),
-                )  # fmt: skip
-                assert asker.take(answer) == []
-                assert learner.advice(learner.s)[LEFT] > 0  # advised where it asked
-                assert learner.commands[0] == LEFT and learner.command_chooser == "steer"
-    first = asked[0]
-    assert first.reason in ("unsure", "stuck") and first.step < 20
-    # 0.5 a robot minute: one at once, the next 2 robot minutes later
-    assert len(asked) == 2 and asked[1].step >= first.step + 1200
-    assert asker.reasons.total() == 2
-
-
-def _answer(step: int, command: str = "left") -> CreditedFeedback:
-    return CreditedFeedback(
-        robot="r1", kind="command", reward=None, command=command,
-        credits=(Credit(step=step, weight=1.0),), sources=(f"u{step}",), teachers=("ana",),
-    )  # fmt: skip
-
-
-def test_an_asker_that_reached_the_goal_asks_again_where_it_asked_before():
-    """After the first goal, each episode starts afresh: the views asked in, the bumps and
-    the best value of the last episode are forgotten (they were kept for good)."""
-    from services.learner.asking import Asker
-
-    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
-    asker = Asker(learner, timeout_s=300.0)
-    asked, step = [], 0
-    for episode, length in ((0, 100), (1, 2000)):
-        for k in range(length):
-            ends = episode == 0 and k == length - 1
-            p = Seen(WALL_LEFT, step=step, episode_step=k, outcome="goal" if ends else "running")
-            learner.step(p)
-            if (question := asker.after_step(p, episode=episode)) is not None:
-                asked.append(question)
-            step += 1
-    assert [q.episode for q in asked][:1] == [0]  # asked in the first episode, in this view
-    # ... and in the second (beyond twice its fastest, 10 s), in the same view again
-    assert any(q.episode == 1 for q in asked), asked
-
-
-def test_an_answer_frees_the_view_it_was_asked_in_not_the_robots_view_now():
-    from services.learner.asking import Asker
-
-    learner = Learner(replace(EXACT, min_hold=1, shaping="action_bias"), seed=0)
-    asker = Asker(learner, timeout_s=300.0)
-    learner.step(p := Seen(WALL_LEFT, step=0))
-    question = asker.after_step(p, episode=0)
-    assert question is not None
-    asked_in = learner.s.view
-    learner.step(p := Seen(WALL_RIGHT, step=1, episode_step=1))  # moved on before the answer
-    assert learner.s.view != asked_in
-    asker.after_step(p, episode=0)
-    assert asker.take(_answer(question.step)) == []
-    assert asked_in not in asker._asked_views  # it may ask there again

@@ -168,7 +168,7 @@ REFUSED = [
     ("tilings=2.5", "tilings takes an int, like 8, not 2.5"),
     ("use_sonar=1", "use_sonar takes a bool, like true, not 1"),
     ('distance_edges=[1, "far"]', 'distance_edges[1] takes a float, not "far"'),
-    ("ask.open_s=soon", 'open_s takes a float, like 8.0, not "soon"'),
+    ("ask.stuck_s=soon", 'stuck_s takes a float, like 10.0, not "soon"'),
 ]
 
 
@@ -196,7 +196,7 @@ def test_the_experiment_command_refuses_a_bad_setting_in_one_line(setting, tmp_p
 
 
 def test_a_record_reads_back_as_the_settings_it_was(tmp_path):
-    config = with_settings(["alpha=0.1", "traces=accumulating", "ask.open_s=3", "near_range=null"])
+    config = with_settings(["alpha=0.1", "traces=accumulating", "ask.stuck_s=3", "near_range=null"])
     assert from_record(LearnerConfig, json.loads(json.dumps(record(config))), "x") == config
     assert from_record(LearnerConfig, {}, "x") == LearnerConfig()  # written before a field was
     write_settings(tmp_path, "learner", config)
@@ -206,12 +206,21 @@ def test_a_record_reads_back_as_the_settings_it_was(tmp_path):
     assert read_settings(tmp_path / "none", "learner", LearnerConfig) is None
 
 
+def test_a_record_with_a_setting_since_removed_still_reads():
+    """ask.open_s became the protocol's QUESTION_OPEN_S: runs recorded with it still read."""
+    written = record(LearnerConfig())
+    written["ask"]["open_s"] = 8.0
+    assert from_record(LearnerConfig, written, "x") == LearnerConfig()
+    with pytest.raises(SettingsError, match="no setting open_t in AskConfig"):
+        from_record(LearnerConfig, {"ask": {"open_t": 8.0}}, "x")
+
+
 @pytest.mark.parametrize(
     ("written", "error"),
     [
         ({"learner": {"traces": "replace"}}, 'learner: traces "replace" is not one of'),
         ({"learner": {"alpah": 0.1}}, "learner: no setting alpah in LearnerConfig"),
-        ({"learner": {"ask": {"open_s": "x"}}}, "learner ask: open_s takes a float"),
+        ({"learner": {"ask": {"stuck_s": "x"}}}, "learner ask: stuck_s takes a float"),
         ([1, 2], "not an object of sections"),
     ],
 )

@@ -12,9 +12,9 @@ teacher gets a TeacherNotice for those marked *):
   low_confidence *   below `min_confidence` ("not understood, please repeat")
   not_understood *   not a phrase of the vocabulary
   too_late *         the steps it is about are no longer remembered
-then answers the robot's open question if it was said within a few seconds of it (credited to
-the question's step, questions.py), or becomes a command (credited to the current step, sent
-at once) or a judgement: its onset
+then answers the robot's open question if it was said within QUESTION_OPEN_S of it (credited
+to the question's step, naming the question's id, questions.py), or becomes a command
+(credited to the current step, sent at once) or a judgement: its onset
 (not its recognition or arrival time: recognition latency must not move the credit) goes from
 the teacher's clock to the simulator's (clocks.py), the teacher's reaction-delay window
 (credit.py) picks the steps and the merge policy (merge.py) combines teachers; the reward goes
@@ -320,7 +320,7 @@ class Arbiter:
     ) -> tuple[list[Message], int]:
         """The answer to a question (a command), credited to its step, and who gave it."""
         self.counters["answers"] += 1
-        feedback = command_feedback(utterance, action, question.step)
+        feedback = command_feedback(utterance, action, question.step, question.id)
         return [feedback, help_answer(utterance, action, question)], question.episode
 
     def _judge(

@@ -1,14 +1,13 @@
 """The robots' open questions ("which way?", HelpRequest): the first understood command said
-within QUESTION_OPEN_S of a question answers it, and is credited to the question's step
-whatever the teacher's learnt delay; other words are judged as any other."""
+within the protocol's QUESTION_OPEN_S of a question answers it, and is credited to the
+question's step whatever the teacher's learnt delay; other words are judged as any other."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-from protocol import HelpRequest
+from protocol import QUESTION_OPEN_S, HelpRequest
 
-QUESTION_OPEN_S = 6.0  # seconds after the question (the teacher's: robot time for a simulated one)
 EARLY_S = 0.5  # an onset this much before the question still answers it (clocks are not exact)
 
 

@@ -25,9 +25,12 @@ def feedback_id(robot: str, kind: str, sources: tuple[str, ...]) -> str:
     return hashlib.blake2b(key, digest_size=16).hexdigest()
 
 
-def command_feedback(utterance: Utterance, action: str, step: int) -> CreditedFeedback:
-    """A command (the learner applies h), credited to `step` alone; its id is the one of a
-    command from that utterance, so it is sent once whether it answers a question or not."""
+def command_feedback(
+    utterance: Utterance, action: str, step: int, question: str | None = None
+) -> CreditedFeedback:
+    """A command (the learner applies h), credited to `step` alone, answering the HelpRequest
+    `question` if given; its id is the one of a command from that utterance, so it is sent
+    once whether it answers a question or not."""
     return CreditedFeedback(
         id=feedback_id(utterance.robot, "command", (utterance.id,)),
         robot=utterance.robot,
@@ -37,6 +40,7 @@ def command_feedback(utterance: Utterance, action: str, step: int) -> CreditedFe
         credits=(Credit(step=step, weight=1.0),),
         sources=(utterance.id,),
         teachers=(utterance.teacher,),
+        question=question,
     )
 
 

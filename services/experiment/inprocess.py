@@ -9,9 +9,9 @@ on for `PAUSE` seconds, so words about an episode's end still reach it. At each 
     the teacher watches the step and may start speaking (onset = display + its delay); what
         it said is heard `speaking + recognition` seconds after the onset
     utterances heard by now go to the arbiter (Arbiter.on_utterance at that time): the real
-        delay correction picks the credited steps; its CreditedFeedback goes to the learner
-        (Learner.take: Learner.credit for rewards, Learner.command for commands)
-    the learner learns from the step and decides the next action
+        delay correction picks the credited steps; its CreditedFeedback goes to the agent
+        (Agent.take, as in the learner service: learner/agent.py)
+    the learner learns from the step and decides the next action (Agent.step), and may ask
 
 Interventions are the utterances the arbiter understood (its own count), per episode.
 """
@@ -29,7 +29,8 @@ from services.arbiter.config import ArbiterConfig, DelayLearning
 from services.experiment.bouts import BumpBouts
 from services.experiment.dictation import Dictation, dictate
 from services.experiment.oracle import OraclePotential
-from services.learner.asking import Asker
+from services.learner.agent import Agent
+from services.learner.asking import Asker, Question
 from services.learner.config import LearnerConfig, with_settings
 from services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from services.learner.sarsa import Learner
@@ -188,6 +189,7 @@ class _Session:
             vocabulary,
         )
         self.asker = Asker(self.learner, m.timeout) if setting.ask else None
+        self.agent = Agent(self.learner, self.asker)
         self.heard: list[tuple[float, int, Utterance]] = []  # (heard at, order, utterance)
         reach = None if reference else self.learner.reach
         sim_config = SimConfig(sensor_reach=reach, fast=not reference)
@@ -202,7 +204,7 @@ class _Session:
 
     def episode(self) -> EpisodeResult:
         """One episode, to its end; the words about it are delivered in the pause after."""
-        sim, learner, period = self.sim, self.learner, self.sim.config.control_period
+        sim, period = self.sim, self.sim.config.control_period
         interventions = 0
         reading = sim.reset(ROBOT)
         for _ in range(sim.max_episode_steps + 1):
@@ -211,9 +213,9 @@ class _Session:
                 for speech in self.teacher.watch(look(reading, self.now)):
                     self._hear(speech)
             interventions += self._deliver()
-            decision = learner.step(reading)
-            if self.asker is not None:
-                self._ask(reading)
+            decision, question = self.agent.step(reading, reading.episode)
+            if question is not None:
+                self._ask(reading, question)
             if decision is None:
                 break
             reading = sim.step({ROBOT: (decision.v, decision.omega)})[ROBOT]
@@ -228,11 +230,8 @@ class _Session:
         self.outcomes.append(reading.outcome)
         return EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
 
-    def _ask(self, reading: Reading) -> None:
-        """The learner may ask which way (the arbiter hears it); the teacher may answer."""
-        question = self.asker.after_step(reading, reading.episode)
-        if question is None:
-            return
+    def _ask(self, reading: Reading, question: Question) -> None:
+        """The robot asks which way (the arbiter hears it); the teacher may answer."""
         self.arbiter.on_help(question.request(ROBOT, reading.pose.x, reading.pose.y), self.now)
         speech = self.teacher.answer(look(reading, self.now)) if self.teacher else None
         if speech is not None:
@@ -254,7 +253,7 @@ class _Session:
             at, _, said = heapq.heappop(self.heard)
             for message in self.arbiter.on_utterance(said, at):
                 if isinstance(message, CreditedFeedback):
-                    (self.asker or self.learner).take(message)
+                    self.agent.take(message)
                 elif isinstance(message, TeacherNotice) and message.kind == "understood":
                     understood += 1
         return understood

@@ -4,19 +4,21 @@ It asks when it is stuck (its own value estimate max_a Q(s, a) has not risen, or
 bumping, for `stuck_s` robot seconds), when an episode has run `late_share` of its timeout,
 or where its values are flat and no teacher has advised it; once it has reached the goal, only
 in episodes `beyond_fastest` times longer than its fastest. At most `per_robot_minute`
-questions a robot minute (a token bucket of its own), never while one is open, and not again
-where it already asked until an answer has been tried there. The answer (a command credited
-to the question's step) is advised in the state asked in, and taken if the robot is still
-there (`Learner.answer`). Pure: percepts and feedback in, questions out."""
+questions a robot minute (a token bucket of its own), never while one is open (the protocol's
+QUESTION_OPEN_S), and not again where it already asked until an answer has been tried there.
+A policy beside the learner: the answer (a command naming the question's id) goes to the
+learner as every word does (agent.py), which tells the asker it came (`answered`). Pure:
+percepts in, questions out."""
 
 from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
-from protocol import CreditedFeedback, HelpRequest
+from protocol import QUESTION_OPEN_S, HelpRequest
+from protocol.messages import new_message_id
 from services.learner.sarsa import Learner, LearnerPercept
 from services.runtime.limits import TokenBucket
 from services.world.robot import CONTROL_PERIOD_S
@@ -32,10 +34,12 @@ class Question:
     episode: int
     reason: Reason
     detail: str  # e.g. "stuck for 10 s", for the teachers
+    id: str = field(default_factory=new_message_id)  # its HelpRequest's: the answer names it
 
     def request(self, robot: str, x: float, y: float) -> HelpRequest:
         """The question as the bus carries it, from where the robot is."""
         return HelpRequest(
+            id=self.id,
             robot=robot,
             episode=self.episode,
             step=self.step,
@@ -47,7 +51,7 @@ class Question:
 
 
 class Asker:
-    """Decides, step by step, whether the robot asks; hands the answers to the learner."""
+    """Decides, step by step, whether the robot asks; told when an answer came."""
 
     def __init__(self, learner: Learner, timeout_s: float) -> None:
         self.learner = learner
@@ -77,7 +81,7 @@ class Asker:
             self._best = (float(q.max()), t)
         if p.collided:
             self._bumps = [b for b in self._bumps if t - b < self.config.stuck_s] + [t]
-        if self.open is not None and t - self.open[1] > self.config.open_s:
+        if self.open is not None and t - self.open[1] > QUESTION_OPEN_S:
             self.open = None  # nobody answered: the budget says when to ask again
         reason = self._reason(t, episode_t, q.max() - q.min(), self.learner.advice(s).any())
         if reason is None or self.open is not None or s.view in self._asked_views:
@@ -90,18 +94,12 @@ class Asker:
         self.reasons[reason] += 1
         return question
 
-    def take(self, feedback: CreditedFeedback) -> list[int]:
-        """The arbiter's feedback: the answer to the open question (a command credited to its
-        step), or any other feedback for the learner; returns the steps that had left the
-        learner's window (Learner.take)."""
-        if self.open is None:
-            return self.learner.take(feedback)
-        question, _, view = self.open
-        if feedback.kind != "command" or feedback.credits[0].step != question.step:
-            return self.learner.take(feedback)
-        self.open = None
-        self._asked_views.discard(view)  # an answer is tried there: it may ask there again
-        return [] if self.learner.answer(question.step, feedback.command) else [question.step]
+    def answered(self, question_id: str) -> None:
+        """An answer to the question `question_id` came: if it is the open one, it is closed
+        and the robot may ask again in the view it asked in (an answer is tried there)."""
+        if self.open is not None and self.open[0].id == question_id:
+            self._asked_views.discard(self.open[2])
+            self.open = None
 
     def _reason(self, t: float, episode_t: float, spread: float, advised: bool) -> Reason | None:
         c = self.config

@@ -66,7 +66,7 @@ class Bookmark:
     step: int | None = None  # the observation step it learnt from last
     taken: OrderedDict[str, None] = field(default_factory=OrderedDict)  # feedback ids
 
-    def take(self, feedback_id: str) -> bool:
+    def first_time(self, feedback_id: str) -> bool:
         """False if that feedback was taken before; remembers it either way."""
         if feedback_id in self.taken:
             return False

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import ClassVar, Literal
 
 from services.runtime.settings import add_settings_argument as add_setting
 from services.runtime.settings import replaced
@@ -16,21 +16,24 @@ KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
 
 @dataclass(frozen=True)
 class AskConfig:
-    """When the robot asks "which way?" (asking.py)."""
+    """When the robot asks "which way?" (asking.py); how long a question is open is the
+    protocol's (QUESTION_OPEN_S)."""
+
+    # Settings since removed: a record that still has them reads (open_s: QUESTION_OPEN_S).
+    RETIRED: ClassVar[tuple[str, ...]] = ("open_s",)
 
     per_robot_minute: float = 0.5  # questions a robot minute at most; 0: never asks
     stuck_s: float = 10.0  # robot seconds without progress (or bumping) before asking
     bumps: int = 3  # this many bumps within stuck_s is stuck too
     late_share: float = 0.5  # of the episode's timeout
     flat: float = 1e-6  # Q(s) spread below this, and no advice: unsure
-    open_s: float = 8.0  # robot seconds a question waits for its answer
     # Once it has reached the goal, it asks only in episodes this many times longer than its
     # fastest (0: wherever).
     beyond_fastest: float = 2.0
 
     def __post_init__(self) -> None:
-        if self.per_robot_minute < 0 or self.stuck_s <= 0 or self.open_s <= 0:
-            raise ValueError("need per_robot_minute >= 0, stuck_s > 0 and open_s > 0")
+        if self.per_robot_minute < 0 or self.stuck_s <= 0:
+            raise ValueError("need per_robot_minute >= 0 and stuck_s > 0")
 
 
 @dataclass(frozen=True)

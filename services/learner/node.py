@@ -144,8 +144,8 @@ class Driven:
         if question is not None:
             self.ask.put(question)
 
-    def take(self, node: Node, feedback: CreditedFeedback) -> None:
-        """A credited word: the learner takes it (once), then what it could not credit (its
+    def hear(self, node: Node, feedback: CreditedFeedback) -> None:
+        """A credited word: the agent takes it (once), then what it could not credit (its
         steps had left the window) is logged."""
         dropped = self.online.take(feedback)
         if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
@@ -195,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
                         fit(node, one, limits)
                     one.observe(obs)
                 case Input(message=CreditedFeedback() as feedback, key=key):
-                    driven[parse_key(key).owner].take(node, feedback)
+                    driven[parse_key(key).owner].hear(node, feedback)
                 case Input(message=RobotLimits() as limits, key=key):
                     fit(node, driven[parse_key(key).owner], limits)
             if time.monotonic() - last_save >= options.checkpoint_every:
@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
                 last_save = time.monotonic()
         for event in node.pending(MAX_PENDING):  # feedback that came before the stop, too
             if isinstance(event, Input) and isinstance(event.message, CreditedFeedback):
-                driven[parse_key(event.key).owner].take(node, event.message)
+                driven[parse_key(event.key).owner].hear(node, event.message)
         for one in driven.values():
             one.save()
             if one.online.book.episodes:

@@ -1,20 +1,21 @@
-"""The learner of one robot on a live session, without the bus: observations in, actions,
-learning summaries and questions out, credited feedback taken exactly once (a copy delivered
-again after a restart is skipped by id), initial traces replayed when due. `node.py` puts it
-on the bus."""
+"""The agent of one robot on a live session, without the bus: observations in, actions,
+learning summaries and questions out as messages, credited feedback taken exactly once
+(`Agent.take`: a copy delivered again after a restart is skipped by id), the episodes a
+teacher steered recorded, initial traces replayed when due. `node.py` puts it on the bus."""
 
 from __future__ import annotations
 
 from collections import Counter
 
-from protocol import Action, CreditedFeedback, HelpRequest, LearningSummary, Observation
+from protocol import Action, HelpRequest, LearningSummary, Observation
+from services.learner.agent import Agent
 from services.learner.asking import Asker
 from services.learner.checkpoint import Bookmark
 from services.learner.sarsa import Learner
 from services.learner.traces import TraceBook
 
 
-class OnlineLearner:
+class OnlineLearner(Agent):
     def __init__(
         self,
         learner: Learner,
@@ -23,9 +24,8 @@ class OnlineLearner:
         counters: Counter[str],
         timeout_s: float,
     ) -> None:
-        self.learner, self.bookmark, self.initial = learner, bookmark, initial
-        self.counters = counters
-        self.asker = Asker(learner, timeout_s)
+        super().__init__(learner, Asker(learner, timeout_s), bookmark, counters)
+        self.initial = initial
         self.book = TraceBook()  # episodes a teacher steered, saved as initial traces
 
     def observe(
@@ -36,7 +36,7 @@ class OnlineLearner:
         learner = self.learner
         if obs.episode_step == 0 and learner.s is not None:
             learner.interrupt()  # missed the end of the last episode
-        decision = learner.step(obs)
+        decision, question = self.step(obs, obs.episode)
         self.bookmark.step = obs.step
         self.book.record(obs, decision)
         if decision is None and self.initial:
@@ -52,22 +52,11 @@ class OnlineLearner:
                 omega=decision.omega,
                 chooser="policy" if decision.chooser == "policy" else "teacher",
             )
-        question = self.asker.after_step(obs, obs.episode)
         request = None
         if question is not None:
             self.counters[f"learner.asked.{question.reason}"] += 1
             request = question.request(obs.robot, obs.x, obs.y)
         return action, self.summary(obs), request
-
-    def take(self, feedback: CreditedFeedback) -> list[int]:
-        """Takes feedback once; returns the steps it credits that had left the window."""
-        if not self.bookmark.take(feedback.id):
-            self.counters["learner.feedback_taken_before"] += 1
-            return []
-        dropped = self.asker.take(feedback)
-        if dropped:
-            self.counters["learner.feedback_partly_dropped"] += 1
-        return dropped
 
     def summary(self, obs: Observation) -> LearningSummary:
         """After a terminal step the robot is in no state: state 0 and no Q-values."""

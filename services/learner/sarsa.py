@@ -48,7 +48,7 @@ from typing import Protocol
 
 import numpy as np
 
-from protocol import ACTION_NAMES, CreditedFeedback
+from protocol import ACTION_NAMES
 from services.learner.actions import N_ACTIONS, ActionSet, Decision
 from services.learner.advice import Advice
 from services.learner.config import LearnerConfig
@@ -263,16 +263,6 @@ class Learner:
         why = "too_old" if oldest is not None and step < oldest else "unknown_step"
         self.counters[f"feedback_dropped.{why}"] += 1
         return None
-
-    def take(self, feedback: CreditedFeedback) -> list[int]:
-        """The arbiter's credited feedback: a command, or a reward credited to its steps;
-        returns the steps that had left the window (dropped, counted)."""
-        if feedback.kind == "command":
-            self.command(feedback.command)
-            return []
-        return [
-            c.step for c in feedback.credits if not self.credit(c.step, c.weight, feedback.reward)
-        ]
 
     def command(self, action: str, chooser: str = "teacher") -> None:
         """A teacher's command: the next `command_steps` actions are this one (`chooser`:

@@ -373,15 +373,19 @@ def record(config: object) -> dict[str, Any]:
 
 def from_record(cls: type[Config], data: Mapping[str, Any], where: str) -> Config:
     """The config dataclass `cls` that `record` wrote as `data`, each value checked as a
-    `--set` is; a field the record lacks (written before it existed) keeps its default.
-    SettingsError names `where` the record came from and the field that does not fit."""
+    `--set` is; a field the record lacks (written before it existed) keeps its default, and
+    one since removed (named in the class's RETIRED) is passed over. SettingsError names
+    `where` the record came from and the field that does not fit."""
     defaults, hints = cls(), typing.get_type_hints(cls)
     fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    unknown = sorted(set(data) - fields)
+    retired = set(getattr(cls, "RETIRED", ()))
+    unknown = sorted(set(data) - fields - retired)
     if unknown:
         raise SettingsError(f"{where}: no setting {', '.join(unknown)} in {cls.__name__}")
     changes = {}
     for key, value in data.items():
+        if key in retired:
+            continue
         current = getattr(defaults, key)
         try:
             if dataclasses.is_dataclass(current):
