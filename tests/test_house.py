@@ -1,6 +1,6 @@
 """The house's rules of size and naming (docs/architecture.md#layout), checked from the code's
-syntax trees: no .py file over 500 lines and no function over 60 lines in services/ or
-benchmarks/, and no top-level class name defined twice in protocol/, services/ or benchmarks/
+syntax trees: no .py file over 500 lines and no function over 60 lines in voxshape/ or
+benchmarks/, and no top-level class name defined twice in voxshape/protocol/, voxshape/ or benchmarks/
 (one name, one idea)."""
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def test_the_checks_see_what_they_check(tmp_path):
     (tmp_path / "benchmarks" / "b.py").write_text("class Twice:\n    pass\n" + "\n" * 500)
     (tmp_path / "protocol" / "c.py").write_text("class Once:\n    class Twice:\n        pass\n")
     assert long_files(tmp_path) == {"benchmarks/b.py": 502}
-    assert long_functions(tmp_path) == {"services/a/long.py:over": MAX_FUNCTION_LINES + 1}
+    assert long_functions(tmp_path) == {"voxshape/a/long.py:over": MAX_FUNCTION_LINES + 1}
     assert classes_defined_twice(tmp_path) == {
-        "Twice": {"services/a/long.py", "benchmarks/b.py"}  # the nested one is not top-level
+        "Twice": {"voxshape/a/long.py", "benchmarks/b.py"}  # the nested one is not top-level
     }

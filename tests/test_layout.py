@@ -1,5 +1,5 @@
 """The floors of docs/architecture.md#layout, checked from the imports (absolute and relative):
-protocol/ imports no service, the shared floor imports no service, and a service package
+voxshape/protocol/ imports no service, the shared floor imports no service, and a service package
 imports only itself and the shared floor."""
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ TOP = {"experiment", "launcher", "report"}  # put services together: may import 
 
 
 def package_of(path: Path) -> list[str]:
-    """The package a module's relative imports start from: `services/speech/node.py` ->
-    services.speech, `services/speech/__init__.py` -> services.speech."""
+    """The package a module's relative imports start from: `voxshape/speech/node.py` ->
+    voxshape.speech, `voxshape/speech/__init__.py` -> voxshape.speech."""
     parts = path.relative_to(ROOT).with_suffix("").parts
     return list(parts[:-1])
 
@@ -29,7 +29,7 @@ def imports(path: Path) -> set[str]:
 
 def imported(source: str, package: list[str]) -> set[str]:
     """The modules `source` imports, relative imports made absolute from `package` (`from .
-    import mock` in services/speech/node.py is services.speech.mock)."""
+    import mock` in voxshape/speech/node.py is voxshape.speech.mock)."""
     found: set[str] = set()
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.ImportFrom):
@@ -75,12 +75,12 @@ def test_the_protocol_imports_no_service():
 @pytest.mark.parametrize(
     ("where", "source", "module"),
     [
-        ("services/speech/node.py", "from . import mock", "services.speech.mock"),
-        ("services/speech/node.py", "from .mock import X", "services.speech.mock"),
-        ("services/speech/node.py", "from ..arbiter import config", "services.arbiter"),
-        ("services/teacher/web/node.py", "from ...sim.task import X", "services.sim.task"),
-        ("services/speech/__init__.py", "from .mock import X", "services.speech.mock"),
-        ("protocol/keys.py", "import services.sim.node as n", "services.sim.node"),
+        ("voxshape/speech/node.py", "from . import mock", "voxshape.speech.mock"),
+        ("voxshape/speech/node.py", "from .mock import X", "voxshape.speech.mock"),
+        ("voxshape/speech/node.py", "from ..arbiter import config", "voxshape.arbiter"),
+        ("voxshape/web/node.py", "from ...sim.task import X", "voxshape.sim.task"),
+        ("voxshape/speech/__init__.py", "from .mock import X", "voxshape.speech.mock"),
+        ("voxshape/protocol/keys.py", "import voxshape.sim.node as n", "voxshape.sim.node"),
     ],
 )
 def test_relative_imports_are_read_as_the_modules_they_name(where, source, module):
@@ -94,11 +94,11 @@ def test_a_relative_import_across_services_is_caught(tmp_path, monkeypatch):
     speech.mkdir(parents=True)
     (speech / "node.py").write_text("from ..arbiter.config import ArbiterConfig\n")
     assert wrong_imports(speech, {"speech"}) == [
-        "services/speech/node.py imports services.arbiter.config"
+        "voxshape/speech/node.py imports voxshape.arbiter.config"
     ]
 
 
-# The functions of protocol/keys.py that build a key of the bus.
+# The functions of voxshape/protocol/keys.py that build a key of the bus.
 KEY_BUILDERS = {
     "robot_key",
     "teacher_key",
@@ -107,9 +107,9 @@ KEY_BUILDERS = {
     "message_key",
     "router_access_key",
 }
-# Where keys are built: the runtime (Node.subscribe, advertise, key), and services/deploy,
+# Where keys are built: the runtime (Node.subscribe, advertise, key), and voxshape/deploy,
 # which writes the router's access rules from the same dataflow table.
-BUILDS_KEYS = ("services/runtime/", "services/deploy/")
+BUILDS_KEYS = ("voxshape/runtime/", "voxshape/deploy/")
 
 
 def hand_built_keys(source: str) -> list[str]:
@@ -134,7 +134,7 @@ def hand_built_keys(source: str) -> list[str]:
 
 def test_no_key_is_built_by_hand_outside_the_runtime():
     """A node names a topic and whose it is (Node.subscribe, advertise); the runtime builds
-    the key and checks it against the node's row of protocol/dataflow.py."""
+    the key and checks it against the node's row of voxshape/protocol/dataflow.py."""
     wrong = []
     for folder in ("services", "benchmarks"):
         for path in sorted((ROOT / folder).rglob("*.py")):

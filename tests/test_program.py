@@ -11,7 +11,7 @@ import textwrap
 PROGRAM = textwrap.dedent(
     """
     import atexit, sys, threading, time
-    from services import cli
+    from voxshape import cli
 
     class Finalized:
         def __del__(self):
