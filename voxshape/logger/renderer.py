@@ -24,7 +24,7 @@ def start_renderer(
     command = [
         sys.executable,
         "-m",
-        "services",
+        "voxshape",
         "replay",
         str(run_dir.path),
         "--follow",
