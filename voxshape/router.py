@@ -1,6 +1,7 @@
 """`voxshape router`: the zenoh router of a session (a Python process in router mode).
 
-Its flows are its `router` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring router`).
+Its flows are its `router` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring router`).
 
 It routes every other node's traffic: local services and remote
 teachers and robots connect to it. It holds the presence token `presence/router/<node>`.

@@ -67,9 +67,9 @@ def status(args: argparse.Namespace) -> int:
 
 
 def unfed_inputs(present: list[dict[str, str]]) -> list[str]:
-    """The inputs of present nodes (their rows in voxshape/protocol/dataflow.py) that no present node's
-    role publishes, e.g. "learner learner-1 subscribes to robot/*/feedback: no arbiter present";
-    a node's inputs missing the same publishers share a line."""
+    """The inputs of present nodes (their rows in voxshape/protocol/dataflow.py) that no present
+    node's role publishes, e.g. "learner learner-1 subscribes to robot/*/feedback: no arbiter
+    present"; a node's inputs missing the same publishers share a line."""
     roles = {p["role"] for p in present}
     notes = []
     for p in present:

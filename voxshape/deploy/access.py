@@ -72,8 +72,8 @@ _SUMMARIES = {
 
 
 def _role(access: str) -> Role:
-    """An access role's rights: the union of its node roles' rows in voxshape/protocol/dataflow.py (and
-    of those any user may run, such as `voxshape status`)."""
+    """An access role's rights: the union of its node roles' rows in voxshape/protocol/dataflow.py
+    (and of those any user may run, such as `voxshape status`)."""
     rows = [(name, row) for name, row in DATAFLOW.items() if row.access in (access, ANY)]
 
     def union(direction: Direction) -> tuple[tuple[str, str, str], ...]:

@@ -1,6 +1,6 @@
 """The access file a router enforces, on the bus: the router answers router_access_key
-(voxshape/protocol/queries.py) and a service that takes users from an access file of its own (`voxshape
-web`: who is a teacher) asks at start, to compare (access.compare_with_router)."""
+(voxshape/protocol/queries.py) and a service that takes users from an access file of its own
+(`voxshape web`: who is a teacher) asks at start, to compare (access.compare_with_router)."""
 
 from __future__ import annotations
 

@@ -1,6 +1,7 @@
 """`voxshape logger`: records a whole session.
 
-Its flows are its `logger` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring logger`).
+Its flows are its `logger` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring logger`).
 
 Every message, raw (known types or not), and the presence tokens of nodes joining and
 leaving (presence/**).

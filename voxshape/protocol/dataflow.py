@@ -268,9 +268,10 @@ def check(role: str, direction: Direction, key: str) -> None:
         verb = "publishes" if direction == "publishes" else "subscribes to"
         listed = ", ".join(map(str, row.flows(direction))) or "nothing"
         raise DataflowError(
-            f"the {role} node {verb} {key!r}, which is not declared in voxshape/protocol/dataflow.py "
-            f"(its {role} row {direction}: {listed}; <own> is one robot or teacher id, not "
-            "a wildcard); declare it there (the router's access control follows) or drop it"
+            f"the {role} node {verb} {key!r}, which is not declared in "
+            f"voxshape/protocol/dataflow.py (its {role} row {direction}: {listed}; <own> is one "
+            "robot or teacher id, not a wildcard); declare it there (the router's access control "
+            "follows) or drop it"
         )
 
 

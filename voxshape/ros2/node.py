@@ -11,7 +11,8 @@ default tcp/127.0.0.1:7447). ROS traffic stays on the robot's side, voxshape's o
 Robot side:  <domain>/<ns>/scan, <domain>/<ns>/odom in; <domain>/<ns>/cmd_vel out
 Bus side (a teacher's placed: the robot is at its start again):
 
-Its flows are its `ros2` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring ros2`).
+Its flows are its `ros2` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring ros2`).
 """
 
 from __future__ import annotations

@@ -51,8 +51,8 @@ MODES: tuple[Mode, ...] = ("peer", "client", "router")
 LOCAL_ROUTER = "tcp/127.0.0.1:7447"
 _ENDPOINT = re.compile(r"(tcp|udp|tls|quic|ws|unixsock-stream)/[^\s#?]+")
 
-# No publisher waits for a slow subscriber (voxshape/protocol/dataflow.py DELIVERY): what a queue cannot
-# take at once is dropped for that subscriber alone, after waiting this long. A node's own
+# No publisher waits for a slow subscriber (voxshape/protocol/dataflow.py DELIVERY): what a queue
+# cannot take at once is dropped for that subscriber alone, after waiting this long. A node's own
 # queue to its router fills only when the node's sending thread is starved: zenoh's 1 ms then
 # dropped a lockstep learner's actions on a loaded machine (the robot stood for its action
 # timeout). Routers keep zenoh's 1 ms: a router waiting longer on the queue of a subscriber

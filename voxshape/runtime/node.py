@@ -9,13 +9,13 @@
                 case Tick(): obs.put(...)
 
 A node names the topic and whose it is (a robot's or a teacher's id, "*" for all of the
-session's); its key is built here alone (voxshape/protocol/keys.py), and checked against the role's row
-of voxshape/protocol/dataflow.py, which says how it is delivered. Inputs are decoded strictly with the
-type their key carries; a malformed message is counted and logged, never delivered and never
-fatal. Outputs never wait for a slow subscriber and keep
+session's); its key is built here alone (voxshape/protocol/keys.py), and checked against the role's
+row of voxshape/protocol/dataflow.py, which says how it is delivered. Inputs are decoded strictly
+with the type their key carries; a malformed message is counted and logged, never delivered and
+never fatal. Outputs never wait for a slow subscriber and keep
 their last N messages (zenoh's advanced publisher), as their topic's delivery in
-voxshape/protocol/dataflow.py says; what must survive a stop or a restart of its subscriber or of the
-router comes in on a recovering input (an advanced subscriber that fetches what it missed,
+voxshape/protocol/dataflow.py says; what must survive a stop or a restart of its subscriber or of
+the router comes in on a recovering input (an advanced subscriber that fetches what it missed,
 and on joining the last S seconds), as the role's flows say; the messages' ids tell a copy
 from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
@@ -136,15 +136,15 @@ class Node:
         return presence_key(self.session_id)
 
     def declare(self, direction: Direction, key: str) -> None:
-        """Checks `key` against this role's row of voxshape/protocol/dataflow.py (DataflowError if it
-        is not there) and notes it; `output` and `input` call it, as must other publishers
+        """Checks `key` against this role's row of voxshape/protocol/dataflow.py (DataflowError if
+        it is not there) and notes it; `output` and `input` call it, as must other publishers
         and subscribers of the node's session (the clock exchange)."""
         check(self.role, direction, key)
         self.declared[direction].add(key)
 
     def output(self, name: str, key: str, *, keep: int | None = None) -> Output:
-        """A publisher, delivered as its topic's row of voxshape/protocol/dataflow.py DELIVERY says: a
-        slow subscriber never makes it wait (what that one cannot take is dropped for it
+        """A publisher, delivered as its topic's row of voxshape/protocol/dataflow.py DELIVERY says:
+        a slow subscriber never makes it wait (what that one cannot take is dropped for it
         alone), and it keeps its last `keep` messages (None: the row's) for subscribers that
         missed them (dropped while slow, or published while they or the router restarted).
 

@@ -1,6 +1,7 @@
 """`voxshape sim`: the simulator on the bus, for each robot it simulates.
 
-Its flows are its `sim` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring sim`).
+Its flows are its `sim` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring sim`).
 
 An observation per control step (10 Hz of sim time), an episode event at each start, goal,
 collision and timeout.

@@ -1,6 +1,7 @@
 """`voxshape speech`: the speech service on the bus.
 
-Its flows are its `speech` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring speech`).
+Its flows are its `speech` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring speech`).
 
 The audio engines (cascade, pocketsphinx, vosk, whisper) hear audio, the mock text said; an
 engine's other input is taken only to tell its senders, once, it is not heard. Utterances are

@@ -36,8 +36,8 @@ def join_as_teacher(
     """Declares a teacher's inputs (its notices; with `echo`, its utterances as the bus
     carries them) and its outputs `says` (topics: utterance, said, audio, placed), and starts the
     clock exchange (closed with `stack`). What it says is kept as its flows in
-    voxshape/protocol/dataflow.py say, unless `kept` says otherwise per topic. The outputs come by the
-    type of message each carries."""
+    voxshape/protocol/dataflow.py say, unless `kept` says otherwise per topic. The outputs come by
+    the type of message each carries."""
     if echo:
         node.subscribe("utterance", teacher)
     node.subscribe("notice", teacher)

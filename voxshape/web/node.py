@@ -5,7 +5,8 @@
 
 Its own node, role "web":
 
-Its flows are its `web` row of voxshape/protocol/dataflow.py (`voxshape dataflow --docstring web`).
+Its flows are its `web` row of voxshape/protocol/dataflow.py
+(`voxshape dataflow --docstring web`).
 
 Each logged-in browser gets a teacher node of its own (role "teacher", the browser's user and
 password on a secured session, so the router's access control applies to it as to `voxshape
