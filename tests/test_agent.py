@@ -20,7 +20,7 @@ from voxshape.learner.sarsa import Learner
 from voxshape.protocol import QUESTION_OPEN_S, Credit, CreditedFeedback
 from voxshape.world.robot import CONTROL_PERIOD_S
 
-LEARNER_PACKAGE = Path(__file__).parent.parent / "services" / "learner"
+LEARNER_PACKAGE = Path(__file__).parent.parent / "voxshape" / "learner"
 
 
 @dataclass(frozen=True)
