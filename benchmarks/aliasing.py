@@ -18,10 +18,10 @@ import math
 
 import numpy as np
 
-from services.experiment.dictation import dictate
-from services.learner.config import LearnerConfig
-from services.learner.features import representation
-from services.world.maps import load_map
+from voxshape.lab.experiment.dictation import dictate
+from voxshape.learner.config import LearnerConfig
+from voxshape.learner.features import representation
+from voxshape.world.maps import load_map
 
 TRACES, SEED = 3, 10_000  # as the experiments dictate them (inprocess.initial_traces)
 

@@ -18,10 +18,10 @@ import time
 # A driver of the loopback cluster must resolve 127.0.0.1 as itself (LocalCluster.driver_env).
 os.environ["RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"] = "0"
 
-from services.experiment.cluster import LocalCluster
-from services.experiment.inprocess import SETTINGS, RunSpec
-from services.experiment.published import TASKS
-from services.experiment.runner import run_all
+from voxshape.lab.experiment.cluster import LocalCluster
+from voxshape.lab.experiment.inprocess import SETTINGS, RunSpec
+from voxshape.lab.experiment.published import TASKS
+from voxshape.lab.experiment.runner import run_all
 
 
 def main() -> None:

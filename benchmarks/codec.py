@@ -9,8 +9,8 @@ from __future__ import annotations
 import statistics
 import timeit
 
-from protocol import decode, encode
-from protocol.examples import example_messages
+from voxshape.protocol import decode, encode
+from voxshape.protocol.examples import example_messages
 
 N = 500  # calls per timing
 

@@ -25,13 +25,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from services.arbiter.arbiter import Arbiter
-from services.experiment.inprocess import SETTINGS, RunSpec, run
-from services.experiment.published import TASKS
-from services.experiment.runner import run_all
-from services.learner.sarsa import Learner
-from services.sim.task import Simulation
-from services.teacher.simulated.teacher import SimulatedTeacher
+from voxshape.arbiter.arbiter import Arbiter
+from voxshape.lab.experiment.inprocess import SETTINGS, RunSpec, run
+from voxshape.lab.experiment.published import TASKS
+from voxshape.lab.experiment.runner import run_all
+from voxshape.learner.sarsa import Learner
+from voxshape.sim.task import Simulation
+from voxshape.simteacher.teacher import SimulatedTeacher
 
 CORES = {  # the methods the run calls of each core (none calls another's)
     "simulator": ((Simulation, "step"), (Simulation, "reset")),

@@ -1,4 +1,4 @@
-"""What initial traces change: the simulated teacher (services/teacher/simulated/) dictates a few
+"""What initial traces change: the simulated teacher (voxshape/simteacher/) dictates a few
 episodes along the map's shortest path (commands only, as a person would), then SARSA(lambda)
 trains with those traces replayed (before learning and every `replay_every` episodes) and
 without them.
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from services.experiment.inprocess import RunSpec, initial_traces, run
+from voxshape.lab.experiment.inprocess import RunSpec, initial_traces, run
 
 
 def main() -> None:

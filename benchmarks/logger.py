@@ -31,15 +31,15 @@ import zenoh
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import checkout_environment
-from protocol import EpisodeEvent, encode
-from protocol.examples import example_messages
-from services.launcher import LoopbackSession
-from services.logger.eventlog import EventLogWriter, EventRecord, read_events
-from services.logger.recording import Recorder
-from services.logger.replay import close_stream, open_stream, render
-from services.logger.run import RunDir, session_map
-from services.runtime import Input, Node
-from services.topology import ServiceSpec
+from voxshape.launcher import LoopbackSession
+from voxshape.logger.eventlog import EventLogWriter, EventRecord, read_events
+from voxshape.logger.recording import Recorder
+from voxshape.logger.replay import close_stream, open_stream, render
+from voxshape.logger.run import RunDir, session_map
+from voxshape.protocol import EpisodeEvent, encode
+from voxshape.protocol.examples import example_messages
+from voxshape.runtime import Input, Node
+from voxshape.topology import ServiceSpec
 
 
 def _logger(session: LoopbackSession, *extra: str) -> ServiceSpec:
@@ -150,7 +150,7 @@ def flood_rate(work: Path, n: int) -> tuple[float, float, dict]:
 # session its environment names (LoopbackSession.client)
 SLOW_SUBSCRIBER = """
 import sys, time
-from services.runtime import Node, bus_config
+from voxshape.runtime import Node, bus_config
 delay = float(sys.argv[1])
 config = bus_config("slow")
 with Node("slow", config, quiet=True) as node:

@@ -15,8 +15,8 @@ import os
 import statistics
 from concurrent.futures import ProcessPoolExecutor
 
-from services.experiment.inprocess import RunSpec, run
-from services.learner.config import add_settings_argument
+from voxshape.lab.experiment.inprocess import RunSpec, run
+from voxshape.learner.config import add_settings_argument
 
 
 def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:

@@ -15,7 +15,7 @@ from collections import defaultdict
 from dataclasses import dataclass, field
 
 from benchmarks.common import percentile
-from protocol import (
+from voxshape.protocol import (
     Action,
     CreditedFeedback,
     Observation,
@@ -23,7 +23,7 @@ from protocol import (
     TeacherNotice,
     Utterance,
 )
-from services.runtime import BusConfig, Input, Node, Presence
+from voxshape.runtime import BusConfig, Input, Node, Presence
 
 KEEP_OBS = 20_000  # (robot, step) arrivals kept to match actions to their observations
 

@@ -19,11 +19,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from protocol import Action, Observation
-from services.launcher import LoopbackSession
-from services.runtime import Input, Node, Output
-from services.sim.task import SimConfig, Simulation
-from services.world.maps import load_map
+from voxshape.launcher import LoopbackSession
+from voxshape.protocol import Action, Observation
+from voxshape.runtime import Input, Node, Output
+from voxshape.sim.task import SimConfig, Simulation
+from voxshape.world.maps import load_map
 
 
 def policy(obs_laser: tuple[float, ...] | list[float]) -> tuple[float, float]:

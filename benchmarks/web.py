@@ -32,11 +32,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.common import spread  # noqa: E402
-from protocol import Observation, Utterance  # noqa: E402
-from services.launcher import LoopbackSession  # noqa: E402
-from services.runtime import Input, Node, free_loopback_port  # noqa: E402
-from services.runtime.audio import read_wav  # noqa: E402
-from services.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
+from voxshape.launcher import LoopbackSession  # noqa: E402
+from voxshape.protocol import Observation, Utterance  # noqa: E402
+from voxshape.runtime import Input, Node, free_loopback_port  # noqa: E402
+from voxshape.runtime.audio import read_wav  # noqa: E402
+from voxshape.runtime.config import wait_for_loopback_port as wait_for_port  # noqa: E402
 
 CHROMIUM = "/usr/bin/chromium"
 SPOKEN = ROOT / "tests" / "fixtures" / "speech" / "en-voc-turn-left-kal-diphone.wav"

@@ -19,12 +19,12 @@ from pathlib import Path
 
 import pytest
 
-from services.deploy.access import load_access
-from services.deploy.certs import make_all
-from services.launcher import router_command
-from services.runtime import BusConfig, Input, Node, Presence, bus_config, free_loopback_port
-from services.runtime.config import wait_for_loopback_port as wait_for_port
-from services.runtime.processes import end_process
+from voxshape.deploy.access import load_access
+from voxshape.deploy.certs import make_all
+from voxshape.launcher import router_command
+from voxshape.runtime import BusConfig, Input, Node, Presence, bus_config, free_loopback_port
+from voxshape.runtime.config import wait_for_loopback_port as wait_for_port
+from voxshape.runtime.processes import end_process
 
 ROOT = Path(__file__).resolve().parents[1]
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from protocol import ACTION_NAMES
-from services.learner.config import LearnerConfig
-from services.learner.sarsa import Learner
-from services.learner.traces import TraceBook
+from voxshape.learner.config import LearnerConfig
+from voxshape.learner.sarsa import Learner
+from voxshape.learner.traces import TraceBook
+from voxshape.protocol import ACTION_NAMES
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
 

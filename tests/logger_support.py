@@ -9,7 +9,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from protocol import (
+from voxshape.logger.eventlog import EventLogWriter, EventRecord
+from voxshape.protocol import (
     Action,
     Credit,
     CreditedFeedback,
@@ -23,8 +24,7 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.logger.eventlog import EventLogWriter, EventRecord
-from services.world.maps import load_map
+from voxshape.world.maps import load_map
 
 TIMELINES = ("step", "episode", "sim_time", "wall_time")
 # A map that is not task 1: its shortest time is 19 s where task 1's is 10.3 s.

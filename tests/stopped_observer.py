@@ -15,7 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from statistics import median
 
-from protocol import (
+from tests.conftest import VOXSHAPE, bus_args
+from voxshape.logger.decoding import Gap, Known, decode_record
+from voxshape.logger.eventlog import read_events
+from voxshape.protocol import (
     ACTION_NAMES,
     Action,
     CreditedFeedback,
@@ -24,10 +27,7 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.logger.decoding import Gap, Known, decode_record
-from services.logger.eventlog import read_events
-from services.runtime import Input, Node
-from tests.conftest import VOXSHAPE, bus_args
+from voxshape.runtime import Input, Node
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 STOP_S = 10.0  # past zenoh's 10 s lease and the 5 s a router waits before closing a transport

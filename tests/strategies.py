@@ -10,7 +10,7 @@ from typing import Annotated, Any, Literal, Union
 
 from hypothesis import strategies as st
 
-from protocol import (
+from voxshape.protocol import (
     MESSAGE_TYPES,
     Action,
     ClockProbe,
@@ -20,8 +20,8 @@ from protocol import (
     Said,
     Utterance,
 )
-from protocol.messages import ACTION_NAMES, Credit
-from protocol.schema import Match, Range, Size
+from voxshape.protocol.messages import ACTION_NAMES, Credit
+from voxshape.protocol.schema import Match, Range, Size
 
 ids = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,20}", fullmatch=True)
 

@@ -1,4 +1,4 @@
-"""The agent core (services/learner/agent.py): every credited word reaches the learner through
+"""The agent core (voxshape/learner/agent.py): every credited word reaches the learner through
 `Agent.take`, once; the robot asks "which way?" beside it, and an answer is matched by the
 question's id, within the protocol's one question lifetime."""
 
@@ -11,16 +11,16 @@ from pathlib import Path
 
 import pytest
 
-from protocol import QUESTION_OPEN_S, Credit, CreditedFeedback
-from services.learner import checkpoint
-from services.learner.agent import Agent
-from services.learner.asking import Asker
-from services.learner.online import OnlineLearner
-from services.learner.sarsa import Learner
-from services.world.robot import CONTROL_PERIOD_S
 from tests.learner_support import EXACT, FORWARD, LEFT, WALL_LEFT, WALL_RIGHT, P
+from voxshape.learner import checkpoint
+from voxshape.learner.agent import Agent
+from voxshape.learner.asking import Asker
+from voxshape.learner.online import OnlineLearner
+from voxshape.learner.sarsa import Learner
+from voxshape.protocol import QUESTION_OPEN_S, Credit, CreditedFeedback
+from voxshape.world.robot import CONTROL_PERIOD_S
 
-LEARNER_PACKAGE = Path(__file__).parent.parent / "services" / "learner"
+LEARNER_PACKAGE = Path(__file__).parent.parent / "voxshape" / "learner"
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,27 @@ from dataclasses import replace
 
 import pytest
 
-from protocol import (
+from voxshape.arbiter.arbiter import Arbiter
+from voxshape.arbiter.clocks import SimulatorClock
+from voxshape.arbiter.config import (
+    ArbiterConfig,
+    ArbiterConfigError,
+    DelayLearning,
+    DelayWindow,
+    parse_window,
+)
+from voxshape.arbiter.credit import ReactionDelay, StepTimeline
+from voxshape.arbiter.hygiene import RecentIds
+from voxshape.arbiter.node import config_from
+from voxshape.arbiter.scripted import (
+    ScriptedTeacher,
+    observation,
+    rehearse,
+    sync_in_process,
+    utterance,
+)
+from voxshape.cli import parser as cli_parser
+from voxshape.protocol import (
     ClockProbe,
     CreditedFeedback,
     HelpAnswer,
@@ -16,30 +36,10 @@ from protocol import (
     TeacherNotice,
     TeachingStats,
 )
-from protocol.vocabulary import load_vocabulary, parse_vocabulary
-from services.arbiter.arbiter import Arbiter
-from services.arbiter.clocks import SimulatorClock
-from services.arbiter.config import (
-    ArbiterConfig,
-    ArbiterConfigError,
-    DelayLearning,
-    DelayWindow,
-    parse_window,
-)
-from services.arbiter.credit import ReactionDelay, StepTimeline
-from services.arbiter.hygiene import RecentIds
-from services.arbiter.node import config_from
-from services.arbiter.scripted import (
-    ScriptedTeacher,
-    observation,
-    rehearse,
-    sync_in_process,
-    utterance,
-)
-from services.cli import parser as cli_parser
-from services.runtime import ConfigError
-from services.runtime.clock import estimate_from
-from services.runtime.limits import TokenBucket
+from voxshape.protocol.vocabulary import load_vocabulary, parse_vocabulary
+from voxshape.runtime import ConfigError
+from voxshape.runtime.clock import estimate_from
+from voxshape.runtime.limits import TokenBucket
 
 T0 = 1_700_000_000.0  # wall time of step 0
 PERIOD = 0.1

@@ -12,7 +12,9 @@ import time
 import msgpack
 import pytest
 
-from protocol import (
+from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
+from voxshape.arbiter.scripted import observation, utterance
+from voxshape.protocol import (
     CreditedFeedback,
     TeacherNotice,
     TeachingStats,
@@ -20,10 +22,8 @@ from protocol import (
     teacher_key,
     to_wire,
 )
-from services.arbiter.scripted import observation, utterance
-from services.runtime import Node
-from services.runtime.clock import ClockSyncError, sync_clock
-from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
+from voxshape.runtime import Node
+from voxshape.runtime.clock import ClockSyncError, sync_clock
 
 PERIOD = 0.05  # the fake simulator's step period
 SKEW = 5.0  # the teacher's clock is this far ahead

@@ -14,12 +14,12 @@ import time
 import pytest
 import zenoh
 
-from protocol import MESSAGE_TYPES, session_keys, to_wire
-from protocol.examples import example_messages
-from services.launcher import router_command
-from services.runtime import BusError, Input, Node, Presence
-from services.tools import jsonable
 from tests.conftest import VOXSHAPE, bus_args, free_port, read_until
+from voxshape.launcher import router_command
+from voxshape.protocol import MESSAGE_TYPES, session_keys, to_wire
+from voxshape.protocol.examples import example_messages
+from voxshape.runtime import BusError, Input, Node, Presence
+from voxshape.tools import jsonable
 
 ENVELOPE = ("sender", "sent_at")
 
@@ -209,7 +209,7 @@ def test_second_router_on_a_busy_port_is_a_clear_error(router, session_id):
 
 
 def test_node_refuses_to_start_without_router():
-    from services.runtime import BusConfig
+    from voxshape.runtime import BusConfig
 
     config = BusConfig(
         mode="client", connect=(f"tcp/127.0.0.1:{free_port()}",), connect_timeout=0.3

@@ -14,18 +14,18 @@ import numpy as np
 import pytest
 
 from benchmarks.speech import scoring
-from protocol import Observation, robot_key
-from services.runtime import Node
-from services.speech import decision
-from services.speech.cascade import CascadeRecognizer
-from services.speech.decision import Margins
-from services.speech.engines import open_recognizer
-from services.speech.recognizer import Recognition
-from services.speech.whisper_engine import Scored
 from tests.conftest import VOXSHAPE, bus_args, collect, wait_present
 from tests.test_faults import paced_sim, service
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_whisper import needs_whisper
+from voxshape.protocol import Observation, robot_key
+from voxshape.runtime import Node
+from voxshape.speech import decision
+from voxshape.speech.cascade import CascadeRecognizer
+from voxshape.speech.decision import Margins
+from voxshape.speech.engines import open_recognizer
+from voxshape.speech.recognizer import Recognition
+from voxshape.speech.whisper_engine import Scored
 
 CLIPS = {c.path.name: c for c in scoring.load_clips(FIXTURES)}
 AUDIO = np.zeros(16000, dtype=np.int16)

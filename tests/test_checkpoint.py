@@ -9,11 +9,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from services.learner import checkpoint
-from services.learner.config import LearnerConfig
-from services.learner.sarsa import Learner
-from services.learner.traces import TraceBook
 from tests.learner_support import ADVISED, EXACT, run_episode
+from voxshape.learner import checkpoint
+from voxshape.learner.config import LearnerConfig
+from voxshape.learner.sarsa import Learner
+from voxshape.learner.traces import TraceBook
 
 PLACED = replace(ADVISED, potential="straight_line", advice_place_tilings=8)
 

@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from services.cli import main
-from services.experiment import cluster, runner
-from services.experiment.inprocess import RunSpec, run
+from voxshape.cli import main
+from voxshape.lab.experiment import cluster, runner
+from voxshape.lab.experiment.inprocess import RunSpec, run
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
 # one worker of a parallel run takes the module: its Ray cluster and local runs are made once

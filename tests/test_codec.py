@@ -14,8 +14,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import protocol.messages
-from protocol import (
+import voxshape.protocol.messages
+from tests.strategies import any_message, messages
+from voxshape.protocol import (
     MAX_PAYLOAD_BYTES,
     MESSAGE_TYPES,
     SCHEMA_VERSION,
@@ -28,8 +29,7 @@ from protocol import (
     encode,
     to_wire,
 )
-from protocol.examples import example_messages
-from tests.strategies import any_message, messages
+from voxshape.protocol.examples import example_messages
 
 EXAMPLES = {m.TYPE: m for _, m in example_messages("s1")}
 ALL_TYPES = sorted(MESSAGE_TYPES)
@@ -252,8 +252,8 @@ def test_any_value_in_any_field_is_either_valid_or_rejected(base, field, value):
 
 def cross_field_rules() -> set[str]:
     """Fields named by the `check()` rules that relate several fields, read from
-    protocol/messages.py, so that a new rule cannot be missing from this list."""
-    tree = ast.parse(inspect.getsource(protocol.messages))
+    voxshape/protocol/messages.py, so that a new rule cannot be missing from this list."""
+    tree = ast.parse(inspect.getsource(voxshape.protocol.messages))
     checks = [f for f in ast.walk(tree) if isinstance(f, ast.FunctionDef) and f.name == "check"]
     return {
         call.args[0].value

@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from services.runtime import ConfigError, add_bus_arguments, bus_config
+from voxshape.runtime import ConfigError, add_bus_arguments, bus_config
 
 
 def flags(*argv):

@@ -1,4 +1,4 @@
-"""The dataflow declared once (protocol/dataflow.py): the table is consistent, the router's
+"""The dataflow declared once (voxshape/protocol/dataflow.py): the table is consistent, the router's
 access control, `voxshape status` and the docs come from it, nodes refuse keys outside their
 row, and the real services declare exactly their rows."""
 
@@ -14,7 +14,10 @@ import time
 
 import pytest
 
-from protocol import (
+from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port, wait_present
+from voxshape.cli import main
+from voxshape.deploy.access import ROLES, User, access_control
+from voxshape.protocol import (
     CreditedFeedback,
     HelpAnswer,
     HelpRequest,
@@ -24,7 +27,7 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from protocol.dataflow import (
+from voxshape.protocol.dataflow import (
     ANY,
     DATAFLOW,
     DELIVERY,
@@ -38,12 +41,9 @@ from protocol.dataflow import (
     markdown,
     publishers_of,
 )
-from protocol.keys import SCOPES
-from services.cli import main
-from services.deploy.access import ROLES, User, access_control
-from services.runtime import Input, Node
-from services.tools import unfed_inputs
-from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port, wait_present
+from voxshape.protocol.keys import SCOPES
+from voxshape.runtime import Input, Node
+from voxshape.tools import unfed_inputs
 
 ARCHITECTURE = ROOT / "docs" / "architecture.md"
 BEGIN = "<!-- dataflow:begin"
@@ -114,7 +114,7 @@ def test_check_follows_the_rows():
     check("simteacher", "subscribes", robot_key("s1", "r7", "obs"))  # any robot's
     check("logger", "subscribes", "voxshape/s1/**")  # everything
     check("a-tool", "publishes", robot_key("s1", "r1", "feedback"))  # not in the table
-    with pytest.raises(DataflowError, match=r"not declared in protocol/dataflow\.py"):
+    with pytest.raises(DataflowError, match=r"not declared in voxshape/protocol/dataflow\.py"):
         check("learner", "subscribes", robot_key("s1", "*", "obs"))  # its own robot's only
     with pytest.raises(DataflowError, match="router row publishes: nothing"):
         check("router", "publishes", robot_key("s1", "r1", "obs"))
@@ -163,7 +163,7 @@ def test_a_node_declaring_a_key_outside_its_row_is_refused(client_config, sessio
             node.input("episode", robot_key(session_id, "r1", "episode"))
         message = str(refused.value)
         assert "learner" in message and robot_key(session_id, "r1", "episode") in message
-        assert "declared in protocol/dataflow.py" in message
+        assert "declared in voxshape/protocol/dataflow.py" in message
         with pytest.raises(DataflowError, match="learner row publishes"):
             node.output("feedback", robot_key(session_id, "r1", "feedback"))
         assert node.declared == {
@@ -315,18 +315,18 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
         assert feedback.kept and not notice.kept  # as its topic says, or as told
 
 
-# node role -> the module whose docstring names its row (the learner's: services/learner/node.py)
+# node role -> the module whose docstring names its row (the learner's: voxshape/learner/node.py)
 NODE_MODULES = {
-    "sim": "services.sim.node",
-    "ros2": "services.ros2.node",
-    "learner": "services.learner.node",
-    "arbiter": "services.arbiter.node",
-    "speech": "services.speech.node",
-    "teacher": "services.teacher.node",
-    "simteacher": "services.teacher.simulated.node",
-    "web": "services.teacher.web.node",
-    "logger": "services.logger.node",
-    "router": "services.router",
+    "sim": "voxshape.sim.node",
+    "ros2": "voxshape.ros2.node",
+    "learner": "voxshape.learner.node",
+    "arbiter": "voxshape.arbiter.node",
+    "speech": "voxshape.speech.node",
+    "teacher": "voxshape.teacher.node",
+    "simteacher": "voxshape.simteacher.node",
+    "web": "voxshape.web.node",
+    "logger": "voxshape.logger.node",
+    "router": "voxshape.router",
 }
 
 

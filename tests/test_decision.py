@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import pytest
 
-from protocol import load_vocabulary
-from protocol.vocabulary import written_phrases
-from services.speech import decision
-from services.speech.decision import Margins
-from services.speech.sound_alikes import SoundAlikes, cmudict, one_edit
+from voxshape.protocol import load_vocabulary
+from voxshape.protocol.vocabulary import written_phrases
+from voxshape.speech import decision
+from voxshape.speech.decision import Margins
+from voxshape.speech.sound_alikes import SoundAlikes, cmudict, one_edit
 
 PHRASES = written_phrases(load_vocabulary(), "en")
 

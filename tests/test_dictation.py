@@ -8,13 +8,13 @@ import math
 
 import pytest
 
-from protocol.vocabulary import load_vocabulary
-from services.experiment.dictation import dictate
-from services.experiment.inprocess import RunSpec, run
-from services.learner.config import LearnerConfig
-from services.teacher.simulated.dictating import DictatingPerson, DictationProfile
-from services.teacher.simulated.teacher import GeodesicDistance
-from services.world.maps import load_map
+from voxshape.lab.experiment.dictation import dictate
+from voxshape.lab.experiment.inprocess import RunSpec, run
+from voxshape.learner.config import LearnerConfig
+from voxshape.protocol.vocabulary import load_vocabulary
+from voxshape.simteacher.dictating import DictatingPerson, DictationProfile
+from voxshape.simteacher.teacher import GeodesicDistance
+from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()
 VELOCITIES = LearnerConfig().velocities

@@ -9,11 +9,11 @@ from collections.abc import Callable
 
 import pytest
 
-from protocol import CreditedFeedback, TeachingStats, robot_key
-from services.runtime import Input, Node
 from tests.conftest import VOXSHAPE, bus_args, wait_present
+from voxshape.protocol import CreditedFeedback, TeachingStats, robot_key
+from voxshape.runtime import Input, Node
 
-RTF = 20  # paced: the arbiter credits by wall-clock display time (see services/demo.py); the
+RTF = 20  # paced: the arbiter credits by wall-clock display time (see voxshape/lab/demo.py); the
 # simulated teachers' delays are robot seconds, and the arbiter is told so (--robot-time)
 SEED = 5
 

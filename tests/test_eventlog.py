@@ -6,10 +6,8 @@ from __future__ import annotations
 import msgpack
 import pytest
 
-from protocol import encode, robot_key
-from protocol.examples import example_messages
-from services.logger.decoding import Known, PresenceChange, Rejected, Unknown, decode_record
-from services.logger.eventlog import (
+from voxshape.logger.decoding import Known, PresenceChange, Rejected, Unknown, decode_record
+from voxshape.logger.eventlog import (
     EventLogError,
     EventLogReader,
     EventLogWriter,
@@ -17,7 +15,9 @@ from services.logger.eventlog import (
     pack_record,
     read_events,
 )
-from services.logger.run import RunDir, RunError
+from voxshape.logger.run import RunDir, RunError
+from voxshape.protocol import encode, robot_key
+from voxshape.protocol.examples import example_messages
 
 
 def records(session: str, n: int) -> list[EventRecord]:

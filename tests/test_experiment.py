@@ -8,18 +8,18 @@ import json
 import pytest
 
 from benchmarks.experiment import steps_per_second
-from services.cli import main
-from services.experiment import distributed
-from services.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
-from services.experiment.intervals import mean_ci, speedup_interval
-from services.experiment.legend import SETTING_STYLES
-from services.experiment.paper_report import report
-from services.experiment.published import PAPER_AVERAGE, paper_average
-from services.experiment.summary import summarize
-from services.runtime.settings import SettingsError, replaced
-from services.sim.task import Simulation
-from services.teacher.simulated.teacher import PERSON, TIRELESS, TeacherProfile
-from services.world.maps import TASKS
+from voxshape.cli import main
+from voxshape.lab.experiment import distributed
+from voxshape.lab.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
+from voxshape.lab.experiment.intervals import mean_ci, speedup_interval
+from voxshape.lab.experiment.legend import SETTING_STYLES
+from voxshape.lab.experiment.paper_report import report
+from voxshape.lab.experiment.published import PAPER_AVERAGE, paper_average
+from voxshape.lab.experiment.summary import summarize
+from voxshape.runtime.settings import SettingsError, replaced
+from voxshape.sim.task import Simulation
+from voxshape.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
+from voxshape.world.maps import TASKS
 
 
 def test_mean_and_95_percent_interval():

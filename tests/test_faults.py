@@ -34,7 +34,12 @@ import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from protocol import (
+from tests import stopped_observer as so
+from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
+from tests.strategies import messages
+from voxshape.arbiter.scripted import utterance
+from voxshape.launcher import router_command
+from voxshape.protocol import (
     MESSAGE_TYPES,
     ROBOT_TOPICS,
     TEACHER_TOPICS,
@@ -47,12 +52,7 @@ from protocol import (
     teacher_key,
     to_wire,
 )
-from services.arbiter.scripted import utterance
-from services.launcher import router_command
-from services.runtime import Input, Node, bus_config
-from tests import stopped_observer as so
-from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
-from tests.strategies import messages
+from voxshape.runtime import Input, Node, bus_config
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 RTF = 5.0  # the paced simulator's speed: 50 steps/s

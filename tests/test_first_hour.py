@@ -22,8 +22,8 @@ import numpy as np
 import pexpect
 import pytest
 
-from services.launcher import router_command
 from tests.conftest import ROOT, VOXSHAPE, free_port, seconds_to_start
+from voxshape.launcher import router_command
 
 README = (ROOT / "README.md").read_text()
 MAPS = ROOT / "tests" / "fixtures" / "maps"

@@ -1,7 +1,7 @@
 """The house's rules of size and naming (docs/architecture.md#layout), checked from the code's
-syntax trees: no .py file over 500 lines and no function over 60 lines in services/ or
-benchmarks/, and no top-level class name defined twice in protocol/, services/ or benchmarks/
-(one name, one idea)."""
+syntax trees: no .py file over 500 lines and no function over 60 lines in voxshape/ or
+benchmarks/, and no top-level class name defined twice in voxshape/ or benchmarks/ (one name,
+one idea)."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ from tests.conftest import ROOT
 
 MAX_FILE_LINES = 500
 MAX_FUNCTION_LINES = 60
-SIZED = ("services", "benchmarks")
-NAMED = ("protocol", "services", "benchmarks")
+SIZED = ("voxshape", "benchmarks")
+NAMED = ("voxshape", "benchmarks")
 
 # Known offenders, each with its reason; an entry that no longer offends fails the tests too,
 # so that the lists only shrink.
@@ -105,18 +105,19 @@ def test_no_class_name_is_defined_twice():
 
 def test_the_checks_see_what_they_check(tmp_path):
     """Each check finds its offence in a tree made to have it, and nothing in one without."""
-    (tmp_path / "services" / "a").mkdir(parents=True)
+    (tmp_path / "voxshape" / "a").mkdir(parents=True)
     (tmp_path / "benchmarks").mkdir()
-    (tmp_path / "protocol").mkdir()
+    (tmp_path / "voxshape" / "protocol").mkdir()
     body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES - 1))
     fits, over = "def fits():\n" + body, "def over():\n" + body + "    y = 1\n"
-    (tmp_path / "services" / "a" / "long.py").write_text(
+    (tmp_path / "voxshape" / "a" / "long.py").write_text(
         "class Twice:\n    pass\n\n\n" + fits + "\n\n" + over
     )
     (tmp_path / "benchmarks" / "b.py").write_text("class Twice:\n    pass\n" + "\n" * 500)
-    (tmp_path / "protocol" / "c.py").write_text("class Once:\n    class Twice:\n        pass\n")
+    protocol = tmp_path / "voxshape" / "protocol"
+    (protocol / "c.py").write_text("class Once:\n    class Twice:\n        pass\n")
     assert long_files(tmp_path) == {"benchmarks/b.py": 502}
-    assert long_functions(tmp_path) == {"services/a/long.py:over": MAX_FUNCTION_LINES + 1}
+    assert long_functions(tmp_path) == {"voxshape/a/long.py:over": MAX_FUNCTION_LINES + 1}
     assert classes_defined_twice(tmp_path) == {
-        "Twice": {"services/a/long.py", "benchmarks/b.py"}  # the nested one is not top-level
+        "Twice": {"voxshape/a/long.py", "benchmarks/b.py"}  # the nested one is not top-level
     }

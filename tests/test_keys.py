@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 
-from protocol import (
+from tests.strategies import ids
+from voxshape.protocol import (
     ROBOT_TOPICS,
     TEACHER_TOPICS,
     Message,
@@ -18,9 +19,8 @@ from protocol import (
     session_keys,
     teacher_key,
 )
-from protocol.examples import example_messages
-from protocol.keys import TOPIC_OF, message_key
-from tests.strategies import ids
+from voxshape.protocol.examples import example_messages
+from voxshape.protocol.keys import TOPIC_OF, message_key
 
 
 def test_the_design_keys():
@@ -95,7 +95,7 @@ def test_unknown_topic_lists_the_known_ones():
 
 def test_a_message_travels_on_the_key_of_its_type():
     """message_key (Node.publish's): the type's one topic, of its robot or teacher; the key
-    each example of protocol/examples.py is published on, for every topic."""
+    each example of voxshape/protocol/examples.py is published on, for every topic."""
     examples = example_messages("lab", robot="r1", teacher="ana")
     assert {type(m) for _, m in examples} == set(TOPIC_OF)  # every topic has an example
     for key, message in examples:

@@ -14,20 +14,20 @@ from pathlib import Path
 
 import pytest
 
-from protocol import CreditedFeedback, LearningSummary
-from services.cli import parser
-from services.launcher import (
+from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
+from voxshape.cli import parser
+from voxshape.launcher import (
     LocalSession,
     prepare_run,
     router_command,
     session_variables,
     without_simulator,
 )
-from services.launcher.session import BUS_CLOSE_S
-from services.logger.run import RunError
-from services.runtime import BusConfig, Input, Node, bus_config
-from services.topology import TopologyError, interpolate, load_topology, local_variables
-from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
+from voxshape.launcher.session import BUS_CLOSE_S
+from voxshape.logger.run import RunError
+from voxshape.protocol import CreditedFeedback, LearningSummary
+from voxshape.runtime import BusConfig, Input, Node, bus_config
+from voxshape.topology import TopologyError, interpolate, load_topology, local_variables
 
 COMPOSE = ROOT / "compose.yaml"
 
@@ -260,7 +260,7 @@ def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
     router = spawn(argv, text=True, stderr=subprocess.STDOUT)
     wait_for_port(port)
     router.send_signal(signal.SIGUSR1)
-    lines = read_until(router, r"services/router.py\", line \d+ in run$")  # its own loop
+    lines = read_until(router, r"voxshape/router.py\", line \d+ in run$")  # its own loop
     assert any("most recent call first" in line for line in lines), lines
     time.sleep(0.5)
     assert router.poll() is None, "SIGUSR1 stopped the service"

@@ -1,24 +1,30 @@
 """The floors of docs/architecture.md#layout, checked from the imports (absolute and relative):
-protocol/ imports no service, the shared floor imports no service, and a service package
-imports only itself and the shared floor."""
+voxshape.protocol imports nothing else of voxshape; the shared floor (runtime, world, deploy,
+recognition, teaching) and each room (one per node) import only themselves, the shared floor
+and the protocol; the top (the launcher, the lab, the command line) may import any of them."""
 
 from __future__ import annotations
 
 import ast
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from tests.conftest import ROOT
 
-SHARED = {"runtime", "world", "deploy", "recognition"}
-SERVICES = {"arbiter", "learner", "logger", "ros2", "sim", "speech", "teacher"}
-TOP = {"experiment", "launcher", "report"}  # put services together: may import any of them
+PACKAGE = ROOT / "voxshape"
+SHARED = {"runtime", "world", "deploy", "recognition", "teaching"}
+ROOMS = {"arbiter", "learner", "logger", "ros2", "sim", "speech", "teacher", "web", "simteacher"}
+TOP = {"launcher", "lab"}  # put rooms together: may import any of them
+TOP_MODULES = {"__init__", "__main__", "cli", "router", "tools", "topology"}
 
 
 def package_of(path: Path) -> list[str]:
-    """The package a module's relative imports start from: `services/speech/node.py` ->
-    services.speech, `services/speech/__init__.py` -> services.speech."""
+    """The package a module's relative imports start from: `voxshape/speech/node.py` ->
+    voxshape.speech, `voxshape/speech/__init__.py` -> voxshape.speech."""
     parts = path.relative_to(ROOT).with_suffix("").parts
     return list(parts[:-1])
 
@@ -29,7 +35,7 @@ def imports(path: Path) -> set[str]:
 
 def imported(source: str, package: list[str]) -> set[str]:
     """The modules `source` imports, relative imports made absolute from `package` (`from .
-    import mock` in services/speech/node.py is services.speech.mock)."""
+    import mock` in voxshape/speech/node.py is voxshape.speech.mock)."""
     found: set[str] = set()
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.ImportFrom):
@@ -44,43 +50,55 @@ def imported(source: str, package: list[str]) -> set[str]:
 
 
 def wrong_imports(folder: Path, allowed: set[str]) -> list[str]:
-    """`folder`'s imports of services.X outside `allowed` (X names a package or module)."""
+    """`folder`'s imports of voxshape.X outside `allowed` (X names a package or module)."""
     wrong = []
     for path in sorted(folder.rglob("*.py")):
         for module in sorted(imports(path)):
             parts = module.split(".")
-            if parts[0] == "services" and len(parts) > 1 and parts[1] not in allowed:
+            if parts[0] == "voxshape" and len(parts) > 1 and parts[1] not in allowed:
                 wrong.append(f"{path.relative_to(ROOT)} imports {module}")
     return wrong
 
 
-def test_services_stand_on_the_shared_floor_only():
-    services = ROOT / "services"
+def test_rooms_stand_on_the_shared_floor_only():
     wrong = []
-    for package in sorted(SHARED | SERVICES):
-        wrong += wrong_imports(services / package, {package} | SHARED)
+    for package in sorted(SHARED | ROOMS):
+        wrong += wrong_imports(PACKAGE / package, {package, "protocol"} | SHARED)
     assert not wrong, "\n".join(wrong)
 
 
-def test_every_package_is_on_a_floor():
+def test_every_package_and_module_is_on_a_floor():
     """A new package (or one left out, as ros2 once was) must be placed before it is checked."""
-    packages = {p.parent.name for p in (ROOT / "services").glob("*/__init__.py")}
-    assert packages == SHARED | SERVICES | TOP
+    packages = {p.parent.name for p in PACKAGE.glob("*/__init__.py")}
+    assert packages == {"protocol"} | SHARED | ROOMS | TOP
+    assert {p.stem for p in PACKAGE.glob("*.py")} == TOP_MODULES
 
 
-def test_the_protocol_imports_no_service():
-    assert not wrong_imports(ROOT / "protocol", set())
+def test_the_protocol_imports_nothing_else_of_voxshape():
+    assert not wrong_imports(PACKAGE / "protocol", {"protocol"})
+
+
+def test_only_voxshape_is_installed_at_the_top_level(tmp_path):
+    """Out of the source tree, the environment finds voxshape and none of the old top-level
+    packages (a `services` or `protocol` of another project's would collide)."""
+    probe = "import importlib.util as u; print([n for n in NAMES if u.find_spec(n)])"
+    names = "NAMES = ('voxshape', 'services', 'protocol', 'lab', 'teaching'); "
+    found = subprocess.run(
+        [sys.executable, "-c", names + probe], cwd=tmp_path, capture_output=True, text=True,
+        timeout=60, check=True, env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"},
+    )  # fmt: skip
+    assert found.stdout.strip() == "['voxshape']"
 
 
 @pytest.mark.parametrize(
     ("where", "source", "module"),
     [
-        ("services/speech/node.py", "from . import mock", "services.speech.mock"),
-        ("services/speech/node.py", "from .mock import X", "services.speech.mock"),
-        ("services/speech/node.py", "from ..arbiter import config", "services.arbiter"),
-        ("services/teacher/web/node.py", "from ...sim.task import X", "services.sim.task"),
-        ("services/speech/__init__.py", "from .mock import X", "services.speech.mock"),
-        ("protocol/keys.py", "import services.sim.node as n", "services.sim.node"),
+        ("voxshape/speech/node.py", "from . import mock", "voxshape.speech.mock"),
+        ("voxshape/speech/node.py", "from .mock import X", "voxshape.speech.mock"),
+        ("voxshape/speech/node.py", "from ..arbiter import config", "voxshape.arbiter"),
+        ("voxshape/lab/experiment/paper.py", "from ...sim.task import X", "voxshape.sim.task"),
+        ("voxshape/speech/__init__.py", "from .mock import X", "voxshape.speech.mock"),
+        ("voxshape/protocol/keys.py", "import voxshape.sim.node as n", "voxshape.sim.node"),
     ],
 )
 def test_relative_imports_are_read_as_the_modules_they_name(where, source, module):
@@ -90,15 +108,15 @@ def test_relative_imports_are_read_as_the_modules_they_name(where, source, modul
 def test_a_relative_import_across_services_is_caught(tmp_path, monkeypatch):
     """What the floors test finds in a service that imports another relatively."""
     monkeypatch.setattr("tests.test_layout.ROOT", tmp_path)
-    speech = tmp_path / "services" / "speech"
+    speech = tmp_path / "voxshape" / "speech"
     speech.mkdir(parents=True)
     (speech / "node.py").write_text("from ..arbiter.config import ArbiterConfig\n")
     assert wrong_imports(speech, {"speech"}) == [
-        "services/speech/node.py imports services.arbiter.config"
+        "voxshape/speech/node.py imports voxshape.arbiter.config"
     ]
 
 
-# The functions of protocol/keys.py that build a key of the bus.
+# The functions of voxshape/protocol/keys.py that build a key of the bus.
 KEY_BUILDERS = {
     "robot_key",
     "teacher_key",
@@ -107,9 +125,10 @@ KEY_BUILDERS = {
     "message_key",
     "router_access_key",
 }
-# Where keys are built: the runtime (Node.subscribe, advertise, key), and services/deploy,
-# which writes the router's access rules from the same dataflow table.
-BUILDS_KEYS = ("services/runtime/", "services/deploy/")
+# Where keys are built: the protocol (its key builders), the runtime (Node.subscribe,
+# advertise, key), and voxshape/deploy, which writes the router's access rules from the same
+# dataflow table.
+BUILDS_KEYS = ("voxshape/protocol/", "voxshape/runtime/", "voxshape/deploy/")
 
 
 def hand_built_keys(source: str) -> list[str]:
@@ -134,9 +153,9 @@ def hand_built_keys(source: str) -> list[str]:
 
 def test_no_key_is_built_by_hand_outside_the_runtime():
     """A node names a topic and whose it is (Node.subscribe, advertise); the runtime builds
-    the key and checks it against the node's row of protocol/dataflow.py."""
+    the key and checks it against the node's row of voxshape/protocol/dataflow.py."""
     wrong = []
-    for folder in ("services", "benchmarks"):
+    for folder in ("voxshape", "benchmarks"):
         for path in sorted((ROOT / folder).rglob("*.py")):
             where = path.relative_to(ROOT).as_posix()
             if not where.startswith(BUILDS_KEYS):

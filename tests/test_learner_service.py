@@ -10,7 +10,8 @@ import uuid
 
 import pytest
 
-from protocol import (
+from tests.conftest import VOXSHAPE, bus_args, collect
+from voxshape.protocol import (
     ACTION_NAMES,
     Action,
     Credit,
@@ -18,8 +19,7 @@ from protocol import (
     LearningSummary,
     robot_key,
 )
-from services.runtime import Node
-from tests.conftest import VOXSHAPE, bus_args, collect
+from voxshape.runtime import Node
 
 
 def feedback(step: int, **kind) -> CreditedFeedback:

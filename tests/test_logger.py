@@ -14,17 +14,6 @@ import msgpack
 import pytest
 from rerun.chunk import RrdReader
 
-from protocol import encode
-from protocol.examples import example_messages
-from services.cli import main
-from services.logger.decoding import decode_record
-from services.logger.eventlog import EventLogWriter, EventRecord, pack_gap, read_events
-from services.logger.recording import Recorder
-from services.logger.replay import ScanThinning, close_stream, open_stream, render
-from services.logger.run import RunDir, describe_session, session_map, write_session_info
-from services.report import write_report
-from services.report.pictures import moving_average
-from services.report.summary import summarize
 from tests.conftest import VOXSHAPE, free_port
 from tests.logger_support import (
     listening_on,
@@ -33,6 +22,17 @@ from tests.logger_support import (
     scripted_session,
     write_script,
 )
+from voxshape.cli import main
+from voxshape.lab.report import write_report
+from voxshape.lab.report.pictures import moving_average
+from voxshape.lab.report.summary import summarize
+from voxshape.logger.decoding import decode_record
+from voxshape.logger.eventlog import EventLogWriter, EventRecord, pack_gap, read_events
+from voxshape.logger.recording import Recorder
+from voxshape.logger.replay import ScanThinning, close_stream, open_stream, render
+from voxshape.logger.run import RunDir, describe_session, session_map, write_session_info
+from voxshape.protocol import encode
+from voxshape.protocol.examples import example_messages
 
 
 @pytest.fixture
@@ -236,7 +236,7 @@ def test_view_serves_the_web_viewer_on_localhost_and_prints_its_url(
 
 
 def test_rerun_is_not_imported_by_commands_that_do_not_draw():
-    code = "import sys, services.cli; print('rerun' in sys.modules)"
+    code = "import sys, voxshape.cli; print('rerun' in sys.modules)"
     out = subprocess.run(
         [os.path.join(os.path.dirname(VOXSHAPE), "python"), "-c", code],
         capture_output=True,
@@ -255,7 +255,7 @@ def test_a_following_renderer_keeps_no_index_of_every_chunk(tmp_path, monkeypatc
     import rerun as rr
     from rerun.error_utils import RerunWarning
 
-    from services.logger import replay
+    from voxshape.logger import replay
 
     stream, _ = open_stream("s1", tmp_path / "live.rrd", None, footer=False)
     for k in range(50):

@@ -11,15 +11,15 @@ import threading
 import time
 from pathlib import Path
 
-from protocol import EpisodeEvent, LearningSummary, Observation, decode, robot_key
-from services.logger.decoding import Known, decode_record
-from services.logger.eventlog import read_events
-from services.logger.recording import Recorder
-from services.logger.replay import close_stream, open_stream, render
-from services.logger.run import RunDir, session_map
-from services.runtime import Input, Node
 from tests.conftest import VOXSHAPE, bus_args, read_until
 from tests.logger_support import no_analytics, rows, scripted_session
+from voxshape.logger.decoding import Known, decode_record
+from voxshape.logger.eventlog import read_events
+from voxshape.logger.recording import Recorder
+from voxshape.logger.replay import close_stream, open_stream, render
+from voxshape.logger.run import RunDir, session_map
+from voxshape.protocol import EpisodeEvent, LearningSummary, Observation, decode, robot_key
+from voxshape.runtime import Input, Node
 
 
 def start_logger(spawn, router, session_id, cwd: Path, *extra: str):

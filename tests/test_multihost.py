@@ -19,10 +19,10 @@ from pathlib import Path
 
 import pytest
 
-from services.deploy.access import find_access_file, load_access
-from services.deploy.certs import make_all
-from services.launcher import router_command
 from tests.conftest import ROOT, VOXSHAPE, read_until
+from voxshape.deploy.access import find_access_file, load_access
+from voxshape.deploy.certs import make_all
+from voxshape.launcher import router_command
 
 ROUTER_TO_SERVICES, SERVICES = "10.77.1.1", "10.77.1.2"
 ROUTER_TO_TEACHER, TEACHER = "10.77.2.1", "10.77.2.2"

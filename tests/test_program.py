@@ -11,7 +11,7 @@ import textwrap
 PROGRAM = textwrap.dedent(
     """
     import atexit, sys, threading, time
-    from services import cli
+    from voxshape import cli
 
     class Finalized:
         def __del__(self):
@@ -45,7 +45,7 @@ def test_the_program_exits_with_mains_code_after_its_threads_and_atexit_without_
 
 def test_a_usage_error_keeps_its_exit_code():
     result = subprocess.run(
-        [sys.executable, "-m", "services", "no-such-command"],
+        [sys.executable, "-m", "voxshape", "no-such-command"],
         capture_output=True,
         text=True,
         timeout=60,

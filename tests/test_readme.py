@@ -18,10 +18,10 @@ from pathlib import Path
 import gymnasium as gym
 import pytest
 
-from services.logger.run import RunDir, describe_session, write_session_info
-from services.sim import gym_env
 from tests.conftest import ROOT, VOXSHAPE
 from tests.logger_support import scripted_session, write_script
+from voxshape.logger.run import RunDir, describe_session, write_session_info
+from voxshape.sim import gym_env
 
 README = ROOT / "README.md"
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
@@ -190,7 +190,7 @@ def test_fenced_blocks_are_commands_or_pictures():
 @pytest.mark.parametrize("command", [c for c in readme_commands() if c.startswith("voxshape")])
 def test_every_voxshape_command_parses(command):
     """Flags of the heavy commands too: a renamed flag fails here, in milliseconds."""
-    from services.cli import parser
+    from voxshape.cli import parser
 
     try:
         parser().parse_args(shlex.split(command)[1:])
@@ -212,7 +212,7 @@ def is_shape(command: str) -> bool:
 def test_every_voxshape_command_of_the_docs_parses(page, command, tmp_path, monkeypatch):
     """docs/ promise as much as the README: each command's flags are the parser's (run
     from the root, with the user's own map the pages name, my-map.toml)."""
-    from services.cli import parser
+    from voxshape.cli import parser
 
     argv = shlex.split(command)[1:]
     shutil.copy(ROOT / "services" / "world" / "maps" / "task1.toml", tmp_path / "my-map.toml")

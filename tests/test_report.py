@@ -9,17 +9,17 @@ import json
 import numpy as np
 import pytest
 
-from protocol import EpisodeEvent, TeachingStats
-from services.learner.config import LearnerConfig, with_settings
-from services.logger.eventlog import read_events
-from services.logger.run import RunDir, RunError, describe_session, write_session_info
-from services.report import load_run, write_report
-from services.report.counts import count_episodes
-from services.report.pictures import pick_episodes, robust_limits
-from services.report.summary import RobotSummary, summarize
-from services.runtime.settings import write_settings
-from services.world.maps import load_map
 from tests.logger_support import LONG_ROOM, scripted_session, write_script
+from voxshape.lab.report import load_run, write_report
+from voxshape.lab.report.counts import count_episodes
+from voxshape.lab.report.pictures import pick_episodes, robust_limits
+from voxshape.lab.report.summary import RobotSummary, summarize
+from voxshape.learner.config import LearnerConfig, with_settings
+from voxshape.logger.eventlog import read_events
+from voxshape.logger.run import RunDir, RunError, describe_session, write_session_info
+from voxshape.protocol import EpisodeEvent, TeachingStats
+from voxshape.runtime.settings import write_settings
+from voxshape.world.maps import load_map
 
 
 @pytest.fixture

@@ -9,13 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from protocol import Action, EpisodeEvent, Observation, Placed
-from services.ros2 import msgs
-from services.ros2.bridge import Bridge, BridgeConfig, InsideRadius
-from services.ros2.contact import Contact, ContactConfig
-from services.ros2.episodes import BridgePercept, EpisodeRules, Episodes
-from services.ros2.homing import HomingConfig, homing_command
-from services.ros2.perception import (
+from tests.ros2_robot import cast as ray_cast
+from voxshape.protocol import Action, EpisodeEvent, Observation, Placed
+from voxshape.ros2 import msgs
+from voxshape.ros2.bridge import Bridge, BridgeConfig, InsideRadius
+from voxshape.ros2.contact import Contact, ContactConfig
+from voxshape.ros2.episodes import BridgePercept, EpisodeRules, Episodes
+from voxshape.ros2.homing import HomingConfig, homing_command
+from voxshape.ros2.perception import (
     AROUND,
     Anchor,
     ScanGeometry,
@@ -25,12 +26,11 @@ from services.ros2.perception import (
     sonar_from_scan,
     yaw_of,
 )
-from services.ros2.safety import STOP, Limits, Safety
-from services.sim.task import Simulation
-from services.world.maps import load_map
-from services.world.robot import RobotModel
-from services.world.task import Goal, Rewards
-from tests.ros2_robot import cast as ray_cast
+from voxshape.ros2.safety import STOP, Limits, Safety
+from voxshape.sim.task import Simulation
+from voxshape.world.maps import load_map
+from voxshape.world.robot import RobotModel
+from voxshape.world.task import Goal, Rewards
 
 MODEL = RobotModel()
 FULL = ScanGeometry(0.0, 2 * math.pi / 360, 0.12, 3.5)  # a TurtleBot's 360 beams
@@ -94,7 +94,7 @@ def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0, theta: float = 0.
 
 def test_the_bridge_tells_a_pose_as_the_simulator_does():
     """The same task, the same pose: the bridge's observation carries the simulator's goal
-    distance and bearing, and its steps the simulator's rewards (services/world/task.py)."""
+    distance and bearing, and its steps the simulator's rewards (voxshape/world/task.py)."""
     m = load_map("1")
     sim = Simulation(m, ("r1",), seed=3)
     try:

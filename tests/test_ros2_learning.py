@@ -12,15 +12,15 @@ import time
 
 import pytest
 
-from protocol import EpisodeEvent, TeachingStats
-from services.demo import ConvergenceWatch
-from services.launcher import LoopbackSession, ServiceDied
-from services.learner.config import LearnerConfig
-from services.learner.convergence import convergence_on
-from services.runtime import Input
-from services.topology import ServiceSpec
-from services.world.maps import load_map
 from tests.conftest import ROOT, free_port
+from voxshape.lab.demo import ConvergenceWatch
+from voxshape.launcher import LoopbackSession, ServiceDied
+from voxshape.learner.config import LearnerConfig
+from voxshape.learner.convergence import convergence_on
+from voxshape.protocol import EpisodeEvent, TeachingStats
+from voxshape.runtime import Input
+from voxshape.topology import ServiceSpec
+from voxshape.world.maps import load_map
 
 RTF = 10  # 20x overloaded a 2-core machine running the suite: its robot fell behind
 MAX_EPISODES = 100

@@ -20,11 +20,11 @@ from dataclasses import dataclass, field, replace
 import pytest
 import zenoh
 
-from protocol import Action, EpisodeEvent, Observation, robot_key
-from services.launcher import router_command
-from services.runtime import Node
-from services.runtime.config import wait_for_loopback_port
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port
+from voxshape.launcher import router_command
+from voxshape.protocol import Action, EpisodeEvent, Observation, robot_key
+from voxshape.runtime import Node
+from voxshape.runtime.config import wait_for_loopback_port
 
 ROBOT_SCRIPT = str(ROOT / "tests" / "ros2_robot.py")
 
@@ -164,7 +164,7 @@ def test_a_ros2_robot_on_rmw_zenoh_is_a_robot_of_the_session(
     assert (bye["publishes"], bye["subscribes"]) == (
         "robot/r1/episode robot/r1/limits robot/r1/obs",
         "robot/r1/action teacher/*/placed",
-    )  # exactly its row of protocol/dataflow.py
+    )  # exactly its row of voxshape/protocol/dataflow.py
 
 
 def test_killing_the_learner_stops_the_robot_within_half_a_second(

@@ -21,10 +21,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from protocol import CreditedFeedback, robot_key, session_keys, teacher_key
-from protocol.dataflow import ANY, DATAFLOW
-from protocol.examples import example_messages
-from services.deploy.access import (
+from tests.conftest import VOXSHAPE, collect, free_port, read_until, seconds_to_start, wait_for_port
+from voxshape.deploy.access import (
     ROLES,
     AccessError,
     access_control,
@@ -32,11 +30,13 @@ from services.deploy.access import (
     load_access,
     load_credentials,
 )
-from services.deploy.certs import make_all
-from services.launcher import router_command
-from services.runtime import BusConfig, BusError, ConfigError, Node, bus_config
-from services.runtime.node import open_zenoh
-from tests.conftest import VOXSHAPE, collect, free_port, read_until, seconds_to_start, wait_for_port
+from voxshape.deploy.certs import make_all
+from voxshape.launcher import router_command
+from voxshape.protocol import CreditedFeedback, robot_key, session_keys, teacher_key
+from voxshape.protocol.dataflow import ANY, DATAFLOW
+from voxshape.protocol.examples import example_messages
+from voxshape.runtime import BusConfig, BusError, ConfigError, Node, bus_config
+from voxshape.runtime.node import open_zenoh
 
 SESSION = "secured"
 ACCESS = """
@@ -373,7 +373,7 @@ def test_credentials_and_secrets_folder(secrets, tmp_path):
 
 
 def test_every_role_comes_from_the_dataflow_table():
-    """The access roles are those of protocol/dataflow.py, and each service's user in
+    """The access roles are those of voxshape/protocol/dataflow.py, and each service's user in
     deploy/access.toml has the access role its node role runs under there."""
     assert set(ROLES) == {row.access for row in DATAFLOW.values()} - {ANY}
     for role, row in DATAFLOW.items():

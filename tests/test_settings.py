@@ -1,4 +1,4 @@
-"""Settings written once (services/runtime/settings.py): a config dataclass's option fields
+"""Settings written once (voxshape/runtime/settings.py): a config dataclass's option fields
 become flags with their help, variable and default; read back, a flag overrides its variable,
 which overrides the default; `--set` takes only the fields without a flag of their own."""
 
@@ -15,9 +15,10 @@ from typing import Literal
 import pytest
 import yaml
 
-from services.cli import COMMANDS, parser
-from services.learner.config import LearnerConfig, with_settings
-from services.runtime.settings import (
+from tests.conftest import ROOT, VOXSHAPE
+from voxshape.cli import COMMANDS, parser
+from voxshape.learner.config import LearnerConfig, with_settings
+from voxshape.runtime.settings import (
     SETTINGS_FILE,
     ConfigError,
     SettingsError,
@@ -31,7 +32,6 @@ from services.runtime.settings import (
     replaced,
     write_settings,
 )
-from tests.conftest import ROOT, VOXSHAPE
 
 
 @dataclass(frozen=True)
@@ -128,7 +128,7 @@ def test_every_variable_compose_gives_a_service_is_one_its_command_reads():
     """compose.yaml is a promise: each VOXSHAPE_* variable a service is given is named in its
     command's help (the generated flags' or the bus's), so a renamed setting cannot drop one."""
     services = yaml.safe_load((ROOT / "compose.yaml").read_text())["services"]
-    read_elsewhere = {"VOXSHAPE_LOG_FORMAT"}  # services/runtime/logs.py, every command
+    read_elsewhere = {"VOXSHAPE_LOG_FORMAT"}  # voxshape/runtime/logs.py, every command
     missing = []
     for name, body in services.items():
         command = body["command"]

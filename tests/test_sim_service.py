@@ -12,9 +12,9 @@ import time
 import matplotlib.image
 import pytest
 
-from protocol import Action, EpisodeEvent, Observation, robot_key
-from services.runtime import Input, Node
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, quiet
+from voxshape.protocol import Action, EpisodeEvent, Observation, robot_key
+from voxshape.runtime import Input, Node
 
 
 def start_sim(spawn, router, session_id, *extra, node="sim"):

@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import pytest
 
-from protocol.vocabulary import load_vocabulary
-from services.teacher.simulated.teacher import (
+from voxshape.protocol.vocabulary import load_vocabulary
+from voxshape.simteacher.teacher import (
     PERSON,
     PROFILES,
     TIRELESS,
@@ -20,7 +20,7 @@ from services.teacher.simulated.teacher import (
     SimulatedTeacher,
     TeacherProfile,
 )
-from services.world.maps import load_map
+from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()
 QUIET = replace(TIRELESS, jitter=0.0)  # judges every look, never errs, a steady 0.5 s delay
@@ -254,9 +254,9 @@ def test_seeded_and_deterministic():
 
 
 def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
-    from services.cli import parser
-    from services.runtime import ConfigError
-    from services.teacher.simulated.node import profile_from
+    from voxshape.cli import parser
+    from voxshape.runtime import ConfigError
+    from voxshape.simteacher.node import profile_from
 
     person = profile_from(parser().parse_args(["sim-teacher"]))
     assert person == replace(PERSON, confusion=person.confusion)

@@ -10,7 +10,9 @@ from dataclasses import replace
 
 import pytest
 
-from protocol import (
+from tests.conftest import VOXSHAPE, bus_args
+from voxshape.arbiter.scripted import observation
+from voxshape.protocol import (
     HelpRequest,
     Observation,
     TeacherNotice,
@@ -18,13 +20,11 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.arbiter.scripted import observation
-from services.runtime import Input, Node, Presence
-from services.teacher.simulated.display import DisplayClock, DisplayTeacher
-from services.teacher.simulated.synthesis import synthesize
-from services.teacher.simulated.teacher import TIRELESS, SimulatedTeacher, path_command
-from services.world.maps import load_map
-from tests.conftest import VOXSHAPE, bus_args
+from voxshape.runtime import Input, Node, Presence
+from voxshape.simteacher.display import DisplayClock, DisplayTeacher
+from voxshape.simteacher.synthesis import synthesize
+from voxshape.simteacher.teacher import TIRELESS, SimulatedTeacher, path_command
+from voxshape.world.maps import load_map
 
 TASK = load_map("1")
 

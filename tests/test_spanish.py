@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from protocol import load_vocabulary
-from services.runtime.audio import read_wav
-from services.speech.pocketsphinx_engine import PocketsphinxRecognizer
-from services.speech.spanish import phones, pronunciations, spoken_forms
+from voxshape.protocol import load_vocabulary
+from voxshape.runtime.audio import read_wav
+from voxshape.speech.pocketsphinx_engine import PocketsphinxRecognizer
+from voxshape.speech.spanish import phones, pronunciations, spoken_forms
 
 FIXTURES = Path(__file__).parent / "fixtures" / "speech"
 

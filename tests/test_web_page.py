@@ -27,11 +27,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from protocol import CreditedFeedback, HelpRequest, TeachingStats, load_vocabulary, robot_key
-from services.launcher import LoopbackSession, router_command
-from services.runtime import BusConfig, Input, Node
-from services.runtime.audio import read_wav
 from tests.conftest import ROOT, VOXSHAPE, bus_args, free_port, wait_for_port
+from voxshape.launcher import LoopbackSession, router_command
+from voxshape.protocol import (
+    CreditedFeedback,
+    HelpRequest,
+    TeachingStats,
+    load_vocabulary,
+    robot_key,
+)
+from voxshape.runtime import BusConfig, Input, Node
+from voxshape.runtime.audio import read_wav
 
 CHROMIUM = Path("/usr/bin/chromium")
 sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is a dev dependency")
@@ -425,8 +431,8 @@ def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
 def secured(tmp_path_factory) -> Iterator[tuple[str, dict[str, str]]]:
     """A router with passwords and access control, and the gateway as its observer user; the
     page's address and the users' passwords."""
-    from services.deploy.access import load_access, load_credentials
-    from services.deploy.certs import make_all
+    from voxshape.deploy.access import load_access, load_credentials
+    from voxshape.deploy.certs import make_all
 
     folder = tmp_path_factory.mktemp("secrets")
     (folder / "access.toml").write_text(SECURED_ACCESS)

@@ -15,13 +15,13 @@ from pathlib import Path
 import aiohttp
 import pytest
 
-from services.deploy.access import load_access, load_credentials
-from services.deploy.certs import make_all
-from services.launcher import router_command
-from services.teacher.web.server import REFUSED
 from tests.conftest import VOXSHAPE, bus_args, free_port, wait_for_port
 from tests.test_web import open_page
 from tests.test_web_page import BROWSER_ARGS, CHROMIUM, SECURED_ACCESS, WAIT_MS, Processes
+from voxshape.deploy.access import load_access, load_credentials
+from voxshape.deploy.certs import make_all
+from voxshape.launcher import router_command
+from voxshape.web.server import REFUSED
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is a dev dependency")
 pytestmark = [

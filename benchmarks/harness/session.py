@@ -19,8 +19,8 @@ from collections import defaultdict
 from pathlib import Path
 
 from benchmarks.common import ROOT, last_counters
-from services.runtime import BusConfig, free_loopback_port
-from services.runtime.processes import end_process
+from voxshape.runtime import BusConfig, free_loopback_port
+from voxshape.runtime.processes import end_process
 
 VOXSHAPE = str(Path(sys.executable).parent / "voxshape")
 STOP_TIMEOUT_S = 120.0  # `voxshape up` stops services in turn, 10 s of grace each
@@ -65,7 +65,7 @@ class Session:
             "VOXSHAPE_SPEECH_ENGINE": "mock",
             "VOXSHAPE_CLOCK": "paced",
             "VOXSHAPE_LOG_FORMAT": "json",
-            # the simulated teachers' delays are robot seconds (services/demo.py)
+            # the simulated teachers' delays are robot seconds (voxshape/lab/demo.py)
             "VOXSHAPE_ROBOT_TIME": ",".join(teacher_name(r) for r in self.robots),
             "VOXSHAPE_VIEWER_PORT": str(free_loopback_port()),
             "VOXSHAPE_VIEWER_BIND": "127.0.0.1",

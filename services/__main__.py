@@ -1,3 +1,0 @@
-from services.cli import program
-
-program()

@@ -1,0 +1,3 @@
+from voxshape.cli import program
+
+program()

@@ -1,0 +1,480 @@
+"""`voxshape demo`: the main job on the embedded default (a local session, no docker).
+
+Starts the session of compose.yaml (router, logger, simulator, learner, speech, arbiter), each
+service its own process, plus a simulated teacher that speaks: synthesized audio through
+the speech service's default engine (voxshape/speech/cascade.py) when espeak-ng and sox are
+installed, else text through the mock speech engine.
+It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
+converges (voxshape/learner/convergence.py, judged by that map's shortest time), showing each
+episode, then stops the session and writes the logger's recording, the report's pictures
+(voxshape/lab/report/) and a table of the episodes under runs/<session>/: demo.md counts
+episodes and interventions from the event log as the report's summary.md does.
+
+`voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
+web page of compose.yaml (docs/web.md), prints its address, runs no simulated teacher unless
+`--sim-teacher`, and the robot runs at real time unless `--rtf`.
+
+The simulator runs paced at `--rtf` times real time: the arbiter credits what teachers say by
+the wall-clock display time of the steps, so the robot must not outrun that (a lockstep
+simulator here runs ~500 steps/s, and 0.1 s of a teacher's timing would cover 50 steps). The
+simulated teacher's delays are robot seconds, and the arbiter is told so (VOXSHAPE_ROBOT_TIME).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from voxshape import launcher
+from voxshape.lab.report import load_run, write_report
+from voxshape.lab.report.counts import INTERVENTIONS_ARE, EpisodeCounts
+from voxshape.lab.report.summary import STEP_SECONDS, RobotSummary
+from voxshape.learner.config import with_settings
+from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.logger.run import RUNS, RunDir, RunError
+from voxshape.protocol import EpisodeEvent, LearningSummary, TeachingStats
+from voxshape.runtime import BusError, Input, Tick
+from voxshape.simteacher.teacher import PROFILES
+from voxshape.speech.recognizer import DEFAULT_ENGINE
+from voxshape.topology import ServiceSpec
+from voxshape.world.maps import Map, load_map
+
+ROBOT, TEACHER = "r1", "simteacher"
+TASK = "1"  # the default task
+FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within the arbiter's
+# settle time (3 s); an episode is shown without them after this
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    # --task, --rtf, --robots as `voxshape up`'s, with the demo's defaults
+    launcher.add_arguments(parser, {"task": TASK, "robots": ROBOT})
+    parser.set_defaults(rtf=None)  # 10, or 1 with --web: a person teaches at real time
+    rtf = parser._option_string_actions["--rtf"]
+    rtf.help = "simulated seconds per wall second, paced (VOXSHAPE_RTF; default 10; --web: 1)"
+    parser.add_argument(
+        "--web",
+        action="store_true",
+        help="teach it yourself in a browser: serves the web page (its address is printed) "
+        "and runs no simulated teacher unless --sim-teacher; the robot runs at real time "
+        "unless --rtf",
+    )
+    parser.add_argument(
+        "--sim-teacher",
+        action="store_true",
+        help="with --web: the simulated teacher teaches too",
+    )
+    parser.add_argument(
+        "--max-episodes", type=int, default=60, help="give up if not converged by then"
+    )
+    parser.add_argument(
+        "--speech",
+        choices=("auto", "audio", "mock"),
+        default="auto",
+        help="audio: synthesized speech through the default engine; mock: text through the mock "
+        "engine; auto: audio when espeak-ng and sox are installed",
+    )
+    parser.add_argument("--seed", type=int, default=1, help="the simulated teacher's")
+    parser.add_argument(
+        "--teacher-profile",
+        choices=tuple(PROFILES),
+        default="judging",  # the steering person's task 1 has a tail (41, 76 episodes of 20 runs)
+        help="the simulated teacher (default: judging, which converges task 1 within 22 "
+        "episodes on 20 seeds): "
+        + "; ".join(f"{name} ({profile.describe()})" for name, profile in PROFILES.items()),
+    )
+    parser.add_argument(
+        "--stall-timeout",
+        type=float,
+        default=120.0,
+        help="seconds without a step of the robot before giving up (with --web: before "
+        "warning; a session a person teaches is never given up)",
+    )
+
+
+def task_title(task: str, m: Map) -> str:
+    """`task 2`, or `map mine.toml (Office)` for a map file."""
+    return f"task {task}" if task in ("1", "2", "3", "4") else f"map {Path(task).name} ({m.name})"
+
+
+@dataclass
+class ShownEpisode:
+    """An ended episode as displayed."""
+
+    number: int
+    outcome: str
+    steps: int
+    seconds: float
+    ended_at: float  # monotonic
+    interventions: int | None = None  # None until final (or given up waiting)
+
+
+@dataclass
+class StallWatch:
+    """Whether the robot makes progress: its steps advancing (pure: steps in, verdicts out).
+    An episode may last minutes at real time; a robot whose steps stop is stuck."""
+
+    timeout: float  # seconds without a new step
+    since: float  # monotonic: when the last new step (or the start) was seen
+    step: int = -1
+
+    def on_step(self, step: int, now: float) -> bool:
+        """True if this step is progress after a stall."""
+        stalled = self.stalled(now)
+        if step != self.step:
+            self.step, self.since = step, now
+            return stalled
+        return False
+
+    def stalled(self, now: float) -> bool:
+        return now - self.since > self.timeout
+
+
+@dataclass
+class ConvergenceWatch:
+    """Episodes of one robot and the arbiter's interventions per episode, to convergence
+    (pure: messages in, lines out), judged by `convergence` (the map run, the learner's
+    settings: `watch_of`)."""
+
+    robot: str
+    max_episodes: int
+    convergence: Convergence
+    episodes: list[ShownEpisode] = field(default_factory=list)
+    interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
+    _shown: int = 0
+
+    def on_episode(self, event: EpisodeEvent, now: float) -> None:
+        if event.robot != self.robot or event.kind == "start" or self.done:
+            return
+        seconds = event.episode_steps * STEP_SECONDS
+        self.episodes.append(
+            ShownEpisode(event.episode, event.kind, event.episode_steps, seconds, now)
+        )
+        self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
+
+    def on_teaching(self, stats: TeachingStats) -> None:
+        if stats.robot == self.robot:
+            self.interventions[stats.episode] = (stats.interventions, stats.final)
+
+    @property
+    def done(self) -> bool:
+        return self.convergence.converged or len(self.episodes) >= self.max_episodes
+
+    def due_lines(self, now: float, flush: bool = False) -> list[str]:
+        """Lines of the ended episodes whose interventions are final (or waited for enough)."""
+        lines = []
+        while self._shown < len(self.episodes):
+            e = self.episodes[self._shown]
+            count, final = self.interventions.get(e.number, (0, False))
+            if not (final or flush or now - e.ended_at >= FINAL_WAIT_S):
+                break
+            e.interventions = count
+            lines.append(self.line(e))
+            self._shown += 1
+        return lines
+
+    def line(self, e: ShownEpisode) -> str:
+        c = self.convergence
+        converged = c.converged and e.number == self.episodes[c.n_episodes - 1].number
+        return (
+            f"episode {e.number:>3}  {e.outcome:<9} {e.steps:>5} steps "
+            f"({e.seconds:6.1f} s of robot time)  interventions {e.interventions:>3}"
+            + ("  <- converged" if converged else "")
+        )
+
+    @property
+    def all_shown(self) -> bool:
+        return self._shown >= len(self.episodes)
+
+
+def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
+    """The first robot's watch, judged by the map of --task and the learner's --set."""
+    convergence = convergence_on(load_map(args.task), with_settings(args.set))
+    return ConvergenceWatch(args.robots[0], args.max_episodes, convergence)
+
+
+def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
+    """demo.md: every episode the event log holds and the counts of the report's summary.md
+    (voxshape/logger/report.count_episodes), so the two files agree."""
+    at = counts.convergence.converged_at
+    rows = []
+    for i, e in enumerate(robot.ended):
+        when = "" if at is None or i < at else " (converged)" if i == at else " (after)"
+        count = f"{e.interventions}{'' if e.final else '*'}"
+        rows.append(
+            f"| {robot.label(e)} | {e.outcome}{when} | {e.steps} | {e.seconds:.1f} | {count} |"
+        )
+    if any(not e.final for e in robot.ended):
+        rows += ["", "\\* not the arbiter's final count: the session stopped first."]
+    return "\n".join(
+        [
+            f"# Demo: robot {robot.robot}, {title}, taught by a simulated teacher",
+            "",
+            counts.describe(),
+            "",
+            f"Convergence: {counts.convergence.rule()}; {INTERVENTIONS_ARE}. The same counts, "
+            "from the same event log, as report/summary.md.",
+            "",
+            "| episode | outcome | steps | robot seconds | interventions |",
+            "|---|---|---|---|---|",
+            *rows,
+            "",
+        ]
+    )
+
+
+def speech_mode(choice: str) -> str:
+    if choice != "auto":
+        return choice
+    return "audio" if shutil.which("espeak-ng") and shutil.which("sox") else "mock"
+
+
+def session_name(args: argparse.Namespace) -> str:
+    """Each demo is a session of its own, named by when it starts; --resume goes on with the
+    latest (or --session's)."""
+    session = args.session or (latest_demo() if args.resume else None)
+    return session or time.strftime("demo-%Y%m%d-%H%M%S")
+
+
+def demo_variables(mode: str) -> dict[str, str]:
+    """The demo's defaults of the variables compose.yaml gives the services (the shell's own
+    win; --session, --task, --rtf and --robots win over both)."""
+    return {
+        "VOXSHAPE_CLOCK": "paced",
+        "VOXSHAPE_SPEECH_ENGINE": DEFAULT_ENGINE if mode == "audio" else "mock",
+        # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
+        # reacts after as many steps as at real time, voxshape/simteacher), whatever --rtf.
+        "VOXSHAPE_ROBOT_TIME": TEACHER,
+        "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
+    }
+
+
+def latest_demo(runs: Path = RUNS) -> str | None:
+    """The session of the latest demo run in `runs` (demo-YYYYmmdd-HHMMSS; a run kept aside,
+    named with a dot, is none), else None."""
+    names = sorted(p.name for p in runs.glob("demo-*") if p.is_dir() and "." not in p.name)
+    return names[-1] if names else None
+
+
+def teacher_spec(
+    session: launcher.LocalSession, args: argparse.Namespace, mode: str
+) -> ServiceSpec:
+    """The simulated teacher of the first robot as one more service of the session (on the
+    learner's bus settings), started last."""
+    bus = next(s for s in session.specs if s.name == "learner").environment
+    command = ["voxshape", "sim-teacher", "--seed", str(args.seed)]
+    command += ["--teacher-profile", args.teacher_profile]
+    if mode == "audio":
+        command.append("--audio")
+    environment = {
+        **bus,
+        "VOXSHAPE_NODE": TEACHER,
+        "VOXSHAPE_TEACHER": TEACHER,
+        "VOXSHAPE_ROBOT": args.robots[0],
+        "VOXSHAPE_TASK": args.task,
+    }
+    return ServiceSpec("sim-teacher", tuple(command), environment, ("router", "speech"), ())
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.rtf is None:
+        args.rtf = float(os.environ.get("VOXSHAPE_RTF") or (1 if args.web else 10))
+    if args.max_episodes < 3 or args.rtf <= 0:
+        print("voxshape demo: error: --max-episodes must be >= 3 and --rtf > 0")
+        return 2
+    mode = speech_mode(args.speech)
+    session_id = args.session = session_name(args)
+    session = launcher.local_session(args, demo_variables(mode))
+    simulated = not args.web or args.sim_teacher
+    problem = _arrange_services(session, args, mode, simulated)
+    if problem is not None:
+        session.say(f"error: {problem}")
+        return 2
+    _introduce(session, session_id, args, mode, simulated)
+    robot = args.robots[0]
+    progress = watch_of(args)
+    session.subscribe("episode", robot)  # from the first one
+    session.subscribe("teaching", robot)
+    session.subscribe("learning", robot)  # its steps
+    t0 = time.monotonic()
+    code = _train_session(session, progress, args)
+    for line in progress.due_lines(time.monotonic(), flush=True):
+        session.say(line)
+    minutes = (time.monotonic() - t0) / 60
+    if code == 0:
+        code = _verdict(session, progress, args.max_episodes, minutes)
+    return outputs(session, session_id, progress, args.task) or code
+
+
+def _arrange_services(
+    session: launcher.LocalSession, args: argparse.Namespace, mode: str, simulated: bool
+) -> str | None:
+    """Adds the simulated teacher and keeps the web page only with --web, the simulator
+    last; what is wrong with compose.yaml for the demo, if anything."""
+    if not {"sim", "learner", "arbiter", "speech", "logger"} <= {s.name for s in session.specs}:
+        return "compose.yaml lacks a service the demo needs (sim, learner, ...)"
+    if simulated:
+        session.specs.append(teacher_spec(session, args, mode))
+    if not args.web:  # the page only when a person teaches
+        session.specs = [s for s in session.specs if s.name != "web"]
+    elif launcher.web_page(session) is None:
+        return "compose.yaml has no web service for --web"
+    # The robot starts once its learner and teacher listen: at 20x, a start slowed by a busy
+    # machine would otherwise run minutes of robot time untaught.
+    session.specs.sort(key=lambda spec: spec.name == "sim")
+    return None
+
+
+def _introduce(
+    session: launcher.LocalSession,
+    session_id: str,
+    args: argparse.Namespace,
+    mode: str,
+    simulated: bool,
+) -> None:
+    """Says what is about to run: the task, the robot and its speed, who teaches it, how."""
+    speaks = (
+        f"synthesized speech (espeak-ng) heard by the {DEFAULT_ENGINE} engine"
+        if mode == "audio"
+        else "text heard by the mock speech engine"
+    )
+    robot, others = args.robots[0], args.robots[1:]
+    taught = f"a simulated {args.teacher_profile} ({PROFILES[args.teacher_profile].describe()})"
+    taught = f"{taught} speaking {speaks}" if simulated else ""
+    if args.web:
+        taught = f"you in a browser{' and ' + taught if taught else ''}"
+    session.say(
+        f"voxshape demo: session {session_id!r}, {task_title(args.task, load_map(args.task))}, "
+        f"robot {robot} at {args.rtf:g}x real time, taught by {taught}"
+        + (f"; {', '.join(others)} also learning, untaught and not counted" if others else "")
+    )
+
+
+def _train_session(
+    session: launcher.LocalSession, progress: ConvergenceWatch, args: argparse.Namespace
+) -> int:
+    """Starts the session, trains until done and stops it: 0, 1 on an error, 130 on Ctrl-C."""
+    code = 0
+    try:
+        took = session.start()
+        session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
+        if args.web:
+            session.say(f"teach it in a browser: {launcher.web_page(session)}")
+        train(session, progress, args.stall_timeout, interactive=args.web)
+    except (launcher.ServiceDied, launcher.LaunchAborted, BusError, TimeoutError) as e:
+        session.say(f"error: {e}")
+        code = 1
+    except KeyboardInterrupt:
+        session.say("interrupted")
+        code = 130
+    finally:
+        session.stop()
+    return code
+
+
+def _verdict(
+    session: launcher.LocalSession, progress: ConvergenceWatch, max_episodes: int, minutes: float
+) -> int:
+    """Says whether the robot converged within `max_episodes`: 0 if it did, else 1."""
+    c = progress.convergence
+    if not c.converged:
+        goals = sum(e.outcome == "goal" for e in progress.episodes)
+        session.say(
+            f"gave up: not converged within {max_episodes} episodes, {goals} of which "
+            f"reached the goal; converged means {c.rule()} (--max-episodes; "
+            "learning is random, another --seed or more episodes may do)"
+        )
+        return 1
+    session.say(
+        f"converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} robot minutes, "
+        f"{minutes:.1f} wall minutes in all)"
+    )
+    return 0
+
+
+def train(
+    session: launcher.LocalSession,
+    progress: ConvergenceWatch,
+    stall_timeout: float,
+    interactive: bool = False,
+) -> None:
+    """Shows episodes as they end until convergence or the episode bound. A robot whose
+    steps stop for `stall_timeout` seconds ends the demo, or with `interactive` (a person
+    teaching) is reported once per stall, and the session goes on."""
+    bus = session.bus
+    assert bus is not None
+    stall, cpu_then = StallWatch(stall_timeout, time.monotonic()), session.cpu_seconds()
+    warned, done_at = False, None
+    for event in bus.events(tick=0.5):
+        now = time.monotonic()
+        if isinstance(event, Input) and isinstance(event.message, LearningSummary):
+            if stall.on_step(event.message.step, now) and warned:
+                session.say(f"{progress.robot} goes on (step {event.message.step})")
+                warned = False
+        elif isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
+            progress.on_episode(event.message, now)
+        elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
+            progress.on_teaching(event.message)
+        elif isinstance(event, Tick):
+            session.check_children()  # restarts a dead service, or raises ServiceDied
+            if not stall.stalled(now):
+                cpu_then = session.cpu_seconds()  # a stall's CPU figures count from here
+        for line in progress.due_lines(now):
+            session.say(line)
+        if progress.done:
+            done_at = done_at or now
+            if progress.all_shown or now - done_at > FINAL_WAIT_S:
+                return
+        elif stall.stalled(now) and not warned:
+            used = session.cpu_seconds()
+            cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
+            what = (
+                f"{progress.robot} made no step for {stall_timeout:g} s (CPU seconds used "
+                f"meanwhile: {cpu}; the sim near 0: it is blocked, not slow)"
+            )
+            if interactive:
+                session.say(f"warning: {what}; the session goes on")
+                warned = True
+                continue
+            session.print_stacks()
+            raise TimeoutError(f"{what}: is the robot stuck? (each service's threads above)")
+    raise KeyboardInterrupt
+
+
+def voxshape_command() -> str:
+    """How to run this installation's voxshape from here: `voxshape` when that is what the
+    shell finds (an activated .venv), else its path (`make demo` runs .venv/bin/voxshape)."""
+    mine = Path(sys.executable).with_name("voxshape")
+    found = shutil.which("voxshape")
+    if found and Path(found).resolve() == mine.resolve():
+        return "voxshape"
+    return os.path.relpath(mine) if mine.is_relative_to(Path.cwd()) else str(mine)
+
+
+def outputs(
+    session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch, task: str
+) -> int:
+    """Writes the report and the episode table; says where everything is."""
+    run_dir = Path("runs") / session_id
+    try:
+        run = RunDir.existing(run_dir)
+        loaded = load_run(run)
+        written = write_report(run, loaded=loaded)
+    except RunError as e:
+        session.say(f"error: no report: {e}")
+        return 1
+    robot = loaded.summary.robot(progress.robot)
+    counts = loaded.counts()[progress.robot]
+    session.say(counts.describe())
+    table = run_dir / "demo.md"
+    table.write_text(demo_table(robot, counts, task_title(task, loaded.map)), "utf-8")
+    recording = run_dir / "recording.rrd"
+    session.say(f"written under {run_dir}/:")
+    for path in [recording, table, *written]:
+        session.say(f"  {path}{'' if path.exists() else '  (missing!)'}")
+    session.say(f"look at it: {voxshape_command()} view {run_dir}   (or open {written[-1]})")
+    return 0 if recording.exists() else 1
