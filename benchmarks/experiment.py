@@ -35,7 +35,7 @@ from voxshape.simteacher.teacher import SimulatedTeacher
 
 CORES = {  # the methods the run calls of each core (none calls another's)
     "simulator": ((Simulation, "step"), (Simulation, "reset")),
-    "learner": ((Learner, "step"), (Learner, "take")),
+    "learner": ((Learner, "step"), (Learner, "credit"), (Learner, "command")),
     "arbiter": ((Arbiter, "on_observation"), (Arbiter, "on_utterance")),
     "teacher": ((SimulatedTeacher, "watch"),),
 }
@@ -83,8 +83,8 @@ def steps_per_second(specs: list[RunSpec], reference: bool) -> dict:
         for spec in specs:
             steps += round(sum(run(spec, reference).durations_s) * 10)
     seconds = time.perf_counter() - began
-    shares = {core: round(s / seconds, 3) for core, s in spent.items()}
-    shares["rest"] = round(1 - sum(shares.values()), 3)
+    shares = {core: round(s / seconds, 4) for core, s in spent.items()}
+    shares["rest"] = round(1 - sum(shares.values()), 4)
     return {
         "steps": int(steps),
         "seconds": round(seconds, 2),

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from tests.conftest import ROOT
 
-LAUNCHER = ROOT / "services" / "launcher"
+LAUNCHER = ROOT / "voxshape" / "launcher"
 TREE = ("protocol", "services", "benchmarks", "tests")
 
 

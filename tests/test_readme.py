@@ -94,22 +94,14 @@ COVERED: dict[str, tuple[str, ...]] = {
     "voxshape experiment paper --seeds 10 --workers 2": (
         "tests.test_experiment::test_experiment_paper_end_to_end",
     ),
-    "voxshape experiment paper --seeds 10 --workers 2 --out docs/results/paper": (
-        "tests.test_experiment::test_experiment_paper_end_to_end",
-    ),
-    "voxshape experiment paper --seeds 10 --first-seed 10 --workers 2"
-    " --out docs/results/paper-heldout": (
+    "voxshape experiment paper --seeds 10 --first-seed 30 --workers 2"
+    " --out docs/results/paper-seeds30": (
         "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
-    ),
-    "voxshape experiment pool docs/results/paper docs/results/paper-heldout"
-    " --out docs/results/paper-20seeds": (
-        f"{HERE}::test_pool_as_written_gives_the_published_results",
-        "tests.test_experiment::test_pooled_experiments_are_the_experiment_of_all_their_seeds",
     ),
     "voxshape experiment paper --tasks docs/results/other-maps/office.toml,"
     "docs/results/other-maps/corridor.toml,docs/results/new-maps/uturn.toml,"
-    "docs/results/new-maps/zigzag.toml --settings rl,rl+f,rl+t+f --seeds 10 --first-seed 10"
-    " --workers 2 --out docs/results/maps-heldout": (
+    "docs/results/new-maps/zigzag.toml --settings rl,rl+f,rl+t,rl+t+f --seeds 10 --first-seed 30"
+    " --workers 2 --out docs/results/maps-seeds30": (
         "tests.test_experiment::test_experiments_run_on_a_users_own_map_file",
         "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
     ),
@@ -215,7 +207,7 @@ def test_every_voxshape_command_of_the_docs_parses(page, command, tmp_path, monk
     from voxshape.cli import parser
 
     argv = shlex.split(command)[1:]
-    shutil.copy(ROOT / "services" / "world" / "maps" / "task1.toml", tmp_path / "my-map.toml")
+    shutil.copy(ROOT / "voxshape" / "world" / "maps" / "task1.toml", tmp_path / "my-map.toml")
     (tmp_path / "docs").symlink_to(ROOT / "docs")  # the maps the pages name, from the root
     monkeypatch.chdir(tmp_path)
     try:
@@ -275,23 +267,10 @@ def test_train_as_written(tmp_path):
 
 
 def test_map_as_written(tmp_path):
-    shutil.copy(ROOT / "services" / "world" / "maps" / "task3.toml", tmp_path / "my-map.toml")
+    shutil.copy(ROOT / "voxshape" / "world" / "maps" / "task3.toml", tmp_path / "my-map.toml")
     result = run(as_written("voxshape map my-map.toml --png map.png"), tmp_path)
     assert result.returncode == 0, result.stderr
     assert (tmp_path / "map.png").read_bytes()[:4] == b"\x89PNG"
-
-
-def test_pool_as_written_gives_the_published_results(tmp_path):
-    """Pooling the two published halves again gives the published 20 seeds, to the byte."""
-    results = ROOT / "docs" / "results"
-    for half in ("paper", "paper-heldout"):
-        shutil.copytree(results / half, tmp_path / "docs" / "results" / half)
-    command = next(c for c in readme_commands() if c.startswith("voxshape experiment pool"))
-    result = run(as_written(command), tmp_path)
-    assert result.returncode == 0, result.stderr
-    for name in ("results.json", "report.md"):
-        pooled = tmp_path / "docs" / "results" / "paper-20seeds" / name
-        assert pooled.read_text() == (results / "paper-20seeds" / name).read_text(), name
 
 
 def test_the_gymnasium_line_runs_in_a_fresh_interpreter(tmp_path):

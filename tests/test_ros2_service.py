@@ -280,7 +280,7 @@ def test_older_rmw_zenoh_twist_stamped_and_dds_robots(
 def test_a_waiting_robot_is_placed_by_a_teacher(spawn, router, session_id, learner_node, tmp_path):
     quick = tmp_path / "quick.toml"
     quick.write_text(
-        (ROOT / "services" / "world" / "maps" / "task1.toml")
+        (ROOT / "voxshape" / "world" / "maps" / "task1.toml")
         .read_text()
         .replace("timeout = 300.0", "timeout = 3.0")
     )
