@@ -12,6 +12,7 @@ import time
 from importlib.util import find_spec
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from benchmarks.speech import scoring
@@ -141,3 +142,18 @@ def test_an_english_only_model_refuses_another_language():
 def test_voxshape_speech_reports_a_bad_whisper_model_before_joining_the_bus(tmp_path):
     stderr = speech_refuses(tmp_path, "--engine", "whisper", "--model", str(tmp_path))
     assert "no model.bin, config.json, tokenizer.json in it" in stderr
+
+
+@needs_whisper
+@pytest.mark.parametrize("sentence", ["That was awful robot.", "Please halt now.", "Go backwards."])
+def test_a_phrase_written_inside_a_sentence_is_weighed_against_its_sound_alikes(
+    recognizer, sentence
+):
+    # inside a sentence a phrase is written in lower case, which Whisper may cut into other
+    # tokens than the capitalized phrase alone (" H" "alt" against " halt")
+    tokens = recognizer._tokens_of(" " + sentence)
+    log_p = np.full((len(tokens) + 1, recognizer._eot + 1), -10.0)
+    for k, token in enumerate(tokens):
+        log_p[k, token] = -0.1  # sure of every token it wrote
+    spotted = recognizer._spot(" " + sentence, tokens, log_p)
+    assert spotted is not None and spotted[1] > 0, spotted  # heard, and beats its alikes

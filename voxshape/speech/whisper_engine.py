@@ -172,8 +172,11 @@ class WhisperRecognizer:
             written: self._tokens_of(" " + written.capitalize())
             for written in self._phrases.values()
         }
-        alikes = SoundAlikes(cmudict()) if language == "en" else None
-        self._alikes = {p: self._alike_tokens(p, alikes) for p in self._tokens}
+        self._sound_alikes = SoundAlikes(cmudict()) if language == "en" else None
+        # (phrase, its tokens as written) -> its sound-alikes' (k, token), for that writing
+        self._alikes: dict[tuple[str, tuple[int, ...]], list[tuple[int, int]]] = {}
+        for phrase, tokens in self._tokens.items():  # built now, not at the first word
+            self._alike_tokens(phrase, tokens)
         self.weights = decision.WEIGHTS["whisper"]
         self._negations = [  # as single tokens: " No", " not"...
             t[0]
@@ -182,25 +185,29 @@ class WhisperRecognizer:
             if len(t) == 1
         ]
 
-    def _alike_tokens(self, phrase: str, alikes: SoundAlikes | None) -> list[tuple[int, int]]:
-        """(k, token): the phrase's sound-alikes that Whisper writes as its own tokens with
-        the k-th alone replaced (" Could" for " Good", " Go lift" for " Go left")."""
-        if alikes is None:
-            return []
-        mine, out = self._tokens[phrase], []
-        for text in alikes.of_phrase(tuple(phrase.casefold().split())):
+    def _alike_tokens(self, phrase: str, mine: list[int]) -> list[tuple[int, int]]:
+        """(k, token): the phrase's sound-alikes that Whisper writes as its own tokens, as
+        the phrase is written in `mine` (capitalized alone, or inside a sentence), with the
+        k-th alone replaced (" Could" for " Good", " Go lift" for " Go left")."""
+        key = (phrase, tuple(mine))
+        if key in self._alikes:
+            return self._alikes[key]
+        out, alikes = [], self._sound_alikes
+        capitalized = mine == self._tokens_of(" " + phrase.capitalize())
+        for text in alikes.of_phrase(tuple(phrase.casefold().split())) if alikes else ():
             if normalize(text) in self._phrases:
                 continue  # a phrase of the vocabulary is scored as one
-            theirs = self._tokens_of(" " + text.capitalize())
+            theirs = self._tokens_of(" " + (text.capitalize() if capitalized else text))
             if len(theirs) != len(mine):
                 continue
             differ = [k for k, (a, b) in enumerate(zip(mine, theirs, strict=True)) if a != b]
             if len(differ) == 1:
                 out.append((differ[0], theirs[differ[0]]))
-        return sorted(set(out))
+        self._alikes[key] = sorted(set(out))
+        return self._alikes[key]
 
     def has_sound_alikes(self, phrase: str) -> bool:
-        return bool(self._alikes.get(phrase))
+        return bool(self._alike_tokens(phrase, self._tokens[phrase]))
 
     def margins(self, scored: Scored, phrase: str) -> Margins:
         return scored.margins(phrase, self._meanings)
@@ -311,7 +318,7 @@ class WhisperRecognizer:
     def _alike_margin(self, phrase: str, tokens: list[int], log_p: np.ndarray) -> float:
         """min over the phrase's sound-alikes of log P(its token) - log P(theirs), where they
         differ; log_p: one row per token of the phrase."""
-        gaps = [log_p[k, tokens[k]] - log_p[k, t] for k, t in self._alikes[phrase]]
+        gaps = [log_p[k, tokens[k]] - log_p[k, t] for k, t in self._alike_tokens(phrase, tokens)]
         return float(min(gaps, default=decision.MARGIN_CAP))
 
     def _score(self, encoded: StorageView, phrases: list[str]) -> tuple[list[float], list[float]]:
