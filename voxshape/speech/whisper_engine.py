@@ -173,9 +173,8 @@ class WhisperRecognizer:
             for written in self._phrases.values()
         }
         self._sound_alikes = SoundAlikes(cmudict()) if language == "en" else None
-        # (phrase, its tokens as written) -> its sound-alikes' (k, token), for that writing
         self._alikes: dict[tuple[str, tuple[int, ...]], list[tuple[int, int]]] = {}
-        for phrase, tokens in self._tokens.items():  # built now, not at the first word
+        for phrase, tokens in self._tokens.items():  # sound-alikes per writing, built now
             self._alike_tokens(phrase, tokens)
         self.weights = decision.WEIGHTS["whisper"]
         self._negations = [  # as single tokens: " No", " not"...
