@@ -167,13 +167,10 @@ class DictatingPerson:
     def _heard(self, command: str) -> str | None:
         """The command as heard: itself, or with probability `noise` the opposite command,
         nothing, or another phrase (None when that is not a command)."""
-        p, c = self.profile, self.profile.confusion
+        p = self.profile
         if self.rng.random() >= p.noise:
             return command
-        error = self.rng.choices(
-            ("wrong_qualifier", "misheard", "dropped"),
-            weights=(c.wrong_qualifier, c.misheard, c.dropped),
-        )[0]
+        error = p.confusion.draw(self.rng)
         if error == "wrong_qualifier":
             return OPPOSITE.get(command, command)
         if error == "dropped":

@@ -86,6 +86,11 @@ class Confusion:
         if min(weights) < 0 or sum(weights) <= 0:
             raise ValueError("confusion weights must be >= 0 and not all 0")
 
+    def draw(self, rng: random.Random) -> str:
+        """The kind of an error made: "wrong_qualifier", "misheard" or "dropped"."""
+        kinds = ("wrong_qualifier", "misheard", "dropped")
+        return rng.choices(kinds, weights=(self.wrong_qualifier, self.misheard, self.dropped))[0]
+
 
 @dataclass(frozen=True)
 class TeacherProfile:
@@ -463,11 +468,7 @@ class SimulatedTeacher:
         heard_at = onset + p.speaking + p.recognition
         said, heard, confidence, error = self.phrase(meaning), None, 0.95, None
         if self.rng.random() < p.noise:
-            c = p.confusion
-            error = self.rng.choices(
-                ("wrong_qualifier", "misheard", "dropped"),
-                weights=(c.wrong_qualifier, c.misheard, c.dropped),
-            )[0]
+            error = p.confusion.draw(self.rng)
             if error == "wrong_qualifier":
                 said = self.phrase(OPPOSITE[meaning])
             elif error == "dropped":
