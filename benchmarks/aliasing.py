@@ -19,8 +19,8 @@ import math
 import numpy as np
 
 from voxshape.lab.experiment.dictation import dictate
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.features import representation
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.features import representation
 from voxshape.world.maps import load_map
 
 TRACES, SEED = 3, 10_000  # as the experiments dictate them (inprocess.initial_traces)

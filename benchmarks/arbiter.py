@@ -5,7 +5,7 @@
   observations stream in at 10 Hz (no speech recognition involved); p50, p90, p99 and the
   maximum, with the number of utterances timed and of those never answered;
 - credit accuracy: a scripted teacher with a given reaction delay, delay jitter and clock skew
-  judges a 10 Hz robot (voxshape/arbiter/scripted.py); the share of its judgements credited
+  judges a 10 Hz robot (voxshape/services/arbiter/scripted.py); the share of its judgements credited
   within one step of the step they reacted to, with the delay learnt (once it is) and with
   TAMER's fixed 0.2-0.8 s window, and the median error in steps; seeds are averaged.
 
@@ -27,10 +27,10 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import percentile, spread
-from voxshape.arbiter.scripted import ScriptedTeacher, observation, rehearse, utterance
 from voxshape.launcher import LoopbackSession
 from voxshape.protocol import CreditedFeedback
 from voxshape.runtime import Input, Node, Output, Presence
+from voxshape.services.arbiter.scripted import ScriptedTeacher, observation, rehearse, utterance
 
 ROBOT, TEACHER = "r1", "bench"
 OBS_EVERY = 0.1  # seconds between observations: a person-paced session (10 Hz)

@@ -25,13 +25,13 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from voxshape.arbiter.arbiter import Arbiter
 from voxshape.lab.experiment.inprocess import SETTINGS, RunSpec, run
 from voxshape.lab.experiment.published import TASKS
 from voxshape.lab.experiment.runner import run_all
-from voxshape.learner.sarsa import Learner
-from voxshape.sim.task import Simulation
-from voxshape.simteacher.teacher import SimulatedTeacher
+from voxshape.services.arbiter.arbiter import Arbiter
+from voxshape.services.learner.sarsa import Learner
+from voxshape.services.sim.task import Simulation
+from voxshape.services.simteacher.teacher import SimulatedTeacher
 
 CORES = {  # the methods the run calls of each core (none calls another's)
     "simulator": ((Simulation, "step"), (Simulation, "reset")),

@@ -1,4 +1,4 @@
-"""What initial traces change: the simulated teacher (voxshape/simteacher/) dictates a few
+"""What initial traces change: the simulated teacher (voxshape/services/simteacher/) dictates a few
 episodes along the map's shortest path (commands only, as a person would), then SARSA(lambda)
 trains with those traces replayed (before learning and every `replay_every` episodes) and
 without them.

@@ -32,14 +32,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks.common import checkout_environment
 from voxshape.launcher import LoopbackSession
-from voxshape.logger.eventlog import EventLogWriter, EventRecord, read_events
-from voxshape.logger.recording import Recorder
-from voxshape.logger.replay import close_stream, open_stream, render
-from voxshape.logger.run import RunDir, session_map
+from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, encode
 from voxshape.protocol.examples import example_messages
 from voxshape.runtime import Input, Node
-from voxshape.topology import ServiceSpec
+from voxshape.services.logger.eventlog import EventLogWriter, EventRecord, read_events
+from voxshape.services.logger.recording import Recorder
+from voxshape.services.logger.replay import close_stream, open_stream, render
+from voxshape.services.logger.run import RunDir, session_map
 
 
 def _logger(session: LoopbackSession, *extra: str) -> ServiceSpec:

@@ -16,7 +16,7 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 
 from voxshape.lab.experiment.inprocess import RunSpec, run
-from voxshape.learner.config import add_settings_argument
+from voxshape.services.learner.config import add_settings_argument
 
 
 def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:

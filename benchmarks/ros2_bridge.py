@@ -34,8 +34,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from benchmarks.common import is_max, percentile, spread
 from voxshape.launcher import LoopbackSession
 from voxshape.protocol import Action, Observation
-from voxshape.ros2 import msgs, rmw
 from voxshape.runtime import Input, Node, free_loopback_port
+from voxshape.services.ros2 import msgs, rmw
 
 SESSION = "bench-ros2"
 UNIT = 0.001  # m/s of speed per step number in the learner's answers

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from voxshape.launcher import LoopbackSession
 from voxshape.protocol import Action, Observation
 from voxshape.runtime import Input, Node, Output
-from voxshape.sim.task import SimConfig, Simulation
+from voxshape.services.sim.task import SimConfig, Simulation
 from voxshape.world.maps import load_map
 
 

@@ -8,10 +8,10 @@ import json
 import sys
 import time
 
+from voxshape.launcher.tools import jsonable
 from voxshape.protocol import to_wire
 from voxshape.protocol.examples import example_messages
 from voxshape.runtime import Node, Presence, add_bus_arguments, bus_config
-from voxshape.tools import jsonable
 
 
 def main() -> int:

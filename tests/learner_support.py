@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.sarsa import Learner
-from voxshape.learner.traces import TraceBook
 from voxshape.protocol import ACTION_NAMES
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.sarsa import Learner
+from voxshape.services.learner.traces import TraceBook
 
 FORWARD, LEFT = ACTION_NAMES.index("forward"), ACTION_NAMES.index("left")
 

@@ -9,7 +9,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from voxshape.logger.eventlog import EventLogWriter, EventRecord
 from voxshape.protocol import (
     Action,
     Credit,
@@ -24,6 +23,7 @@ from voxshape.protocol import (
     robot_key,
     teacher_key,
 )
+from voxshape.services.logger.eventlog import EventLogWriter, EventRecord
 from voxshape.world.maps import load_map
 
 TIMELINES = ("step", "episode", "sim_time", "wall_time")

@@ -1,6 +1,6 @@
 """A ROS 2 robot for tests, written against rmw_zenoh's design document (ros2/rmw_zenoh
 docs/design.md) and the `rosbags` package, not against voxshape's bridge (it imports none of
-voxshape/ros2): it plays the simulator's world (a map of voxshape/world), as a TurtleBot on
+voxshape/services/ros2): it plays the simulator's world (a map of voxshape/world), as a TurtleBot on
 rmw_zenoh would show it.
 
 - It is its own rmw_zenohd: a zenoh router listening on --listen, and a node (a peer

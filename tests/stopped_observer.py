@@ -16,8 +16,6 @@ from pathlib import Path
 from statistics import median
 
 from tests.conftest import VOXSHAPE, bus_args
-from voxshape.logger.decoding import Gap, Known, decode_record
-from voxshape.logger.eventlog import read_events
 from voxshape.protocol import (
     ACTION_NAMES,
     Action,
@@ -28,6 +26,8 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.runtime import Input, Node
+from voxshape.services.logger.decoding import Gap, Known, decode_record
+from voxshape.services.logger.eventlog import read_events
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 STOP_S = 10.0  # past zenoh's 10 s lease and the 5 s a router waits before closing a transport

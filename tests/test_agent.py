@@ -1,5 +1,5 @@
-"""The agent core (voxshape/learner/agent.py): every credited word reaches the learner through
-`Agent.take`, once; the robot asks "which way?" beside it, and an answer is matched by the
+"""The agent core (voxshape/services/learner/agent.py): every credited word reaches the learner
+through `Agent.take`, once; the robot asks "which way?" beside it, and an answer is matched by the
 question's id, within the protocol's one question lifetime."""
 
 from __future__ import annotations
@@ -12,15 +12,15 @@ from pathlib import Path
 import pytest
 
 from tests.learner_support import EXACT, FORWARD, LEFT, WALL_LEFT, WALL_RIGHT, P
-from voxshape.learner import checkpoint
-from voxshape.learner.agent import Agent
-from voxshape.learner.asking import Asker
-from voxshape.learner.online import OnlineLearner
-from voxshape.learner.sarsa import Learner
 from voxshape.protocol import QUESTION_OPEN_S, Credit, CreditedFeedback
+from voxshape.services.learner import checkpoint
+from voxshape.services.learner.agent import Agent
+from voxshape.services.learner.asking import Asker
+from voxshape.services.learner.online import OnlineLearner
+from voxshape.services.learner.sarsa import Learner
 from voxshape.world.robot import CONTROL_PERIOD_S
 
-LEARNER_PACKAGE = Path(__file__).parent.parent / "voxshape" / "learner"
+LEARNER_PACKAGE = Path(__file__).parent.parent / "voxshape" / "services" / "learner"
 
 
 @dataclass(frozen=True)

@@ -8,25 +8,6 @@ from dataclasses import replace
 
 import pytest
 
-from voxshape.arbiter.arbiter import Arbiter
-from voxshape.arbiter.clocks import SimulatorClock
-from voxshape.arbiter.config import (
-    ArbiterConfig,
-    ArbiterConfigError,
-    DelayLearning,
-    DelayWindow,
-    parse_window,
-)
-from voxshape.arbiter.credit import ReactionDelay, StepTimeline
-from voxshape.arbiter.hygiene import RecentIds
-from voxshape.arbiter.node import config_from
-from voxshape.arbiter.scripted import (
-    ScriptedTeacher,
-    observation,
-    rehearse,
-    sync_in_process,
-    utterance,
-)
 from voxshape.cli import parser as cli_parser
 from voxshape.protocol import (
     ClockProbe,
@@ -40,6 +21,25 @@ from voxshape.protocol.vocabulary import load_vocabulary, parse_vocabulary
 from voxshape.runtime import ConfigError
 from voxshape.runtime.clock import estimate_from
 from voxshape.runtime.limits import TokenBucket
+from voxshape.services.arbiter.arbiter import Arbiter
+from voxshape.services.arbiter.clocks import SimulatorClock
+from voxshape.services.arbiter.config import (
+    ArbiterConfig,
+    ArbiterConfigError,
+    DelayLearning,
+    DelayWindow,
+    parse_window,
+)
+from voxshape.services.arbiter.credit import ReactionDelay, StepTimeline
+from voxshape.services.arbiter.hygiene import RecentIds
+from voxshape.services.arbiter.node import config_from
+from voxshape.services.arbiter.scripted import (
+    ScriptedTeacher,
+    observation,
+    rehearse,
+    sync_in_process,
+    utterance,
+)
 
 T0 = 1_700_000_000.0  # wall time of step 0
 PERIOD = 0.1

@@ -13,7 +13,6 @@ import msgpack
 import pytest
 
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, wait_present
-from voxshape.arbiter.scripted import observation, utterance
 from voxshape.protocol import (
     CreditedFeedback,
     TeacherNotice,
@@ -24,6 +23,7 @@ from voxshape.protocol import (
 )
 from voxshape.runtime import Node
 from voxshape.runtime.clock import ClockSyncError, sync_clock
+from voxshape.services.arbiter.scripted import observation, utterance
 
 PERIOD = 0.05  # the fake simulator's step period
 SKEW = 5.0  # the teacher's clock is this far ahead

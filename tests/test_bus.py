@@ -16,10 +16,10 @@ import zenoh
 
 from tests.conftest import VOXSHAPE, bus_args, free_port, read_until
 from voxshape.launcher import router_command
+from voxshape.launcher.tools import jsonable
 from voxshape.protocol import MESSAGE_TYPES, session_keys, to_wire
 from voxshape.protocol.examples import example_messages
 from voxshape.runtime import BusError, Input, Node, Presence
-from voxshape.tools import jsonable
 
 ENVELOPE = ("sender", "sent_at")
 

@@ -20,12 +20,12 @@ from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_whisper import needs_whisper
 from voxshape.protocol import Observation, robot_key
 from voxshape.runtime import Node
-from voxshape.speech import decision
-from voxshape.speech.cascade import CascadeRecognizer
-from voxshape.speech.decision import Margins
-from voxshape.speech.engines import open_recognizer
-from voxshape.speech.recognizer import Recognition
-from voxshape.speech.whisper_engine import Scored
+from voxshape.services.speech import decision
+from voxshape.services.speech.cascade import CascadeRecognizer
+from voxshape.services.speech.decision import Margins
+from voxshape.services.speech.engines import open_recognizer
+from voxshape.services.speech.recognizer import Recognition
+from voxshape.services.speech.whisper_engine import Scored
 
 CLIPS = {c.path.name: c for c in scoring.load_clips(FIXTURES)}
 AUDIO = np.zeros(16000, dtype=np.int16)

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 
 from tests.learner_support import ADVISED, EXACT, run_episode
-from voxshape.learner import checkpoint
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.sarsa import Learner
-from voxshape.learner.traces import TraceBook
+from voxshape.services.learner import checkpoint
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.sarsa import Learner
+from voxshape.services.learner.traces import TraceBook
 
 PLACED = replace(ADVISED, potential="straight_line", advice_place_tilings=8)
 

@@ -19,7 +19,7 @@ from tests.conftest import ROOT, VOXSHAPE, free_port, read_until
 from voxshape.deploy.access import find_access_file, load_access
 from voxshape.deploy.certs import make_all, make_certificate
 from voxshape.launcher import router_command
-from voxshape.topology import load_topology, local_variables
+from voxshape.launcher.topology import load_topology, local_variables
 
 COMPOSE = ROOT / "compose.yaml"
 PROFILES = ("simteacher", "viewer")

@@ -17,6 +17,7 @@ import pytest
 from tests.conftest import ROOT, VOXSHAPE, bus_args, collect, free_port, wait_present
 from voxshape.cli import main
 from voxshape.deploy.access import ROLES, User, access_control
+from voxshape.launcher.tools import unfed_inputs
 from voxshape.protocol import (
     CreditedFeedback,
     HelpAnswer,
@@ -43,7 +44,6 @@ from voxshape.protocol.dataflow import (
 )
 from voxshape.protocol.keys import SCOPES
 from voxshape.runtime import Input, Node
-from voxshape.tools import unfed_inputs
 
 ARCHITECTURE = ROOT / "docs" / "architecture.md"
 BEGIN = "<!-- dataflow:begin"
@@ -315,18 +315,19 @@ def test_the_flows_say_what_is_kept_and_recovered_and_nodes_follow(client_config
         assert feedback.kept and not notice.kept  # as its topic says, or as told
 
 
-# node role -> the module whose docstring names its row (the learner's: voxshape/learner/node.py)
+# node role -> the module whose docstring names its row (the learner's:
+# voxshape/services/learner/node.py)
 NODE_MODULES = {
-    "sim": "voxshape.sim.node",
-    "ros2": "voxshape.ros2.node",
-    "learner": "voxshape.learner.node",
-    "arbiter": "voxshape.arbiter.node",
-    "speech": "voxshape.speech.node",
-    "teacher": "voxshape.teacher.node",
-    "simteacher": "voxshape.simteacher.node",
-    "web": "voxshape.web.node",
-    "logger": "voxshape.logger.node",
-    "router": "voxshape.router",
+    "sim": "voxshape.services.sim.node",
+    "ros2": "voxshape.services.ros2.node",
+    "learner": "voxshape.services.learner.node",
+    "arbiter": "voxshape.services.arbiter.node",
+    "speech": "voxshape.services.speech.node",
+    "teacher": "voxshape.services.teacher.node",
+    "simteacher": "voxshape.services.simteacher.node",
+    "web": "voxshape.services.web.node",
+    "logger": "voxshape.services.logger.node",
+    "router": "voxshape.deploy.router",
 }
 
 

@@ -8,9 +8,9 @@ import pytest
 
 from voxshape.protocol import load_vocabulary
 from voxshape.protocol.vocabulary import written_phrases
-from voxshape.speech import decision
-from voxshape.speech.decision import Margins
-from voxshape.speech.sound_alikes import SoundAlikes, cmudict, one_edit
+from voxshape.services.speech import decision
+from voxshape.services.speech.decision import Margins
+from voxshape.services.speech.sound_alikes import SoundAlikes, cmudict, one_edit
 
 PHRASES = written_phrases(load_vocabulary(), "en")
 

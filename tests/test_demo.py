@@ -18,8 +18,8 @@ from voxshape.cli import parser
 from voxshape.lab.demo import FINAL_WAIT_S, StallWatch, demo_table, task_title, watch_of
 from voxshape.lab.report.counts import count_episodes
 from voxshape.lab.report.summary import RobotSummary
-from voxshape.learner.config import LearnerConfig
 from voxshape.protocol import EpisodeEvent, TeachingStats
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.world.maps import load_map
 
 DEMO_TIMEOUT_S = 600  # measured: 28 episodes in 97 s at 20x (task 1, 2 loaded cores)

@@ -10,10 +10,10 @@ import pytest
 
 from voxshape.lab.experiment.dictation import dictate
 from voxshape.lab.experiment.inprocess import RunSpec, run
-from voxshape.learner.config import LearnerConfig
 from voxshape.protocol.vocabulary import load_vocabulary
-from voxshape.simteacher.dictating import DictatingPerson, DictationProfile
-from voxshape.simteacher.teacher import GeodesicDistance
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.simteacher.dictating import DictatingPerson, DictationProfile
+from voxshape.services.simteacher.teacher import GeodesicDistance
 from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()

@@ -6,8 +6,16 @@ from __future__ import annotations
 import msgpack
 import pytest
 
-from voxshape.logger.decoding import Known, PresenceChange, Rejected, Unknown, decode_record
-from voxshape.logger.eventlog import (
+from voxshape.protocol import encode, robot_key
+from voxshape.protocol.examples import example_messages
+from voxshape.services.logger.decoding import (
+    Known,
+    PresenceChange,
+    Rejected,
+    Unknown,
+    decode_record,
+)
+from voxshape.services.logger.eventlog import (
     EventLogError,
     EventLogReader,
     EventLogWriter,
@@ -15,9 +23,7 @@ from voxshape.logger.eventlog import (
     pack_record,
     read_events,
 )
-from voxshape.logger.run import RunDir, RunError
-from voxshape.protocol import encode, robot_key
-from voxshape.protocol.examples import example_messages
+from voxshape.services.logger.run import RunDir, RunError
 
 
 def records(session: str, n: int) -> list[EventRecord]:

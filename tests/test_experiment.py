@@ -17,8 +17,8 @@ from voxshape.lab.experiment.paper_report import report
 from voxshape.lab.experiment.published import PAPER_AVERAGE, paper_average
 from voxshape.lab.experiment.summary import summarize
 from voxshape.runtime.settings import SettingsError, replaced
-from voxshape.sim.task import Simulation
-from voxshape.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
+from voxshape.services.sim.task import Simulation
+from voxshape.services.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
 from voxshape.world.maps import TASKS
 
 

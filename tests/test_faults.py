@@ -37,7 +37,6 @@ from hypothesis import strategies as st
 from tests import stopped_observer as so
 from tests.conftest import VOXSHAPE, bus_args, collect, free_port, wait_for_port, wait_present
 from tests.strategies import messages
-from voxshape.arbiter.scripted import utterance
 from voxshape.launcher import router_command
 from voxshape.protocol import (
     MESSAGE_TYPES,
@@ -53,6 +52,7 @@ from voxshape.protocol import (
     to_wire,
 )
 from voxshape.runtime import Input, Node, bus_config
+from voxshape.services.arbiter.scripted import utterance
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 RTF = 5.0  # the paced simulator's speed: 50 steps/s

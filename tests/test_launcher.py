@@ -24,10 +24,10 @@ from voxshape.launcher import (
     without_simulator,
 )
 from voxshape.launcher.session import BUS_CLOSE_S
-from voxshape.logger.run import RunError
+from voxshape.launcher.topology import TopologyError, interpolate, load_topology, local_variables
 from voxshape.protocol import CreditedFeedback, LearningSummary
 from voxshape.runtime import BusConfig, Input, Node, bus_config
-from voxshape.topology import TopologyError, interpolate, load_topology, local_variables
+from voxshape.services.logger.run import RunError
 
 COMPOSE = ROOT / "compose.yaml"
 
@@ -260,7 +260,7 @@ def test_a_service_prints_its_threads_on_sigusr1_and_goes_on(spawn, session_id):
     router = spawn(argv, text=True, stderr=subprocess.STDOUT)
     wait_for_port(port)
     router.send_signal(signal.SIGUSR1)
-    lines = read_until(router, r"voxshape/router.py\", line \d+ in run$")  # its own loop
+    lines = read_until(router, r"voxshape/deploy/router.py\", line \d+ in run$")  # its own loop
     assert any("most recent call first" in line for line in lines), lines
     time.sleep(0.5)
     assert router.poll() is None, "SIGUSR1 stopped the service"

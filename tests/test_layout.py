@@ -1,7 +1,8 @@
 """The floors of docs/architecture.md#layout, checked from the imports (absolute and relative):
-voxshape.protocol imports nothing else of voxshape; the shared floor (runtime, world, deploy,
-recognition, teaching) and each room (one per node) import only themselves, the shared floor
-and the protocol; the top (the launcher, the lab, the command line) may import any of them."""
+voxshape.protocol imports nothing else of voxshape; voxshape.runtime only the protocol; the
+shared floor (world, deploy, recognition, teaching) only itself, the runtime and the protocol;
+each service (voxshape/services/<name>, one per process of compose.yaml) only itself and the
+floors below; the top (the launcher, the lab, the command line) may import any of them."""
 
 from __future__ import annotations
 
@@ -16,26 +17,29 @@ import pytest
 from tests.conftest import ROOT
 
 PACKAGE = ROOT / "voxshape"
-SHARED = {"runtime", "world", "deploy", "recognition", "teaching"}
-ROOMS = {"arbiter", "learner", "logger", "ros2", "sim", "speech", "teacher", "web", "simteacher"}
-TOP = {"launcher", "lab"}  # put rooms together: may import any of them
-TOP_MODULES = {"__init__", "__main__", "cli", "router", "tools", "topology"}
+SERVICES = PACKAGE / "services"
+SHARED = {"world", "deploy", "recognition", "teaching"}
+SERVICE_NAMES = {
+    "arbiter", "learner", "logger", "ros2", "sim", "speech", "teacher", "web", "simteacher",
+}  # fmt: skip
+TOP = {"launcher", "lab"}  # put services together: may import any of them
+TOP_MODULES = {"__init__", "__main__", "cli"}
 
 
-def package_of(path: Path) -> list[str]:
-    """The package a module's relative imports start from: `voxshape/speech/node.py` ->
-    voxshape.speech, `voxshape/speech/__init__.py` -> voxshape.speech."""
-    parts = path.relative_to(ROOT).with_suffix("").parts
+def package_of(path: Path, root: Path = ROOT) -> list[str]:
+    """The package a module's relative imports start from: `voxshape/services/speech/node.py`
+    -> voxshape.services.speech, `voxshape/services/speech/__init__.py` -> the same."""
+    parts = path.relative_to(root).with_suffix("").parts
     return list(parts[:-1])
 
 
-def imports(path: Path) -> set[str]:
-    return imported(path.read_text(encoding="utf-8"), package_of(path))
+def imports(path: Path, root: Path = ROOT) -> set[str]:
+    return imported(path.read_text(encoding="utf-8"), package_of(path, root))
 
 
 def imported(source: str, package: list[str]) -> set[str]:
     """The modules `source` imports, relative imports made absolute from `package` (`from .
-    import mock` in voxshape/speech/node.py is voxshape.speech.mock)."""
+    import mock` in voxshape/services/speech/node.py is voxshape.services.speech.mock)."""
     found: set[str] = set()
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.ImportFrom):
@@ -49,33 +53,64 @@ def imported(source: str, package: list[str]) -> set[str]:
     return found
 
 
-def wrong_imports(folder: Path, allowed: set[str]) -> list[str]:
-    """`folder`'s imports of voxshape.X outside `allowed` (X names a package or module)."""
+def wrong_imports(folder: Path, allowed: set[str], root: Path = ROOT) -> list[str]:
+    """`folder`'s imports of voxshape.X outside `allowed` (X names a package or module; a
+    dotted X, such as services.sim, allows that subpackage alone)."""
     wrong = []
     for path in sorted(folder.rglob("*.py")):
-        for module in sorted(imports(path)):
-            parts = module.split(".")
-            if parts[0] == "voxshape" and len(parts) > 1 and parts[1] not in allowed:
-                wrong.append(f"{path.relative_to(ROOT)} imports {module}")
+        for module in sorted(imports(path, root)):
+            parts = module.split(".")[1:] if module.startswith("voxshape.") else []
+            if parts and not any(parts[: a.count(".") + 1] == a.split(".") for a in allowed):
+                wrong.append(f"{path.relative_to(root)} imports {module}")
     return wrong
 
 
-def test_rooms_stand_on_the_shared_floor_only():
-    wrong = []
-    for package in sorted(SHARED | ROOMS):
-        wrong += wrong_imports(PACKAGE / package, {package, "protocol"} | SHARED)
+def floor_violations(root: Path = ROOT) -> list[str]:
+    """Every import under root/voxshape that reaches above its floor: protocol < runtime <
+    the shared floor < each service < the top."""
+    package = root / "voxshape"
+    below_services = {"protocol", "runtime"} | SHARED
+    wrong = wrong_imports(package / "protocol", {"protocol"}, root)
+    wrong += wrong_imports(package / "runtime", {"protocol", "runtime"}, root)
+    for name in sorted(SHARED):
+        wrong += wrong_imports(package / name, {name, "protocol", "runtime"}, root)
+    for name in sorted(SERVICE_NAMES):
+        allowed = below_services | {f"services.{name}"}
+        wrong += wrong_imports(package / "services" / name, allowed, root)
+    return wrong
+
+
+def test_every_floor_imports_only_itself_and_the_floors_below():
+    wrong = floor_violations()
     assert not wrong, "\n".join(wrong)
 
 
 def test_every_package_and_module_is_on_a_floor():
     """A new package (or one left out, as ros2 once was) must be placed before it is checked."""
     packages = {p.parent.name for p in PACKAGE.glob("*/__init__.py")}
-    assert packages == {"protocol"} | SHARED | ROOMS | TOP
+    assert packages == {"protocol", "runtime", "services"} | SHARED | TOP
+    assert {p.parent.name for p in SERVICES.glob("*/__init__.py")} == SERVICE_NAMES
+    assert {p.stem for p in SERVICES.glob("*.py")} == {"__init__"}
     assert {p.stem for p in PACKAGE.glob("*.py")} == TOP_MODULES
 
 
-def test_the_protocol_imports_nothing_else_of_voxshape():
-    assert not wrong_imports(PACKAGE / "protocol", {"protocol"})
+@pytest.mark.parametrize(
+    ("where", "source"),
+    [
+        ("runtime/node.py", "from voxshape.teaching.session import join"),
+        ("world/maps.py", "from voxshape.services.sim.task import Simulation"),
+        ("services/speech/node.py", "from voxshape.services.arbiter import config"),
+        ("services/speech/node.py", "from ..arbiter import config"),
+        ("protocol/keys.py", "import voxshape.runtime"),
+        ("services/learner/sarsa.py", "from voxshape.lab.experiment import oracle"),
+    ],
+)
+def test_an_import_above_its_floor_is_caught(tmp_path, where, source):
+    """What the floors test finds in a tree with one import planted above its floor."""
+    planted = tmp_path / "voxshape" / where
+    planted.parent.mkdir(parents=True)
+    planted.write_text(source + "\n")
+    assert len(floor_violations(tmp_path)) == 1
 
 
 def test_only_voxshape_is_installed_at_the_top_level(tmp_path):
@@ -90,30 +125,22 @@ def test_only_voxshape_is_installed_at_the_top_level(tmp_path):
     assert found.stdout.strip() == "['voxshape']"
 
 
+SPEECH = "voxshape/services/speech"
+
+
 @pytest.mark.parametrize(
     ("where", "source", "module"),
     [
-        ("voxshape/speech/node.py", "from . import mock", "voxshape.speech.mock"),
-        ("voxshape/speech/node.py", "from .mock import X", "voxshape.speech.mock"),
-        ("voxshape/speech/node.py", "from ..arbiter import config", "voxshape.arbiter"),
-        ("voxshape/lab/experiment/paper.py", "from ...sim.task import X", "voxshape.sim.task"),
-        ("voxshape/speech/__init__.py", "from .mock import X", "voxshape.speech.mock"),
-        ("voxshape/protocol/keys.py", "import voxshape.sim.node as n", "voxshape.sim.node"),
+        (f"{SPEECH}/node.py", "from . import mock", "voxshape.services.speech.mock"),
+        (f"{SPEECH}/node.py", "from .mock import X", "voxshape.services.speech.mock"),
+        (f"{SPEECH}/node.py", "from ..arbiter import config", "voxshape.services.arbiter"),
+        (f"{SPEECH}/__init__.py", "from .mock import X", "voxshape.services.speech.mock"),
+        ("voxshape/lab/experiment/paper.py", "from ...services import sim", "voxshape.services"),
+        ("voxshape/protocol/keys.py", "import voxshape.services.sim as n", "voxshape.services.sim"),
     ],
 )
 def test_relative_imports_are_read_as_the_modules_they_name(where, source, module):
     assert module in imported(source, package_of(ROOT / where))
-
-
-def test_a_relative_import_across_services_is_caught(tmp_path, monkeypatch):
-    """What the floors test finds in a service that imports another relatively."""
-    monkeypatch.setattr("tests.test_layout.ROOT", tmp_path)
-    speech = tmp_path / "voxshape" / "speech"
-    speech.mkdir(parents=True)
-    (speech / "node.py").write_text("from ..arbiter.config import ArbiterConfig\n")
-    assert wrong_imports(speech, {"speech"}) == [
-        "voxshape/speech/node.py imports voxshape.arbiter.config"
-    ]
 
 
 # The functions of voxshape/protocol/keys.py that build a key of the bus.

@@ -21,16 +21,16 @@ from tests.learner_support import (
     run_episode,
 )
 from voxshape.lab.experiment.inprocess import RunSpec, run
-from voxshape.learner import node as learner_node
-from voxshape.learner.actions import ActionSet
-from voxshape.learner.config import LearnerConfig, with_settings
-from voxshape.learner.features import pose_tiles
-from voxshape.learner.sarsa import Learner
-from voxshape.learner.states import CLEAR, StateSpace
-from voxshape.learner.traces import TraceBook
 from voxshape.protocol import ACTION_NAMES, ProtocolError
 from voxshape.runtime import ConfigError
 from voxshape.runtime.settings import SettingsError
+from voxshape.services.learner import node as learner_node
+from voxshape.services.learner.actions import ActionSet
+from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.learner.features import pose_tiles
+from voxshape.services.learner.sarsa import Learner
+from voxshape.services.learner.states import CLEAR, StateSpace
+from voxshape.services.learner.traces import TraceBook
 
 
 def test_the_update_against_a_hand_computed_two_step_example():
@@ -423,7 +423,7 @@ def test_the_summary_reports_the_episode_return():
 
 
 def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
-    from voxshape.learner.convergence import Convergence, EpisodeResult
+    from voxshape.services.learner.convergence import Convergence, EpisodeResult
 
     progress = Convergence(LearnerConfig(converge_episodes=3, converge_margin=0.25))
     history = [
@@ -444,7 +444,7 @@ def test_convergence_is_k_steady_goal_episodes_and_time_is_robot_time():
 
 
 def test_three_equally_slow_goal_episodes_are_not_convergence_on_a_map():
-    from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
+    from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
     from voxshape.world.maps import load_map
 
     config = LearnerConfig(converge_episodes=3, converge_slack=2.5)

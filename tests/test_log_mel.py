@@ -1,4 +1,4 @@
-"""voxshape/speech/log_mel.py (Whisper's input) against an independent implementation:
+"""voxshape/services/speech/log_mel.py (Whisper's input) against an independent implementation:
 librosa's STFT and Slaney Mel filters, whose values tests/fixtures/speech/
 make_log_mel_reference.py made (the command is in its docstring). A wrong window, padding,
 hop, Mel scale or filter normalization is off by 0.02 to 0.6, or a frame, where these agree
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import ROOT
-from voxshape.speech.log_mel import log_mel, mel_filters
+from voxshape.services.speech.log_mel import log_mel, mel_filters
 
 REFERENCE = ROOT / "tests" / "fixtures" / "speech" / "log_mel_reference.npz"
 

@@ -26,13 +26,13 @@ from voxshape.cli import main
 from voxshape.lab.report import write_report
 from voxshape.lab.report.pictures import moving_average
 from voxshape.lab.report.summary import summarize
-from voxshape.logger.decoding import decode_record
-from voxshape.logger.eventlog import EventLogWriter, EventRecord, pack_gap, read_events
-from voxshape.logger.recording import Recorder
-from voxshape.logger.replay import ScanThinning, close_stream, open_stream, render
-from voxshape.logger.run import RunDir, describe_session, session_map, write_session_info
 from voxshape.protocol import encode
 from voxshape.protocol.examples import example_messages
+from voxshape.services.logger.decoding import decode_record
+from voxshape.services.logger.eventlog import EventLogWriter, EventRecord, pack_gap, read_events
+from voxshape.services.logger.recording import Recorder
+from voxshape.services.logger.replay import ScanThinning, close_stream, open_stream, render
+from voxshape.services.logger.run import RunDir, describe_session, session_map, write_session_info
 
 
 @pytest.fixture
@@ -255,7 +255,7 @@ def test_a_following_renderer_keeps_no_index_of_every_chunk(tmp_path, monkeypatc
     import rerun as rr
     from rerun.error_utils import RerunWarning
 
-    from voxshape.logger import replay
+    from voxshape.services.logger import replay
 
     stream, _ = open_stream("s1", tmp_path / "live.rrd", None, footer=False)
     for k in range(50):

@@ -13,13 +13,13 @@ from pathlib import Path
 
 from tests.conftest import VOXSHAPE, bus_args, read_until
 from tests.logger_support import no_analytics, rows, scripted_session
-from voxshape.logger.decoding import Known, decode_record
-from voxshape.logger.eventlog import read_events
-from voxshape.logger.recording import Recorder
-from voxshape.logger.replay import close_stream, open_stream, render
-from voxshape.logger.run import RunDir, session_map
 from voxshape.protocol import EpisodeEvent, LearningSummary, Observation, decode, robot_key
 from voxshape.runtime import Input, Node
+from voxshape.services.logger.decoding import Known, decode_record
+from voxshape.services.logger.eventlog import read_events
+from voxshape.services.logger.recording import Recorder
+from voxshape.services.logger.replay import close_stream, open_stream, render
+from voxshape.services.logger.run import RunDir, session_map
 
 
 def start_logger(spawn, router, session_id, cwd: Path, *extra: str):
@@ -42,7 +42,7 @@ def start_logger(spawn, router, session_id, cwd: Path, *extra: str):
     seen: list[str] = []
     line = read_until(proc, r"renderer_pid=\d+", stream="stderr", seen=seen)[-1]
     renderer = int(re.search(r"renderer_pid=(\d+)", line).group(1))
-    read_until(proc, r"voxshape.logger: rendering ", stream="stderr", seen=seen)
+    read_until(proc, r"voxshape.services.logger: rendering ", stream="stderr", seen=seen)
     return proc, renderer, seen
 
 

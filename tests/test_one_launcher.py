@@ -4,7 +4,7 @@ A session's router comes from compose.yaml through LocalSession (`voxshape up`, 
 LoopbackSession (the benchmarks, the experiments, the test harnesses); a test of the router
 itself (secured, meshed, killed) takes its command line from `router_command()`. Checked from
 the AST of every .py file of the tree: no list, tuple or call's arguments outside the launcher
-spell the command of `voxshape router` (or run `python -m voxshape.router`).
+spell the command of `voxshape router` (or run `python -m voxshape.deploy.router`).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def _is_flag(e: ast.expr | None) -> bool:
 
 def router_commands(source: str) -> list[int]:
     """The lines where `source` spells a router's command line: "router" after voxshape, or
-    as a command (not a flag's value) followed by flags; "voxshape.router" after "-m"."""
+    as a command (not a flag's value) followed by flags; "voxshape.deploy.router" after "-m"."""
     found = []
     for node in ast.walk(ast.parse(source)):
         if isinstance(node, ast.List | ast.Tuple):
@@ -66,7 +66,7 @@ def router_commands(source: str) -> list[int]:
                     (before is not None and _names_voxshape(before))
                     or (_is_flag(after) and not _is_flag(before))
                 )
-            ) or (_text(e) == "voxshape.router" and _text(before) == "-m"):
+            ) or (_text(e) == "voxshape.deploy.router" and _text(before) == "-m"):
                 found.append(e.lineno)
     return sorted(set(found))
 
@@ -103,7 +103,7 @@ def test_the_check_finds_each_way_a_router_was_spawned_by_hand():
         'spawn([*(VOXSHAPE, "router", "--session", s, "--node", "router"), *("--listen", e)])',
         'ServiceSpec("router", ("voxshape", "router"), env, (), ())',
         'pexpect.spawn(VOXSHAPE, ["router", "--secrets", str(secrets)], env=env)',
-        'subprocess.Popen([sys.executable, "-m", "voxshape.router", "--listen", e])',
+        'subprocess.Popen([sys.executable, "-m", "voxshape.deploy.router", "--listen", e])',
     ]
     for source in spawned:
         assert router_commands(source), source
@@ -112,7 +112,7 @@ def test_the_check_finds_each_way_a_router_was_spawned_by_hand():
         'Node("router", bus)',
         '[VOXSHAPE, "sim", "--node", "router", "--listen", endpoint]',
         '{"mode": "router", "listen": {"endpoints": [endpoint]}}',
-        'COMMANDS = {"router": ("run the router", "voxshape.router", "add_arguments", "run")}',
+        'COMMANDS = {"router": ("run it", "voxshape.deploy.router", "add_arguments", "run")}',
     ]
     for source in others:
         assert not router_commands(source), source

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from tests.learner_support import ADVISED, EXACT, FORWARD, WALL_LEFT, P
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.lookahead import reachable
-from voxshape.learner.potential import StraightLine
-from voxshape.learner.sarsa import Learner
 from voxshape.protocol import ACTION_NAMES
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.lookahead import reachable
+from voxshape.services.learner.potential import StraightLine
+from voxshape.services.learner.sarsa import Learner
 
 STRAIGHT = replace(EXACT, potential="straight_line", potential_scale=10.0)
 CLEAR = (8.0,) * 180  # the laser sees nothing within 8 m

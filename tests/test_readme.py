@@ -20,8 +20,8 @@ import pytest
 
 from tests.conftest import ROOT, VOXSHAPE
 from tests.logger_support import scripted_session, write_script
-from voxshape.logger.run import RunDir, describe_session, write_session_info
-from voxshape.sim import gym_env
+from voxshape.services.logger.run import RunDir, describe_session, write_session_info
+from voxshape.services.sim import gym_env
 
 README = ROOT / "README.md"
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)

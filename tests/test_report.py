@@ -14,11 +14,11 @@ from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import count_episodes
 from voxshape.lab.report.pictures import pick_episodes, robust_limits
 from voxshape.lab.report.summary import RobotSummary, summarize
-from voxshape.learner.config import LearnerConfig, with_settings
-from voxshape.logger.eventlog import read_events
-from voxshape.logger.run import RunDir, RunError, describe_session, write_session_info
 from voxshape.protocol import EpisodeEvent, TeachingStats
 from voxshape.runtime.settings import write_settings
+from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.logger.eventlog import read_events
+from voxshape.services.logger.run import RunDir, RunError, describe_session, write_session_info
 from voxshape.world.maps import load_map
 
 

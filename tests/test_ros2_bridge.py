@@ -11,12 +11,12 @@ import pytest
 
 from tests.ros2_robot import cast as ray_cast
 from voxshape.protocol import Action, EpisodeEvent, Observation, Placed
-from voxshape.ros2 import msgs
-from voxshape.ros2.bridge import Bridge, BridgeConfig, InsideRadius
-from voxshape.ros2.contact import Contact, ContactConfig
-from voxshape.ros2.episodes import BridgePercept, EpisodeRules, Episodes
-from voxshape.ros2.homing import HomingConfig, homing_command
-from voxshape.ros2.perception import (
+from voxshape.services.ros2 import msgs
+from voxshape.services.ros2.bridge import Bridge, BridgeConfig, InsideRadius
+from voxshape.services.ros2.contact import Contact, ContactConfig
+from voxshape.services.ros2.episodes import BridgePercept, EpisodeRules, Episodes
+from voxshape.services.ros2.homing import HomingConfig, homing_command
+from voxshape.services.ros2.perception import (
     AROUND,
     Anchor,
     ScanGeometry,
@@ -26,8 +26,8 @@ from voxshape.ros2.perception import (
     sonar_from_scan,
     yaw_of,
 )
-from voxshape.ros2.safety import STOP, Limits, Safety
-from voxshape.sim.task import Simulation
+from voxshape.services.ros2.safety import STOP, Limits, Safety
+from voxshape.services.sim.task import Simulation
 from voxshape.world.maps import load_map
 from voxshape.world.robot import RobotModel
 from voxshape.world.task import Goal, Rewards

@@ -13,8 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 
-from voxshape.ros2 import msgs
-from voxshape.ros2.cdr import CdrError
+from voxshape.services.ros2 import msgs
+from voxshape.services.ros2.cdr import CdrError
 
 TYPES = get_typestore(Stores.ROS2_JAZZY)
 T = TYPES.types

@@ -15,11 +15,11 @@ import pytest
 from tests.conftest import ROOT, free_port
 from voxshape.lab.demo import ConvergenceWatch
 from voxshape.launcher import LoopbackSession, ServiceDied
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.convergence import convergence_on
+from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, TeachingStats
 from voxshape.runtime import Input
-from voxshape.topology import ServiceSpec
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.convergence import convergence_on
 from voxshape.world.maps import load_map
 
 RTF = 10  # 20x overloaded a 2-core machine running the suite: its robot fell behind

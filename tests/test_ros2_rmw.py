@@ -12,8 +12,8 @@ from hypothesis import given
 from hypothesis import strategies as st
 from zenoh.ext import Int64, z_serialize
 
-from voxshape.ros2 import msgs, rmw
-from voxshape.ros2.rmw import Attachment, RmwError
+from voxshape.services.ros2 import msgs, rmw
+from voxshape.services.ros2.rmw import Attachment, RmwError
 
 # docs/design.md uses std_msgs/String and example_interfaces/AddTwoInts in its examples.
 STRING = msgs.RosType(

@@ -17,7 +17,6 @@ import yaml
 
 from tests.conftest import ROOT, VOXSHAPE
 from voxshape.cli import COMMANDS, parser
-from voxshape.learner.config import LearnerConfig, with_settings
 from voxshape.runtime.settings import (
     SETTINGS_FILE,
     ConfigError,
@@ -32,6 +31,7 @@ from voxshape.runtime.settings import (
     replaced,
     write_settings,
 )
+from voxshape.services.learner.config import LearnerConfig, with_settings
 
 
 @dataclass(frozen=True)

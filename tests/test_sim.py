@@ -13,11 +13,11 @@ import pybullet as pb
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-from voxshape.learner.config import LearnerConfig
-from voxshape.sim.gym_env import NavigationEnv
-from voxshape.sim.sensors import Sensors
-from voxshape.sim.task import Rewards, SimConfig, Simulation
-from voxshape.sim.world import SENSOR_HEIGHT, World
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.sim.gym_env import NavigationEnv
+from voxshape.services.sim.sensors import Sensors
+from voxshape.services.sim.task import Rewards, SimConfig, Simulation
+from voxshape.services.sim.world import SENSOR_HEIGHT, World
 from voxshape.world.maps import TASKS, MapError, Pose, load_map
 from voxshape.world.robot import RobotModel
 
@@ -257,7 +257,7 @@ def test_compiled_scan_equals_the_numpy_reference_to_the_bit(task):
 
 @pytest.mark.parametrize("task", sorted(TASKS))
 def test_footprint_clearance_is_the_distance_from_the_robots_outline(task):
-    from voxshape.sim.planar import footprint_clearance
+    from voxshape.services.sim.planar import footprint_clearance
 
     m = load_map(task)
     rng = np.random.default_rng(int(task))

@@ -9,7 +9,7 @@ from dataclasses import replace
 import pytest
 
 from voxshape.protocol.vocabulary import load_vocabulary
-from voxshape.simteacher.teacher import (
+from voxshape.services.simteacher.teacher import (
     PERSON,
     PROFILES,
     TIRELESS,
@@ -123,9 +123,7 @@ def test_the_budget_refills_with_robot_time_not_in_the_pauses_between_episodes()
     # a new episode after a long pause (300 s of the session's clock, no robot time): bumps
     # again, and the budget is as empty as it was
     pause = 300.0
-    said = [
-        t.watch(look(pause + s, 1.0, 1.0, episode=1, collided=s % 2 == 1)) for s in range(10)
-    ]
+    said = [t.watch(look(pause + s, 1.0, 1.0, episode=1, collided=s % 2 == 1)) for s in range(10)]
     assert sum(map(len, said)) == 0  # 10 robot seconds: 0.67 of a word refilled
 
 
@@ -256,7 +254,7 @@ def test_seeded_and_deterministic():
 def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
     from voxshape.cli import parser
     from voxshape.runtime import ConfigError
-    from voxshape.simteacher.node import profile_from
+    from voxshape.services.simteacher.node import profile_from
 
     person = profile_from(parser().parse_args(["sim-teacher"]))
     assert person == replace(PERSON, confusion=person.confusion)

@@ -11,7 +11,6 @@ from dataclasses import replace
 import pytest
 
 from tests.conftest import VOXSHAPE, bus_args
-from voxshape.arbiter.scripted import observation
 from voxshape.protocol import (
     HelpRequest,
     Observation,
@@ -21,9 +20,10 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.runtime import Input, Node, Presence
-from voxshape.simteacher.display import DisplayClock, DisplayTeacher
-from voxshape.simteacher.synthesis import synthesize
-from voxshape.simteacher.teacher import TIRELESS, SimulatedTeacher, path_command
+from voxshape.services.arbiter.scripted import observation
+from voxshape.services.simteacher.display import DisplayClock, DisplayTeacher
+from voxshape.services.simteacher.synthesis import synthesize
+from voxshape.services.simteacher.teacher import TIRELESS, SimulatedTeacher, path_command
 from voxshape.world.maps import load_map
 
 TASK = load_map("1")

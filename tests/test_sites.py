@@ -36,12 +36,12 @@ from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
 from tests.test_multihost import ip, namespaces_unavailable
 from voxshape.deploy.access import load_access
 from voxshape.deploy.certs import make_all
+from voxshape.deploy.router import secured
 from voxshape.launcher import router_command
+from voxshape.launcher.topology import load_topology, local_variables
 from voxshape.protocol import load_vocabulary, robot_key, teacher_key
-from voxshape.router import secured
 from voxshape.runtime import ConfigError, bus_config
 from voxshape.runtime.processes import end_process
-from voxshape.topology import load_topology, local_variables
 
 SITE_A, SITE_B = "10.231.7.1", "10.231.7.2"
 PORT = 7447

@@ -8,8 +8,8 @@ import pytest
 
 from voxshape.protocol import load_vocabulary
 from voxshape.runtime.audio import read_wav
-from voxshape.speech.pocketsphinx_engine import PocketsphinxRecognizer
-from voxshape.speech.spanish import phones, pronunciations, spoken_forms
+from voxshape.services.speech.pocketsphinx_engine import PocketsphinxRecognizer
+from voxshape.services.speech.spanish import phones, pronunciations, spoken_forms
 
 FIXTURES = Path(__file__).parent / "fixtures" / "speech"
 

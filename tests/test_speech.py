@@ -17,12 +17,12 @@ from benchmarks.speech import scoring
 from voxshape.protocol import AudioChunk, Said, Utterance, load_vocabulary
 from voxshape.protocol.messages import SAMPLE_RATE
 from voxshape.runtime.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
-from voxshape.speech.mock import MockRecognizer, MockSettings
-from voxshape.speech.recognizer import EngineError, Recognition
-from voxshape.speech.segmenter import Segmenter, SegmenterConfig
-from voxshape.speech.streams import AudioStreams, StreamLimits
-from voxshape.speech.transcriber import MockTranscriber
-from voxshape.speech.vosk_engine import MODELS_URL, model_folder
+from voxshape.services.speech.mock import MockRecognizer, MockSettings
+from voxshape.services.speech.recognizer import EngineError, Recognition
+from voxshape.services.speech.segmenter import Segmenter, SegmenterConfig
+from voxshape.services.speech.streams import AudioStreams, StreamLimits
+from voxshape.services.speech.transcriber import MockTranscriber
+from voxshape.services.speech.vosk_engine import MODELS_URL, model_folder
 
 FIXTURES = Path(__file__).parent / "fixtures" / "speech"
 VOCABULARY = load_vocabulary()
@@ -229,7 +229,7 @@ def test_fixtures_are_small_16k_mono_and_listed():
 
 @pytest.fixture(scope="module")
 def pocketsphinx_report() -> dict:
-    from voxshape.speech.pocketsphinx_engine import PocketsphinxRecognizer
+    from voxshape.services.speech.pocketsphinx_engine import PocketsphinxRecognizer
 
     recognizer = PocketsphinxRecognizer(VOCABULARY, "en")
     report = scoring.run(scoring.load_clips(FIXTURES), recognizer)
@@ -251,7 +251,7 @@ def test_pocketsphinx_rejects_words_outside_the_vocabulary(pocketsphinx_report):
 
 
 def test_pocketsphinx_reports_its_measured_precision_as_confidence(pocketsphinx_report):
-    from voxshape.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
+    from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 
     bands = pocketsphinx_report["calibration"]["tune"]
     measured = {share for _, share in PRECISION_BY_POSTERIOR}
@@ -260,7 +260,7 @@ def test_pocketsphinx_reports_its_measured_precision_as_confidence(pocketsphinx_
 
 
 def test_pocketsphinx_without_a_model_for_another_language_says_what_it_needs():
-    from voxshape.speech.pocketsphinx_engine import PocketsphinxRecognizer
+    from voxshape.services.speech.pocketsphinx_engine import PocketsphinxRecognizer
 
     with pytest.raises(EngineError, match="another language needs a CMU Sphinx acoustic model"):
         PocketsphinxRecognizer(VOCABULARY, "fr")

@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 
 from voxshape.protocol import Action, EpisodeEvent, Observation
-from voxshape.sim.stepper import Stepper
-from voxshape.sim.task import Simulation
+from voxshape.services.sim.stepper import Stepper
+from voxshape.services.sim.task import Simulation
 from voxshape.world.maps import load_map
 
 

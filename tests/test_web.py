@@ -29,7 +29,6 @@ from tests.conftest import (
     wait_present,
     web_log_path,
 )
-from voxshape.arbiter.scripted import observation
 from voxshape.protocol import (
     AudioChunk,
     EpisodeEvent,
@@ -44,12 +43,13 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.runtime import Node, bus_config
+from voxshape.services.arbiter.scripted import observation
+from voxshape.services.web.frames import BrowserError, parse_frame, parse_login
+from voxshape.services.web.gateway import AUDIO_HEADER, Teaching
+from voxshape.services.web.page_json import SessionView, map_json, vocabulary_json
+from voxshape.services.web.robots import QUESTION_OPEN_S, Robots
+from voxshape.services.web.server import REFUSED
 from voxshape.teaching.board import Board
-from voxshape.web.frames import BrowserError, parse_frame, parse_login
-from voxshape.web.gateway import AUDIO_HEADER, Teaching
-from voxshape.web.page_json import SessionView, map_json, vocabulary_json
-from voxshape.web.robots import QUESTION_OPEN_S, Robots
-from voxshape.web.server import REFUSED
 from voxshape.world.maps import load_map
 
 # -- the pure core -----------------------------------------------------------------------------

@@ -19,9 +19,9 @@ import yaml
 
 from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
 from voxshape.deploy.access import compare_with_router
+from voxshape.launcher.topology import load_topology, local_variables
 from voxshape.protocol import ProtocolError
 from voxshape.protocol.queries import AccessAnswer
-from voxshape.topology import load_topology, local_variables
 
 DIGEST = "ab" * 32
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from voxshape.web.admission import (
+from voxshape.services.web.admission import (
     FREE_FAILURES,
     Admission,
     AdmissionError,
@@ -16,8 +16,8 @@ from voxshape.web.admission import (
     login_keys,
     public_origin,
 )
-from voxshape.web.connections import Budget
-from voxshape.web.devices import DeviceTokens, cookie_name, device_secret
+from voxshape.services.web.connections import Budget
+from voxshape.services.web.devices import DeviceTokens, cookie_name, device_secret
 
 
 def test_only_the_pages_own_names_and_origin_are_let_in_whatever_the_address():

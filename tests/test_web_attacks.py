@@ -32,8 +32,8 @@ from tests.web_strangers import (
     understood,
 )
 from voxshape.runtime import Node, bus_config
-from voxshape.web.gateway import AUDIO_HEADER
-from voxshape.web.server import REFUSED
+from voxshape.services.web.gateway import AUDIO_HEADER
+from voxshape.services.web.server import REFUSED
 
 SESSION = "secured"
 

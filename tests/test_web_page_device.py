@@ -21,7 +21,7 @@ from tests.test_web_page import BROWSER_ARGS, CHROMIUM, SECURED_ACCESS, WAIT_MS,
 from voxshape.deploy.access import load_access, load_credentials
 from voxshape.deploy.certs import make_all
 from voxshape.launcher import router_command
-from voxshape.web.server import REFUSED
+from voxshape.services.web.server import REFUSED
 
 sync_api = pytest.importorskip("playwright.sync_api", reason="Playwright is a dev dependency")
 pytestmark = [

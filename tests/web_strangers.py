@@ -12,7 +12,7 @@ import time
 import aiohttp
 
 from tests.test_web import open_page, until
-from voxshape.web.server import REFUSED
+from voxshape.services.web.server import REFUSED
 
 # Other addresses are loopback ones: 127.0.0.0/8 is all this host's. The teachers are on
 # 127.0.0.1; each attack comes from others.

@@ -15,11 +15,11 @@ import threading
 from collections.abc import Callable
 from typing import NoReturn
 
-from voxshape.logger.run import RunError
+from voxshape.launcher.topology import TopologyError
 from voxshape.protocol import ProtocolError, VocabularyError
 from voxshape.runtime import BusError, ConfigError, configure_logging
 from voxshape.runtime.settings import SettingsError
-from voxshape.topology import TopologyError
+from voxshape.services.logger.run import RunError
 from voxshape.world.maps import MapError
 
 Runner = Callable[[argparse.Namespace], int]
@@ -41,7 +41,12 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
         "add_up_arguments",
         "run",
     ),
-    "router": ("run the zenoh router of a session", "voxshape.router", "add_arguments", "run"),
+    "router": (
+        "run the zenoh router of a session",
+        "voxshape.deploy.router",
+        "add_arguments",
+        "run",
+    ),
     "certs": (
         "make a development CA, TLS certificates and passwords for a secured session",
         "voxshape.deploy.certs",
@@ -50,25 +55,25 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "sim": (
         "run the simulator: PyBullet world, robots, episodes",
-        "voxshape.sim.node",
+        "voxshape.services.sim.node",
         "add_arguments",
         "run",
     ),
     "ros2": (
         "bring a real ROS 2 robot into the session (rmw_zenoh or zenoh-bridge-ros2dds)",
-        "voxshape.ros2.node",
+        "voxshape.services.ros2.node",
         "add_arguments",
         "run",
     ),
     "placed": (
         "say a real robot is back at its start (voxshape ros2 --reset wait waits for it)",
-        "voxshape.ros2.placed",
+        "voxshape.services.ros2.placed",
         "add_arguments",
         "run",
     ),
     "learner": (
         "run the learner: SARSA(lambda) with dynamic reward shaping",
-        "voxshape.learner.node",
+        "voxshape.services.learner.node",
         "add_arguments",
         "run",
     ),
@@ -80,49 +85,49 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "map": (
         "draw a task's map (start, goal, optional path and scan) as PNG",
-        "voxshape.sim.commands",
+        "voxshape.services.sim.commands",
         "add_map_arguments",
         "map_command",
     ),
     "status": (
         "list the nodes present in a session",
-        "voxshape.tools",
+        "voxshape.launcher.tools",
         "add_status_arguments",
         "status",
     ),
     "listen": (
         "print every message of a session, decoded",
-        "voxshape.tools",
+        "voxshape.launcher.tools",
         "add_listen_arguments",
         "listen",
     ),
     "dataflow": (
         "print who publishes and subscribes to what (voxshape/protocol/dataflow.py)",
-        "voxshape.tools",
+        "voxshape.launcher.tools",
         "add_dataflow_arguments",
         "show_dataflow",
     ),
     "vocabulary": (
         "check a vocabulary file and list its phrases",
-        "voxshape.tools",
+        "voxshape.launcher.tools",
         "add_vocabulary_arguments",
         "vocabulary",
     ),
     "logger": (
         "record the session: event log, rerun recording, live viewer server",
-        "voxshape.logger.node",
+        "voxshape.services.logger.node",
         "add_arguments",
         "run",
     ),
     "view": (
         "look at a live or recorded session in rerun's viewer",
-        "voxshape.logger.view",
+        "voxshape.services.logger.view",
         "add_arguments",
         "run",
     ),
     "replay": (
         "re-render a session's recording from its event log",
-        "voxshape.logger.replay",
+        "voxshape.services.logger.replay",
         "add_arguments",
         "run",
     ),
@@ -134,31 +139,31 @@ COMMANDS: dict[str, tuple[str, str, str, str]] = {
     ),
     "speech": (
         "run the speech service: teachers' audio (or said text) in, utterances out",
-        "voxshape.speech.node",
+        "voxshape.services.speech.node",
         "add_arguments",
         "run",
     ),
     "teach": (
         "teach a robot: speak, stream WAV files or type words; see what was understood",
-        "voxshape.teacher.node",
+        "voxshape.services.teacher.node",
         "add_arguments",
         "run",
     ),
     "web": (
         "serve the teachers' web page: watch a robot, speak or type to it in a browser",
-        "voxshape.web.node",
+        "voxshape.services.web.node",
         "add_arguments",
         "run",
     ),
     "arbiter": (
         "run the feedback arbiter: utterances in, credited rewards and commands out",
-        "voxshape.arbiter.node",
+        "voxshape.services.arbiter.node",
         "add_arguments",
         "run",
     ),
     "sim-teacher": (
         "run the simulated teacher: watches a robot, speaks through the speech service",
-        "voxshape.simteacher.node",
+        "voxshape.services.simteacher.node",
         "add_arguments",
         "run",
     ),

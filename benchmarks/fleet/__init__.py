@@ -13,7 +13,7 @@ gateway (`voxshape web`). The M teachers are spread over the robots (teacher i t
 i mod N): half of them, rounded down, are simulated people (`voxshape sim-teacher`, its default
 profile: at most 4 words a robot minute, at salient moments), the others browsers
 (`--browsers` sets their number): WebSocket clients of the page that speak its own protocol
-(voxshape/web/static/net.js and app.js): log in, five clock probes 100 ms apart and one
+(voxshape/services/web/static/net.js and app.js): log in, five clock probes 100 ms apart and one
 every 30 s, `watch` their robot, read every map frame the gateway sends (all robots' at up to
 10 Hz each), and press one of the page's word buttons every `--word-every` seconds on average
 (exponential gaps). The browsers run in processes of the harness, at most 10 in each.

@@ -17,8 +17,8 @@ from benchmarks.fleet.measure import measure, results
 from benchmarks.fleet.profiling import Profiler, find_py_spy
 from benchmarks.fleet.report import plot, print_report
 from benchmarks.fleet.session import Fleet
-from voxshape.sim.world import MAX_ROBOTS
-from voxshape.speech.mock import MockSettings
+from voxshape.services.sim.world import MAX_ROBOTS
+from voxshape.services.speech.mock import MockSettings
 
 
 # -- the command ----------------------------------------------------------------------------------

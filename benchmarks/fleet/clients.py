@@ -1,7 +1,7 @@
 """The fleet's teachers: the simulated people and the browsers.
 
 A simulated person is `voxshape sim-teacher` (its default profile). A browser is a WebSocket
-client of the page's gateway speaking the page's own protocol (voxshape/web/static/
+client of the page's gateway speaking the page's own protocol (voxshape/services/web/static/
 net.js and app.js): log in, clock probes, `watch` its robot, read every map frame, press a
 word button now and then. The browsers run in processes of the harness (`python -m
 benchmarks.fleet --browser-client`), at most BROWSERS_PER_PROCESS in each, each writing what
@@ -25,7 +25,7 @@ from typing import Any
 
 BROWSERS_PER_PROCESS = 10
 LOGINS_AT_ONCE = 4  # the gateway lets 8 sockets an address wait to log in
-# The page's word buttons (voxshape/web/static/words.js)
+# The page's word buttons (voxshape/services/web/static/words.js)
 MEANINGS = ("excellent", "good", "goal", "terrible", "bad", "stop", "forward", "left", "back")
 MEANINGS += ("right",)
 

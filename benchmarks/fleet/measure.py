@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import psutil
 
 from benchmarks.common import percentile
-from voxshape.speech.transcriber import heard_id
+from voxshape.services.speech.transcriber import heard_id
 
 if TYPE_CHECKING:
     from benchmarks.fleet.session import Fleet

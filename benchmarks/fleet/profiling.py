@@ -111,8 +111,8 @@ Ticks = list[list[bytes]]  # each tick's encoded observations
 def equivalent_profile(process: str, point: dict, task: str, top: int = 12) -> str | None:
     """cProfile of an in-process equivalent of one tick of `process` (codec included, the bus
     not), over 200 ticks of the point's robots; None when there is none for it."""
-    from voxshape.sim.stepper import Stepper
-    from voxshape.sim.task import Simulation
+    from voxshape.services.sim.stepper import Stepper
+    from voxshape.services.sim.task import Simulation
     from voxshape.world.maps import load_map
 
     if process not in WORKS:
@@ -188,10 +188,10 @@ def _sim_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]
 
 def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The learner: each observation decoded, learned from and answered, encoded."""
-    from voxshape.learner.checkpoint import Bookmark
-    from voxshape.learner.config import LearnerConfig
-    from voxshape.learner.online import OnlineLearner
-    from voxshape.learner.sarsa import Learner
+    from voxshape.services.learner.checkpoint import Bookmark
+    from voxshape.services.learner.config import LearnerConfig
+    from voxshape.services.learner.online import OnlineLearner
+    from voxshape.services.learner.sarsa import Learner
 
     online = {
         r: OnlineLearner(Learner(LearnerConfig(), i), Bookmark(), None, Counter(), 60.0)
@@ -212,8 +212,8 @@ def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
 
 def _arbiter_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The arbiter: each observation decoded and followed, what it says encoded."""
-    from voxshape.arbiter.arbiter import Arbiter
-    from voxshape.arbiter.config import ArbiterConfig
+    from voxshape.services.arbiter.arbiter import Arbiter
+    from voxshape.services.arbiter.config import ArbiterConfig
 
     arbiter = Arbiter(ArbiterConfig(), load_vocabulary(), started_at=time.time())
 
@@ -228,7 +228,7 @@ def _arbiter_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
 
 def _web_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, ...]) -> Callable:
     """The page's gateway: each observation decoded, made the pages' frames, as JSON."""
-    from voxshape.web.gateway import Robots
+    from voxshape.services.web.gateway import Robots
 
     pages = Robots()
 

@@ -21,9 +21,9 @@ from benchmarks.common import checkout_environment, last_counters
 from benchmarks.fleet.clients import browser_processes, sim_teacher_command
 from benchmarks.probe import Probe
 from voxshape.launcher import LoopbackSession
+from voxshape.launcher.topology import ServiceSpec
 from voxshape.runtime import free_loopback_port
-from voxshape.sim.world import MAX_ROBOTS
-from voxshape.topology import ServiceSpec
+from voxshape.services.sim.world import MAX_ROBOTS
 
 LEFT_OUT = ("router", "logger")  # of compose.yaml's services: the session's own, the recorder
 READY_TIMEOUT_S = 180.0

@@ -16,9 +16,9 @@ import numpy as np
 from benchmarks.harness.replay import compare_replay
 from benchmarks.harness.session import Session
 from benchmarks.probe import Probe
-from voxshape.arbiter.replies import feedback_id
 from voxshape.protocol import CreditedFeedback, Said, TeacherNotice, Utterance
-from voxshape.speech.transcriber import heard_id
+from voxshape.services.arbiter.replies import feedback_id
+from voxshape.services.speech.transcriber import heard_id
 
 
 @dataclass
@@ -100,7 +100,7 @@ class Reached:
 
 def words_seen(records: list, probe: Probe) -> Words:
     """The words of the event log's records, and those only the probe saw."""
-    from voxshape.logger.decoding import Known, decode_record
+    from voxshape.services.logger.decoding import Known, decode_record
 
     words = Words()
     for record in records:
@@ -159,8 +159,8 @@ def verify(
     convergence_needed: bool = True,
 ) -> Verdict:
     """What held, from the run's files, the probe and the counters."""
-    from voxshape.logger.eventlog import read_events
-    from voxshape.logger.run import RunDir
+    from voxshape.services.logger.eventlog import read_events
+    from voxshape.services.logger.run import RunDir
 
     run = RunDir(session.run_dir)
     log = read_events(run.events)

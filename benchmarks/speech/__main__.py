@@ -42,10 +42,10 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.speech import scoring  # noqa: E402
 from voxshape.protocol import Vocabulary, load_vocabulary  # noqa: E402
-from voxshape.speech.engines import open_recognizer  # noqa: E402
-from voxshape.speech.mock import MockRecognizer, MockSettings  # noqa: E402
-from voxshape.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
-from voxshape.speech.recognizer import DEFAULT_ENGINE, EngineError  # noqa: E402
+from voxshape.services.speech.engines import open_recognizer  # noqa: E402
+from voxshape.services.speech.mock import MockRecognizer, MockSettings  # noqa: E402
+from voxshape.services.speech.pocketsphinx_engine import PocketsphinxSettings  # noqa: E402
+from voxshape.services.speech.recognizer import DEFAULT_ENGINE, EngineError  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "speech"
 ENGINES = [
@@ -113,7 +113,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--fit-decision",
         action="store_true",
-        help="fit voxshape/speech/decision.py's weights and threshold on the tuning split",
+        help="fit voxshape/services/speech/decision.py's weights and threshold on the tuning split",
     )
     return parser
 
@@ -121,7 +121,7 @@ def _parser() -> argparse.ArgumentParser:
 def _fit_decision(vocabulary: Vocabulary, clips: list[scoring.Clip]) -> int:
     """Prints the decision's constants fitted on the tuning split (the cascade's engines)."""
     from benchmarks.speech import fit
-    from voxshape.speech.cascade import CascadeRecognizer
+    from voxshape.services.speech.cascade import CascadeRecognizer
 
     cascade = open_recognizer("cascade", vocabulary, "en")
     if not isinstance(cascade, CascadeRecognizer) or cascade.second is None:

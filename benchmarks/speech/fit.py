@@ -1,4 +1,4 @@
-"""Fits the decision (voxshape/speech/decision.py) on the tuning split: `--fit-decision`.
+"""Fits the decision (voxshape/services/speech/decision.py) on the tuning split: `--fit-decision`.
 
 Each tuning clip goes through what the service does (quiet around, the segmenter), then
 pocketsphinx and Whisper; each candidate phrase's margins are a row, labelled right when it
@@ -19,9 +19,9 @@ from benchmarks.speech import scoring
 from voxshape.protocol import Vocabulary
 from voxshape.protocol.messages import SAMPLE_RATE
 from voxshape.runtime.audio import chunks
-from voxshape.speech import decision
-from voxshape.speech.cascade import FAST, CascadeRecognizer
-from voxshape.speech.segmenter import Segmenter
+from voxshape.services.speech import decision
+from voxshape.services.speech.cascade import FAST, CascadeRecognizer
+from voxshape.services.speech.segmenter import Segmenter
 
 NEAR_MISSES = 0.10  # the share of near misses the threshold may let through, at most
 L2 = 0.01

@@ -28,9 +28,9 @@ import numpy as np
 from voxshape.protocol.messages import MIN_CONFIDENCE, SAMPLE_RATE
 from voxshape.protocol.vocabulary import Vocabulary, normalize
 from voxshape.runtime.audio import chunks, read_wav
-from voxshape.speech.mock import MockRecognizer
-from voxshape.speech.recognizer import Recognizer, written_phrases
-from voxshape.speech.segmenter import Segmenter, SegmenterConfig
+from voxshape.services.speech.mock import MockRecognizer
+from voxshape.services.speech.recognizer import Recognizer, written_phrases
+from voxshape.services.speech.segmenter import Segmenter, SegmenterConfig
 
 QUIET_S = 0.5  # quiet around each clean clip
 QUIET_NOISE = 8.0  # std dev of that quiet (int16 units, about -72 dBFS)

@@ -1,14 +1,14 @@
 """`voxshape demo`: the main job on the embedded default (a local session, no docker).
 
 Starts the session of compose.yaml (router, logger, simulator, learner, speech, arbiter), each
-service its own process, plus a simulated teacher that speaks: synthesized audio through
-the speech service's default engine (voxshape/speech/cascade.py) when espeak-ng and sox are
-installed, else text through the mock speech engine.
-It trains the task of VOXSHAPE_TASK (task 1 by default, or a map file) until the learner
-converges (voxshape/learner/convergence.py, judged by that map's shortest time), showing each
-episode, then stops the session and writes the logger's recording, the report's pictures
-(voxshape/lab/report/) and a table of the episodes under runs/<session>/: demo.md counts
-episodes and interventions from the event log as the report's summary.md does.
+service its own process, plus a simulated teacher that speaks: synthesized audio through the speech
+service's default engine (voxshape/services/speech/cascade.py) when espeak-ng and sox are installed,
+else text through the mock speech engine. It trains the task of VOXSHAPE_TASK (task 1 by default, or
+a map file) until the learner converges (voxshape/services/learner/convergence.py, judged by that
+map's shortest time), showing each episode, then stops the session and writes the logger's
+recording, the report's pictures (voxshape/lab/report/) and a table of the episodes under
+runs/<session>/: demo.md counts episodes and interventions from the event log as the report's
+summary.md does.
 
 `voxshape demo --web` is a session a person teaches in a browser instead: it also starts the
 web page of compose.yaml (docs/web.md), prints its address, runs no simulated teacher unless
@@ -34,14 +34,14 @@ from voxshape import launcher
 from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import INTERVENTIONS_ARE, EpisodeCounts
 from voxshape.lab.report.summary import STEP_SECONDS, RobotSummary
-from voxshape.learner.config import with_settings
-from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
-from voxshape.logger.run import RUNS, RunDir, RunError
+from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, LearningSummary, TeachingStats
 from voxshape.runtime import BusError, Input, Tick
-from voxshape.simteacher.teacher import PROFILES
-from voxshape.speech.recognizer import DEFAULT_ENGINE
-from voxshape.topology import ServiceSpec
+from voxshape.services.learner.config import with_settings
+from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.logger.run import RUNS, RunDir, RunError
+from voxshape.services.simteacher.teacher import PROFILES
+from voxshape.services.speech.recognizer import DEFAULT_ENGINE
 from voxshape.world.maps import Map, load_map
 
 ROBOT, TEACHER = "r1", "simteacher"
@@ -199,7 +199,7 @@ def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
 
 def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
     """demo.md: every episode the event log holds and the counts of the report's summary.md
-    (voxshape/logger/report.count_episodes), so the two files agree."""
+    (voxshape/services/logger/report.count_episodes), so the two files agree."""
     at = counts.convergence.converged_at
     rows = []
     for i, e in enumerate(robot.ended):
@@ -247,7 +247,7 @@ def demo_variables(mode: str) -> dict[str, str]:
         "VOXSHAPE_CLOCK": "paced",
         "VOXSHAPE_SPEECH_ENGINE": DEFAULT_ENGINE if mode == "audio" else "mock",
         # The arbiter takes the simulated teacher's delays and rate as robot seconds (it
-        # reacts after as many steps as at real time, voxshape/simteacher), whatever --rtf.
+        # reacts after as many steps as at real time, voxshape/services/simteacher), whatever --rtf.
         "VOXSHAPE_ROBOT_TIME": TEACHER,
         "VOXSHAPE_LOG_LEVEL": "WARNING",  # the services' routine logs would bury the progress
     }

@@ -20,14 +20,14 @@ from pathlib import Path
 from types import TracebackType
 
 from voxshape.launcher.session import LocalSession
-from voxshape.runtime import BusConfig, free_loopback_port
-from voxshape.topology import (
+from voxshape.launcher.topology import (
     ServiceSpec,
     TopologyError,
     find_compose_file,
     load_topology,
     local_variables,
 )
+from voxshape.runtime import BusConfig, free_loopback_port
 
 
 class LoopbackSession(LocalSession):

@@ -20,9 +20,9 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO
 
+from voxshape.launcher.topology import ServiceSpec, TopologyError
 from voxshape.runtime import BusError, Node, Presence, Tick, bus_config
 from voxshape.runtime.processes import end_process
-from voxshape.topology import ServiceSpec, TopologyError
 
 STOP_GRACE_S = 10.0
 BUS_CLOSE_S = 2.0  # the launcher's own leaving of the bus may take this long, then it goes on

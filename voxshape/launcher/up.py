@@ -26,14 +26,19 @@ from voxshape.launcher.session import (
     LocalSession,
     ServiceDied,
 )
-from voxshape.learner import checkpoint
-from voxshape.learner.config import add_settings_argument, with_settings
-from voxshape.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
+from voxshape.launcher.topology import (
+    ServiceSpec,
+    find_compose_file,
+    load_topology,
+    local_variables,
+)
 from voxshape.protocol import ProtocolError, check_id
 from voxshape.runtime import BusError, ConfigError, free_loopback_port
 from voxshape.runtime.config import tcp_address
-from voxshape.topology import ServiceSpec, find_compose_file, load_topology, local_variables
-from voxshape.web import page_url
+from voxshape.services.learner import checkpoint
+from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.services.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
+from voxshape.services.web import page_url
 from voxshape.world.maps import load_map
 
 DEFAULT_ROUTER = "tcp/127.0.0.1:7447"  # where `voxshape teach` and the tools connect by default

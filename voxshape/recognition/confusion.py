@@ -1,6 +1,6 @@
 """The recognition confusion model: what a grammar-restricted recognizer makes of a phrase said
-as text, with its errors. The speech service's mock engine runs it (voxshape/speech/mock.py),
-and the simulated teacher models through it what it is heard as.
+as text, with its errors. The speech service's mock engine runs it
+(voxshape/services/speech/mock.py), and the simulated teacher models through it what it is heard as.
 
 Its input is a phrase said as text. Like the real engines, it only ever outputs whole phrases
 of the vocabulary, so its errors are whole phrases too. With probability `error_rate` an

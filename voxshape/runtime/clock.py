@@ -4,7 +4,7 @@ offset reported here, so a teacher whose clock is seconds off is still credited 
 
     estimate = sync_clock(node, "ana")   # at start, then every minute or so (clocks drift)
 
-NTP style (voxshape/arbiter/clocks.py has the whole picture): each probe leaves at t0 (this
+NTP style (voxshape/services/arbiter/clocks.py has the whole picture): each probe leaves at t0 (this
 clock), the arbiter stamps t1 and t2 (its clock), the reply arrives at t3 (this clock):
 offset = ((t1 - t0) + (t2 - t3)) / 2 is the arbiter's clock minus this one, within +-rtt/2.
 The exchange with the lowest round trip wins; one last probe reports it to the arbiter.

@@ -25,7 +25,7 @@ VOXSHAPE_PASSWORD_FILE holds the password, or is a credentials file of `user:pas
 user is the role (`sim`, `learner`, `logger`...), its password is its line of DIR/credentials,
 the CA is DIR/ca.pem, this node's certificate DIR/<user>.pem and .key (a router's:
 DIR/router.pem and .key, and DIR/credentials is the users it accepts, and has the password
-of the user it logs in as at another site's router: see voxshape/router.py).
+of the user it logs in as at another site's router: see voxshape/deploy/router.py).
 """
 
 from __future__ import annotations

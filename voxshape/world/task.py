@@ -1,8 +1,7 @@
 """A navigation task's rules, written once: the environment's reward R_RL, how an episode
-ends, and where the goal lies as the robot sees it. The simulator (voxshape/sim/task.py, and
-through it the Gymnasium environment and the in-process experiments) and a real robot's
-bridge (voxshape/ros2/episodes.py) both judge their steps here, so they cannot drift apart.
-Pure.
+ends, and where the goal lies as the robot sees it. The simulator (voxshape/services/sim/task.py,
+and through it the Gymnasium environment and the in-process experiments) and a real robot's bridge
+(voxshape/services/ros2/episodes.py) both judge their steps here, so they cannot drift apart. Pure.
 """
 
 from __future__ import annotations

@@ -16,10 +16,10 @@ from voxshape.lab.experiment.paper import PoolError, experiment, pool
 from voxshape.lab.experiment.published import TASKS
 from voxshape.lab.experiment.runner import ResumeError, RunsFailed
 from voxshape.lab.experiment.sweep import sweep
-from voxshape.learner.config import add_settings_argument, with_settings
-from voxshape.logger.run import keep_earlier_run
 from voxshape.runtime.settings import SettingsError, replaced, write_settings
-from voxshape.simteacher.teacher import PROFILES, TeacherProfile
+from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.services.logger.run import keep_earlier_run
+from voxshape.services.simteacher.teacher import PROFILES, TeacherProfile
 from voxshape.world.maps import MapError, load_map
 
 
@@ -111,7 +111,7 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         default=[],
         metavar="KEY=VALUE",
         help="a field of the simulated teacher's TeacherProfile "
-        "(voxshape/simteacher/teacher.py) changed from --teacher-profile, e.g. "
+        "(voxshape/services/simteacher/teacher.py) changed from --teacher-profile, e.g. "
         "words_per_robot_minute=2; its noise is the setting's",
     )
 

@@ -1,4 +1,4 @@
-"""Initial traces dictated by a simulated person (voxshape/simteacher/dictating.py): each
+"""Initial traces dictated by a simulated person (voxshape/services/simteacher/dictating.py): each
 episode driven by the commands the person says, each held until the next one is heard,
 recorded in a TraceBook for the learner to replay. What it cost the person is counted: the
 robot seconds the dictation took and the words said."""
@@ -7,13 +7,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from voxshape.learner.actions import ActionSet
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.traces import TraceBook
 from voxshape.protocol import ACTION_NAMES
 from voxshape.protocol.vocabulary import load_vocabulary
-from voxshape.sim.task import SimConfig, Simulation
-from voxshape.simteacher.dictating import DictatingPerson, DictationProfile
+from voxshape.services.learner.actions import ActionSet
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.traces import TraceBook
+from voxshape.services.sim.task import SimConfig, Simulation
+from voxshape.services.simteacher.dictating import DictatingPerson, DictationProfile
 from voxshape.world.maps import Map
 
 

@@ -27,14 +27,14 @@ from pathlib import Path
 from voxshape.lab.experiment.inprocess import ROBOT, SETTINGS, TEACHER, RunSpec, initial_traces, run
 from voxshape.lab.experiment.intervals import mean_ci
 from voxshape.launcher import LoopbackSession
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, TeacherNotice
 from voxshape.runtime import Input, Node
 from voxshape.runtime.settings import read_settings
-from voxshape.sim.task import SimConfig
-from voxshape.simteacher.teacher import Confusion
-from voxshape.topology import ServiceSpec
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.sim.task import SimConfig
+from voxshape.services.simteacher.teacher import Confusion
 from voxshape.world.maps import load_map
 
 ACTION_WAIT_S = 30.0  # lockstep: the simulator waits this long for the learner
@@ -68,7 +68,7 @@ def in_process(spec: RunSpec) -> LearningOutcome:
 
 def over_zenoh(spec: RunSpec, timeout_s: float = 1800.0) -> LearningOutcome:
     """The same run with every service as its own process; the simulator's episode events
-    tell when it converged (the rule of voxshape/learner/convergence.py)."""
+    tell when it converged (the rule of voxshape/services/learner/convergence.py)."""
     with tempfile.TemporaryDirectory(prefix="voxshape-equivalence-") as folder:
         where = Path(folder)
         start = time.monotonic()

@@ -22,23 +22,23 @@ import heapq
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from voxshape.arbiter.arbiter import Arbiter
-from voxshape.arbiter.config import ArbiterConfig, DelayLearning
 from voxshape.lab.experiment.bouts import BumpBouts
 from voxshape.lab.experiment.dictation import Dictation, dictate
 from voxshape.lab.experiment.oracle import OraclePotential
-from voxshape.learner.agent import Agent
-from voxshape.learner.asking import Asker, Question
-from voxshape.learner.config import LearnerConfig, with_settings
-from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
-from voxshape.learner.sarsa import Learner
 from voxshape.protocol import CreditedFeedback, TeacherNotice, Utterance
 from voxshape.protocol.vocabulary import load_vocabulary
 from voxshape.runtime.settings import replaced
-from voxshape.sim.stepper import observation
-from voxshape.sim.task import Reading, SimConfig, Simulation
-from voxshape.simteacher.dictating import DictationProfile
-from voxshape.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+from voxshape.services.arbiter.arbiter import Arbiter
+from voxshape.services.arbiter.config import ArbiterConfig, DelayLearning
+from voxshape.services.learner.agent import Agent
+from voxshape.services.learner.asking import Asker, Question
+from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.learner.sarsa import Learner
+from voxshape.services.sim.stepper import observation
+from voxshape.services.sim.task import Reading, SimConfig, Simulation
+from voxshape.services.simteacher.dictating import DictationProfile
+from voxshape.services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
 from voxshape.world.maps import Map, load_map
 
 START = 1_700_000_000.0  # the session clock at the first step (seconds)
@@ -58,7 +58,7 @@ class Setting:
 
 # The paper's four settings (Section 4), its ~20% of errors made ours: 28% of words come out
 # wrong, the person's slips (10%) and the speech engine's drops and mishearings (18%), as
-# Confusion's defaults measure them (voxshape/simteacher/teacher.py).
+# Confusion's defaults measure them (voxshape/services/simteacher/teacher.py).
 NOISE = 0.28
 SETTINGS: dict[str, Setting] = {
     "rl": Setting(feedback=False, traces=0, noise=0.0),

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from voxshape.simteacher.teacher import PROFILES
+from voxshape.services.simteacher.teacher import PROFILES
 
 
 @dataclass(frozen=True)

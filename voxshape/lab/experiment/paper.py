@@ -37,7 +37,7 @@ from voxshape.lab.experiment.inprocess import RunResult, RunSpec
 from voxshape.lab.experiment.paper_report import report
 from voxshape.lab.experiment.runner import run_all, spec_key, start_log
 from voxshape.lab.experiment.summary import summarize
-from voxshape.simteacher.teacher import PROFILES
+from voxshape.services.simteacher.teacher import PROFILES
 
 
 def experiment(

@@ -18,8 +18,8 @@ from voxshape.lab.experiment.published import (
     TASKS,
     paper_average,
 )
-from voxshape.learner.config import with_settings
-from voxshape.learner.convergence import Convergence
+from voxshape.services.learner.config import with_settings
+from voxshape.services.learner.convergence import Convergence
 
 
 def _cell(summary: dict, task: str, setting: str, key: str, scale: float = 1.0) -> str:
@@ -348,10 +348,10 @@ def _asking(summary: dict, scope: _Scope) -> list[str]:
         "## Asking which way",
         "",
         'The robot asks "which way?" when it is stuck, late in an episode or unsure '
-        "(voxshape/learner/asking.py); the person answers within its word budget. Learning "
-        "time is the mean over the tasks; the speedup is the same learner's time without asking "
-        "over its time with; the timeout share is the robot's time until convergence spent "
-        "in episodes that timed out.",
+        "(voxshape/services/learner/asking.py); the person answers within its word budget. "
+        "Learning time is the mean over the tasks; the speedup is the same learner's time "
+        "without asking over its time with; the timeout share is the robot's time until "
+        "convergence spent in episodes that timed out.",
         "",
         "| setting | learning time min | speedup from asking | timeout share | questions "
         "| answers | words while learning |",

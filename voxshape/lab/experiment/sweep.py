@@ -25,7 +25,7 @@ from voxshape.lab.experiment.inprocess import SETTINGS, RunResult, RunSpec
 from voxshape.lab.experiment.intervals import speedup_interval, task_means
 from voxshape.lab.experiment.legend import SETTING_STYLES
 from voxshape.lab.experiment.runner import run_all, start_log
-from voxshape.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
+from voxshape.services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
 
 FEEDBACK, TRACES = "rl+f", "rl+t+f"
 

@@ -11,9 +11,9 @@ from tqdm import tqdm
 
 from voxshape.lab.experiment.inprocess import RunSpec
 from voxshape.lab.experiment.inprocess import run as run_spec
-from voxshape.learner.config import add_settings_argument, with_settings
-from voxshape.learner.convergence import EpisodeResult
-from voxshape.learner.sarsa import Learner
+from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.services.learner.convergence import EpisodeResult
+from voxshape.services.learner.sarsa import Learner
 from voxshape.world.robot import CONTROL_PERIOD_S
 
 

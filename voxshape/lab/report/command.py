@@ -17,10 +17,10 @@ from voxshape.lab.report.pictures import (
 )
 from voxshape.lab.report.summary import SessionSummary, summarize
 from voxshape.lab.report.summary_md import markdown
-from voxshape.learner.config import LearnerConfig
-from voxshape.logger.eventlog import EventLog, EventLogError, read_events
-from voxshape.logger.run import RunDir, RunError, read_session_info, session_map
 from voxshape.runtime.settings import read_settings
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.logger.eventlog import EventLog, EventLogError, read_events
+from voxshape.services.logger.run import RunDir, RunError, read_session_info, session_map
 from voxshape.world.maps import Map
 
 

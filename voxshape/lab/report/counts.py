@@ -7,8 +7,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from voxshape.lab.report.summary import RobotSummary
-from voxshape.learner.config import LearnerConfig
-from voxshape.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.learner.config import LearnerConfig
+from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from voxshape.world.maps import Map
 
 INTERVENTIONS_ARE = (

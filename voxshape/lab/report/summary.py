@@ -7,16 +7,6 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 
-from voxshape.logger.decoding import (
-    Gap,
-    Known,
-    PresenceChange,
-    Rejected,
-    Unknown,
-    decode_record,
-)
-from voxshape.logger.eventlog import EventRecord
-from voxshape.logger.run import RunError
 from voxshape.protocol import (
     Action,
     CreditedFeedback,
@@ -26,6 +16,16 @@ from voxshape.protocol import (
     TeachingStats,
     Utterance,
 )
+from voxshape.services.logger.decoding import (
+    Gap,
+    Known,
+    PresenceChange,
+    Rejected,
+    Unknown,
+    decode_record,
+)
+from voxshape.services.logger.eventlog import EventRecord
+from voxshape.services.logger.run import RunError
 from voxshape.world.robot import CONTROL_PERIOD_S
 
 STEP_SECONDS = CONTROL_PERIOD_S  # robot seconds per step
