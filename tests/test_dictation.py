@@ -13,7 +13,7 @@ from voxshape.lab.experiment.inprocess import RunSpec, run
 from voxshape.protocol.vocabulary import load_vocabulary
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.simteacher.dictating import DictatingPerson, DictationProfile
-from voxshape.services.simteacher.teacher import GeodesicDistance
+from voxshape.world.geodesic import GeodesicDistance
 from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()

@@ -15,11 +15,11 @@ from voxshape.services.simteacher.teacher import (
     TIRELESS,
     Confusion,
     FeedbackSchedule,
-    GeodesicDistance,
     Look,
     SimulatedTeacher,
     TeacherProfile,
 )
+from voxshape.world.geodesic import GeodesicDistance
 from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()

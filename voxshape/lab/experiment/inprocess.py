@@ -22,6 +22,8 @@ import heapq
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 
+import numpy as np
+
 from voxshape.lab.experiment.bouts import BumpBouts
 from voxshape.lab.experiment.dictation import Dictation, dictate
 from voxshape.lab.experiment.oracle import OraclePotential
@@ -34,11 +36,13 @@ from voxshape.services.learner.agent import Agent
 from voxshape.services.learner.asking import Asker, Question
 from voxshape.services.learner.config import LearnerConfig, with_settings
 from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.learner.potential import Place
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.sim.stepper import observation
 from voxshape.services.sim.task import Reading, SimConfig, Simulation
 from voxshape.services.simteacher.dictating import DictationProfile
 from voxshape.services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+from voxshape.world.geodesic import way_ahead
 from voxshape.world.maps import Map, load_map
 
 START = 1_700_000_000.0  # the session clock at the first step (seconds)
@@ -63,6 +67,7 @@ NOISE = 0.28
 SETTINGS: dict[str, Setting] = {
     "rl": Setting(feedback=False, traces=0, noise=0.0),
     "rl+f": Setting(feedback=True, traces=0, noise=NOISE),
+    "rl+f-perfect": Setting(feedback=True, traces=0, noise=0.0),
     "rl+t": Setting(feedback=False, traces=3, noise=NOISE),  # traces alone, no words after
     "rl+t+f": Setting(feedback=True, traces=3, noise=NOISE),
     "rl+t+f-perfect": Setting(feedback=True, traces=3, noise=0.0),
@@ -109,6 +114,11 @@ class RunResult:
     credit_on_judged: float = 0.0  # share of the words' credit on the decisions judged
     states: int = 0  # the learner's states (features) at the end
     timeout_s: float = 0.0  # of the map's episodes (0: not recorded)
+    # Of the greedy decisions until convergence, the share the person's input changed against
+    # what the robot would have done without it; of those, the share that led along the true
+    # shortest way (nearer the goal by the map's geodesic distance) rather than against it.
+    changed_by_person: float = 0.0
+    changed_toward_way: float | None = None
     spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     @property
@@ -181,6 +191,10 @@ class _Session:
         self.learner = Learner(config, seed=spec.seed)
         if config.potential == "oracle":
             self.learner.potential = OraclePotential(m)
+            if self.learner.way is not None:
+                self.learner.way.guess = self.learner.potential
+        self.toward = [0, 0]  # changed decisions that led along the way, and all of them
+        self.learner.on_changed = self._judge_change
         self.teacher = (
             SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
         )
@@ -230,6 +244,16 @@ class _Session:
         self.outcomes.append(reading.outcome)
         return EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
 
+    def _judge_change(self, here: Place, chosen: Place, unchanged: Place) -> None:
+        """A decision the person's input changed: does where it leads point along the map's
+        true shortest way (towards the point a metre down it) better than where the robot
+        would have gone without it?"""
+        aim = way_ahead(self.sim.map, *here, 1.0)
+        if aim is None:
+            return
+        self.toward[1] += 1
+        self.toward[0] += alignment(here, chosen, aim) > alignment(here, unchanged, aim)
+
     def _ask(self, reading: Reading, question: Question) -> None:
         """The robot asks which way (the arbiter hears it); the teacher may answer."""
         self.arbiter.on_help(question.request(ROBOT, reading.pose.x, reading.pose.y), self.now)
@@ -271,6 +295,7 @@ class _Session:
             counters["learner.questions"] = sum(self.asker.reasons.values())
             counters.update({f"learner.asked.{k}": v for k, v in self.asker.reasons.items()})
             counters["teacher.answers"] = self.answers
+        greedy, changed = learner.counters["greedy_decisions"], self.toward[1]
         return RunResult(
             task=spec.task,
             setting=spec.setting,
@@ -292,6 +317,8 @@ class _Session:
             bump_bouts_s=self.bump_bouts,
             states=len(learner.features),
             timeout_s=self.sim.map.timeout,
+            changed_by_person=round(changed / greedy, 4) if greedy else 0.0,
+            changed_toward_way=round(self.toward[0] / changed, 3) if changed else None,
             spec=asdict(spec),
         )
 
@@ -308,6 +335,13 @@ def initial_traces(spec: RunSpec, m: Map | None = None) -> Dictation | None:
     profile = DictationProfile(noise=noise, confusion=spec.profile.confusion)
     m = m or load_map(spec.task)
     return dictate(m, traces, seed=10_000 + spec.seed, config=config, profile=profile)
+
+
+def alignment(here: Place, there: Place, aim: Place) -> float:
+    """The cosine between the move from here to there and the direction from here to aim."""
+    move, way = np.subtract(there, here), np.subtract(aim, here)
+    norms = float(np.hypot(*move) * np.hypot(*way))
+    return float(move @ way) / norms if norms > 1e-9 else -1.0
 
 
 def look(reading: Reading, now: float) -> Look:

@@ -6,7 +6,7 @@ geodesic distance), given to the learner in place of the straight line
 
 from __future__ import annotations
 
-from voxshape.services.simteacher.teacher import GeodesicDistance
+from voxshape.world.geodesic import GeodesicDistance
 from voxshape.world.maps import Map
 
 

@@ -56,7 +56,9 @@ class Agent:
             step = feedback.credits[0].step
             dropped = [] if learner.answer(step, feedback.command) else [step]
         elif feedback.kind == "command":
-            learner.command(feedback.command)
+            learner.command(
+                feedback.command, credits=[(c.step, c.weight) for c in feedback.credits]
+            )
             dropped = []
         else:
             dropped = [

@@ -105,7 +105,7 @@ class LearnerConfig:
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
     # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
     # (TAMER+RL): they go to a table H and the policy ranks Q + bias_weight * H.
-    shaping: Literal["additive", "action_bias"] = "action_bias"
+    shaping: Literal["additive", "action_bias", "way"] = "action_bias"
     feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
@@ -135,6 +135,22 @@ class LearnerConfig:
     # A judging word's credit is spread over the decisions of the stretch it judges: the
     # judged_s of robot time up to the step the arbiter credits (the person's last look).
     judged_s: float = 1.0
+    # shaping="way" (way.py): the guess's weight in words, the tiles of the words' votes,
+    # the heading a "left" or "right" asks for (degrees from the robot's), a shown trace's
+    # votes (one of trace_vote every trace_vote_m metres), and whether a trace is also replayed
+    # through the SARSA update.
+    guess_weight: float = 2.0
+    way_tilings: int = 8
+    way_tile_m: float = 1.0
+    command_turn: float = 60.0
+    trace_vote: float = 1.0
+    trace_vote_m: float = 0.5
+    trace_sarsa: bool = False
+    agreeing_votes: bool = False
+    command_vote: float = 1.0
+    judgement_vote: float = 1.0
+    min_judged_move: float = 0.15
+    way_shapes_q: bool = True
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...

@@ -41,6 +41,7 @@ advice features, so what was said in a state also speaks for the states sharing 
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -56,6 +57,7 @@ from voxshape.services.learner.features import PosePercept, State, representatio
 from voxshape.services.learner.lookahead import reach, reachable
 from voxshape.services.learner.potential import Place, Potential, StraightLine
 from voxshape.services.learner.shaping import SHAPINGS
+from voxshape.services.learner.way import Way
 from voxshape.world.robot import CONTROL_PERIOD_S
 
 
@@ -95,6 +97,15 @@ class Learner:
         self.potential: Potential | None = (
             StraightLine() if c.potential == "straight_line" else None
         )
+        self.way = (
+            Way(self.potential, c.guess_weight, c.way_tilings, c.way_tile_m)
+            if c.shaping == "way"
+            else None
+        )
+        self.trail: deque[tuple[int, float, float, float]] = deque(maxlen=4096)  # poses
+        self.on_changed = (
+            None  # called (here, chosen place, unchanged place) when words change a decision
+        )
         self.place: Place | None = None  # where s was
         self.pose: tuple[float, float, float] | None = None  # where the robot is now
         self.laser: Sequence[float] = ()  # and what its laser sees
@@ -117,6 +128,7 @@ class Learner:
         s_next = self._state_of(p)  # observe s'
         place = (float(p.x), float(p.y))
         self.pose = (*place, float(p.theta))
+        self.trail.append((int(p.step), *self.pose, bool(p.collided)))
         self.laser = p.laser
         if isinstance(self.potential, StraightLine) and self.potential.goal is None:
             self.potential.goal = goal_of(p)
@@ -150,6 +162,9 @@ class Learner:
         q_next = 0.0 if a_next is None else a_next.weights @ self.q(s_next)
         phi_next = 0.0 if a_next is None else self.phi(place)
         shaping = self.discount * phi_next - self.phi(self.place)
+        if self.way is not None and self.way.votes and c.way_shapes_q:
+            rise = self.way.progress(self.place, place)
+            shaping += c.potential_scale * (rise - self.way.progress(self.place, place, False))
         delta = self.G + shaping + self.discount * q_next - self.a.weights @ self.q(self.s)
         if c.traces == "replacing":  # e(s, a) <- 1, by each action's weight in a
             self.e[x] = np.maximum(self.e[x], self.a.weights)
@@ -190,23 +205,51 @@ class Learner:
         the policy's own turn."""
         if self.commands:
             return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
-        q = self.shaping.ranked(self.q(s), s, self.episode) + self._expected_progress()
+        q_own = self.q(s)
+        q = self.shaping.ranked(q_own, s, self.episode) + self._expected_progress()
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        decision = self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        self._count_change(q, q_own + self._expected_progress(words=False), barred, decision)
+        return decision
 
-    def _expected_progress(self) -> np.ndarray | float:
+    def _count_change(
+        self, q: np.ndarray, q_alone: np.ndarray, barred: int | None, decision: Decision
+    ) -> None:
+        """Counts the greedy decisions, and those the person's input changed against what the
+        robot would have done without it (`on_changed` sees where each leads)."""
+        allowed = self.actions._allowed[barred]
+        best = int(allowed[np.argmax(q[allowed])])
+        if decision.discrete != best:
+            return  # explored
+        self.counters["greedy_decisions"] += 1
+        alone = int(allowed[np.argmax(q_alone[allowed])])
+        if alone == best:
+            return
+        self.counters["changed_by_person"] += 1
+        if self.on_changed is not None and self.pose is not None:
+            places = reachable(
+                self.pose, self.laser, self.actions.velocity, self.config.lookahead_s
+            )
+            self.on_changed(self.pose[:2], places[best], places[alone])
+
+    def _expected_progress(self, words: bool = True) -> np.ndarray | float:
         """What the potential expects of each action from here: beta_Phi fade^episode
-        potential_scale (Phi(where it leads in lookahead_s) - Phi(here))."""
+        potential_scale (Phi(where it leads in lookahead_s) - Phi(here)); with the way, the
+        progress along the believed way (`words=False`: the guess's alone)."""
         c = self.config
-        if not c.lookahead_weight or self.potential is None or self.pose is None:
+        if not c.lookahead_weight or self.pose is None:
             return 0.0
-        here = self.potential.value(*self.pose[:2])
+        if self.way is None and self.potential is None:
+            return 0.0
         places = reachable(self.pose, self.laser, self.actions.velocity, c.lookahead_s)
-        ahead = np.array([self.potential.value(*place) for place in places])
         weight = c.lookahead_weight * c.bias_decay**self.episode * c.potential_scale
-        return weight * (ahead - here)
+        here = self.pose[:2]
+        if self.way is not None:
+            return weight * np.array([self.way.progress(here, p, words) for p in places])
+        ahead = np.array([self.potential.value(*place) for place in places])
+        return weight * (ahead - self.potential.value(*here))
 
     def _h(self, r: float, s: State, a: Decision, replay: bool) -> float:
         """h(r, a): the reward of an action the teacher selected (bounded like g), in a
@@ -232,6 +275,10 @@ class Learner:
             return False
         visits, shares = self._stretch_back_from(k, step)
         self.credit_shares += (shares[0] * weight, weight)
+        if self.way is not None:
+            self._vote_on_stretch(step, c.judgement_vote * weight * np.sign(f))
+            self.counters["feedback_credited"] += 1
+            return True
         states, weights = [v.state for v in visits], np.array([v.weights for v in visits])
         scale = c.alpha * weight * f
         self.shaping.credit(self.Q, states, np.array(shares)[:, None] * scale * weights)
@@ -253,6 +300,62 @@ class Learner:
         total = sum(shares)
         return visits, [share / total for share in shares]
 
+    def _pose_at(self, step: int) -> tuple[float, float, float] | None:
+        """The robot's pose at observation `step` (the latest before it), if remembered."""
+        for entry in reversed(self.trail):
+            if entry[0] <= step:
+                return entry[1:4]
+        return None
+
+    def _bumped_within(self, first: int, last: int) -> bool:
+        return any(e[4] for e in self.trail if first <= e[0] <= last)
+
+    def _vote_on_stretch(self, step: int, vote: float) -> None:
+        """A judgement's vote on the motion of the judged stretch up to `step`: its
+        displacement, or the heading where the robot hardly moved."""
+        first = step - round(self.config.judged_s / CONTROL_PERIOD_S)
+        end, start = self._pose_at(step), self._pose_at(first)
+        if end is None or start is None:
+            return
+        move = np.subtract(end[:2], start[:2])
+        length = float(np.hypot(*move))
+        if length < self.config.min_judged_move or self._bumped_within(first, step):
+            self.counters["votes_stuck"] += abs(vote)  # stuck or bumping is bad any way round
+            return
+        middle = ((start[0] + end[0]) / 2, (start[1] + end[1]) / 2)
+        rise = self.way.phi(end[:2]) - self.way.phi(start[:2])
+        if self.config.agreeing_votes or rise * vote <= 0:  # the guess judged it otherwise
+            self.way.vote(middle, move / length, vote)
+        else:
+            self.counters["votes_agreeing"] += 1
+
+    def _vote_heading(
+        self, pose: tuple[float, float, float], action: str, weight: float = 1.0
+    ) -> None:
+        """A command's vote: the way lies where it turns the robot, from the pose the teacher
+        saw (ahead for "forward", behind for "back", `command_turn` degrees aside for a turn)."""
+        turn = math.radians(self.config.command_turn)
+        aside = {"forward": 0.0, "left": turn, "right": -turn, "back": math.pi}.get(action)
+        if aside is None:
+            return
+        heading = pose[2] + aside
+        vote = np.array([math.cos(heading), math.sin(heading)])
+        self.way.vote(pose[:2], vote, self.config.command_vote * weight)
+        self.counters["votes_command"] += weight
+
+    def shown(self, path: Sequence[Place]) -> None:
+        """A way shown whole (a dictated trace that reached the goal): votes along it, one
+        every `trace_vote_m` metres travelled, for the direction it went."""
+        spacing = self.config.trace_vote_m
+        last = path[0]
+        for place in path[1:]:
+            move = np.subtract(place, last)
+            length = float(np.hypot(*move))
+            if length >= spacing:
+                middle = ((place[0] + last[0]) / 2, (place[1] + last[1]) / 2)
+                self.way.vote(middle, move / length, self.config.trace_vote)
+                last = place
+
     def _decision_at(self, step: int) -> int | None:
         """The index in `recent` of the decision whose action ran at observation `step`;
         None (counted) if it is no longer remembered."""
@@ -264,10 +367,18 @@ class Learner:
         self.counters[f"feedback_dropped.{why}"] += 1
         return None
 
-    def command(self, action: str, chooser: str = "teacher") -> None:
+    def command(
+        self, action: str, chooser: str = "teacher", credits: Sequence[tuple[int, float]] = ()
+    ) -> None:
         """A teacher's command: the next `command_steps` actions are this one (`chooser`:
-        "teacher" earns h's bonus, "steer" does not)."""
+        "teacher" earns h's bonus, "steer" does not); `credits`, the steps the teacher saw
+        when deciding it, with their weights."""
         index = ACTION_NAMES.index(action)
+        if self.way is not None and chooser == "teacher":
+            for step, weight in credits:
+                pose = self._pose_at(step)
+                if pose is not None:
+                    self._vote_heading(pose, action, weight)
         self.command_chooser = chooser
         self.commands.clear()
         self.commands.extend([index] * self.config.command_steps)
@@ -283,6 +394,9 @@ class Learner:
             return False
         asked = self.recent[k].state
         weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
+        pose = self._pose_at(step)
+        if self.way is not None and pose is not None:
+            self._vote_heading(pose, action)
         self.shaping.credit(self.Q, [asked], (self.config.alpha * self._bonus() * weights)[None])
         if self.s is not None and self.s.view == asked.view:
             self.command(action, "steer")

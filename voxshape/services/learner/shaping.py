@@ -73,7 +73,20 @@ class ActionBias:
         return q + self.beta * self.taught.weighed(s, episode)
 
 
+class WayOnly(Additive):
+    """shaping="way": words are votes about the way (way.py), not rewards or a bias."""
+
+    def chosen(
+        self, r: float, s: State, weights: np.ndarray, bonus: float, replayed: bool
+    ) -> float:
+        return r
+
+    def credit(self, Q: np.ndarray, states: Sequence[State], changes: np.ndarray) -> None:
+        pass
+
+
 SHAPINGS: dict[str, type[Additive] | type[ActionBias]] = {
     "additive": Additive,
     "action_bias": ActionBias,
+    "way": WayOnly,
 }

@@ -88,6 +88,12 @@ class TraceBook:
         """Learns from every recorded episode; returns the number of steps replayed. The
         replays do not count as the learner's own episodes."""
         episode, steps = learner.episode, 0
+        if learner.way is not None:
+            for recorded in self.episodes:
+                if recorded[-1][0].outcome == "goal":
+                    learner.shown([(p.x, p.y) for p, _ in recorded])
+            if not learner.config.trace_sarsa:
+                return 0
         for recorded in self.episodes:
             learner.interrupt()
             for percept, decision in recorded:

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 
 from voxshape.protocol.vocabulary import Vocabulary
 from voxshape.recognition.confusion import MockRecognizer, MockSettings
-from voxshape.services.simteacher.teacher import OPPOSITE, Confusion, way_ahead
+from voxshape.services.simteacher.teacher import OPPOSITE, Confusion
+from voxshape.world.geodesic import way_ahead
 from voxshape.world.maps import Map
 from voxshape.world.robot import unicycle
 
