@@ -68,11 +68,11 @@ SETTINGS: dict[str, Setting] = {
     "rl": Setting(feedback=False, traces=0, noise=0.0),
     "rl+f": Setting(feedback=True, traces=0, noise=NOISE),
     "rl+f-perfect": Setting(feedback=True, traces=0, noise=0.0),
-    "rl+t": Setting(feedback=False, traces=3, noise=NOISE),  # traces alone, no words after
-    "rl+t+f": Setting(feedback=True, traces=3, noise=NOISE),
-    "rl+t+f-perfect": Setting(feedback=True, traces=3, noise=0.0),
+    "rl+t": Setting(feedback=False, traces=1, noise=NOISE),  # traces alone, no words after
+    "rl+t+f": Setting(feedback=True, traces=1, noise=NOISE),
+    "rl+t+f-perfect": Setting(feedback=True, traces=1, noise=0.0),
     "rl+f+ask": Setting(feedback=True, traces=0, noise=NOISE, ask=True),
-    "rl+t+f+ask": Setting(feedback=True, traces=3, noise=NOISE, ask=True),
+    "rl+t+f+ask": Setting(feedback=True, traces=1, noise=NOISE, ask=True),
 }
 PAPER_SETTINGS = ("rl", "rl+f", "rl+t", "rl+t+f", "rl+t+f-perfect")  # the paper's, and T alone
 
@@ -295,7 +295,7 @@ class _Session:
             counters["learner.questions"] = sum(self.asker.reasons.values())
             counters.update({f"learner.asked.{k}": v for k, v in self.asker.reasons.items()})
             counters["teacher.answers"] = self.answers
-        greedy, changed = learner.counters["greedy_decisions"], self.toward[1]
+        greedy, changed = learner.counters["decisions_judged"], self.toward[1]
         return RunResult(
             task=spec.task,
             setting=spec.setting,

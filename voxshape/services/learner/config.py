@@ -105,7 +105,7 @@ class LearnerConfig:
     # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
     # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
     # (TAMER+RL): they go to a table H and the policy ranks Q + bias_weight * H.
-    shaping: Literal["additive", "action_bias", "way"] = "action_bias"
+    shaping: Literal["additive", "action_bias", "way"] = "way"
     feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
     command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
     command_steps: int = 5  # a teacher command overrides the policy this many steps
@@ -139,17 +139,24 @@ class LearnerConfig:
     # the heading a "left" or "right" asks for (degrees from the robot's), a shown trace's
     # votes (one of trace_vote every trace_vote_m metres), and whether a trace is also replayed
     # through the SARSA update.
-    guess_weight: float = 2.0
+    guess_weight: float = 3.0
     way_tilings: int = 8
-    way_tile_m: float = 1.0
-    command_turn: float = 60.0
+    way_tile_m: float = 2.0
+    command_turn: float = 90.0
     trace_vote: float = 1.0
     trace_vote_m: float = 0.5
+    trace_chord_m: float = 2.0
     trace_sarsa: bool = False
     agreeing_votes: bool = False
     command_vote: float = 1.0
     judgement_vote: float = 1.0
     min_judged_move: float = 0.15
+    stall_s: float = 10.0
+    stall_after: float = 5.0
+    stall_rise: float = 0.1
+    vote_fade: float = 0.9
+    dead_zone: float = 30.0
+    stall_fade: float = 0.9
     way_shapes_q: bool = True
 
     # -- convergence (see convergence.py) ---------------------------------------------------

@@ -103,6 +103,10 @@ class Learner:
             else None
         )
         self.trail: deque[tuple[int, float, float, float]] = deque(maxlen=4096)  # poses
+        self._best_phi = (-math.inf, 0.0)  # the episode's best Phi, and seconds since
+        if self.way is not None:
+            self.way.stall_s = c.stall_s
+            self.way.agree_cos = math.cos(math.radians(c.dead_zone))
         self.on_changed = (
             None  # called (here, chosen place, unchanged place) when words change a decision
         )
@@ -132,6 +136,8 @@ class Learner:
         self.laser = p.laser
         if isinstance(self.potential, StraightLine) and self.potential.goal is None:
             self.potential.goal = goal_of(p)
+        if self.way is not None:
+            self._watch_progress(place)
         ended = p.outcome != "running"
         if self.s is None:  # the first step of an episode: nothing to learn yet
             self.episode_return = 0.0
@@ -153,6 +159,19 @@ class Learner:
         self.s, self.a, self.place = s_next, a_next, place
         self.counters["decisions"] += 1
         return a_next
+
+    def _watch_progress(self, place: Place) -> None:
+        """Counts the robot's time at a place while the guess sees no progress (Phi has not
+        risen `stall_rise` metres within `stall_after` seconds): where it stalls, the guess
+        weighs less against the person's words."""
+        c = self.config
+        phi = self.way.phi(place)
+        if self.s is None or phi > self._best_phi[0] + c.stall_rise:
+            self._best_phi = (phi, 0.0)
+            return
+        self._best_phi = (self._best_phi[0], self._best_phi[1] + CONTROL_PERIOD_S)
+        if self._best_phi[1] >= c.stall_after:
+            self.way.stall(place, CONTROL_PERIOD_S)
 
     def _update(self, s_next: State, place: Place, a_next: Decision | None) -> None:
         """The SARSA(lambda) update for (s, a), held k steps for a return G (discount is
@@ -203,36 +222,37 @@ class Learner:
         """a' from s': a pending command, else epsilon-greedy (or the blend) over Q (plus
         beta H with the action bias: the shaping rule's ranking), never the turn that undoes
         the policy's own turn."""
-        if self.commands:
-            return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
         q_own = self.q(s)
-        q = self.shaping.ranked(q_own, s, self.episode) + self._expected_progress()
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
+        alone = self._greedy(q_own + self._expected_progress(words=False), barred)
+        if self.commands:
+            decision = self.actions.one_hot(self.commands.popleft(), self.command_chooser)
+            self._count_change(decision.discrete, alone)
+            return decision
+        q = self.shaping.ranked(q_own, s, self.episode) + self._expected_progress()
         decision = self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
-        self._count_change(q, q_own + self._expected_progress(words=False), barred, decision)
+        if decision.discrete == self._greedy(q, barred):  # not explored
+            self._count_change(decision.discrete, alone)
         return decision
 
-    def _count_change(
-        self, q: np.ndarray, q_alone: np.ndarray, barred: int | None, decision: Decision
-    ) -> None:
-        """Counts the greedy decisions, and those the person's input changed against what the
-        robot would have done without it (`on_changed` sees where each leads)."""
-        allowed = self.actions._allowed[barred]
-        best = int(allowed[np.argmax(q[allowed])])
-        if decision.discrete != best:
-            return  # explored
-        self.counters["greedy_decisions"] += 1
-        alone = int(allowed[np.argmax(q_alone[allowed])])
-        if alone == best:
+    def _greedy(self, q: np.ndarray, barred: int | None) -> int:
+        allowed = self.actions.allowed_but(barred)
+        return int(allowed[np.argmax(q[allowed])])
+
+    def _count_change(self, chosen: int, alone: int) -> None:
+        """Counts a decision made by a command or greedily, and whether the person's input
+        changed it against what the robot would have done without it (`on_changed` sees
+        where each leads)."""
+        self.counters["decisions_judged"] += 1
+        if chosen == alone:
             return
         self.counters["changed_by_person"] += 1
         if self.on_changed is not None and self.pose is not None:
-            places = reachable(
-                self.pose, self.laser, self.actions.velocity, self.config.lookahead_s
-            )
-            self.on_changed(self.pose[:2], places[best], places[alone])
+            velocity, reach_s = self.actions.velocity, self.config.lookahead_s
+            places = reachable(self.pose, self.laser, velocity, reach_s)
+            self.on_changed(self.pose[:2], places[chosen], places[alone])
 
     def _expected_progress(self, words: bool = True) -> np.ndarray | float:
         """What the potential expects of each action from here: beta_Phi fade^episode
@@ -343,18 +363,24 @@ class Learner:
         self.way.vote(pose[:2], vote, self.config.command_vote * weight)
         self.counters["votes_command"] += weight
 
-    def shown(self, path: Sequence[Place]) -> None:
-        """A way shown whole (a dictated trace that reached the goal): votes along it, one
-        every `trace_vote_m` metres travelled, for the direction it went."""
-        spacing = self.config.trace_vote_m
-        last = path[0]
-        for place in path[1:]:
-            move = np.subtract(place, last)
+    def shown(self, path: Sequence[tuple[float, float, bool]]) -> None:
+        """A way shown whole (a dictated trace that reached the goal, its places and bumps):
+        a vote every `trace_vote_m` metres travelled, for the way on from there (towards the
+        place `trace_chord_m` further along it, so its wobbles even out); none in the second
+        before a bump."""
+        c, period = self.config, CONTROL_PERIOD_S
+        places = np.array([p[:2] for p in path])
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(places, axis=0).T))])
+        bumps = [i for i, p in enumerate(path) if p[2]]
+        before_bump = {j for i in bumps for j in range(max(0, i - round(1 / period)), i + 1)}
+        for metre in np.arange(0.0, along[-1], c.trace_vote_m):
+            i = int(np.searchsorted(along, metre))
+            j = int(np.searchsorted(along, metre + c.trace_chord_m))
+            j = min(j, len(path) - 1)
+            move = places[j] - places[i]
             length = float(np.hypot(*move))
-            if length >= spacing:
-                middle = ((place[0] + last[0]) / 2, (place[1] + last[1]) / 2)
-                self.way.vote(middle, move / length, self.config.trace_vote)
-                last = place
+            if length > 0.1 and not before_bump.intersection(range(i, j + 1)):
+                self.way.vote(tuple(places[i]), move / length, c.trace_vote)
 
     def _decision_at(self, step: int) -> int | None:
         """The index in `recent` of the decision whose action ran at observation `step`;
@@ -446,6 +472,8 @@ class Learner:
     def _end_episode(self) -> None:
         self.interrupt()
         self.episode += 1
+        if self.way is not None:
+            self.way.fade(self.config.vote_fade, self.config.stall_fade)
 
     def interrupt(self) -> None:
         """Forgets the episode in progress without counting it (a gap in the observations,

@@ -91,7 +91,7 @@ class TraceBook:
         if learner.way is not None:
             for recorded in self.episodes:
                 if recorded[-1][0].outcome == "goal":
-                    learner.shown([(p.x, p.y) for p, _ in recorded])
+                    learner.shown([(p.x, p.y, p.collided) for p, _ in recorded])
             if not learner.config.trace_sarsa:
                 return 0
         for recorded in self.episodes:

@@ -35,7 +35,10 @@ class Way:
         self.guess, self.kappa = guess, weight
         self.tilings, self.width = tilings, tile_width
         self.votes: dict[tuple[int, int, int], np.ndarray] = {}  # W, a 2-vector per tile
+        self.stalled: dict[tuple[int, int, int], float] = {}  # seconds the guess made no progress
+        self.stall_s = 0.0  # seconds of stall that halve the guess's weight (0: never)
         self.n_votes = 0.0
+        self.agree_cos = 1.0  # cos of the dead zone: a way turned less than it is the guess's
 
     def _tiles(self, x: float, y: float) -> list[tuple[int, int, int]]:
         n, w = self.tilings, self.width
@@ -57,6 +60,25 @@ class Way:
         for tile in self._tiles(*place):
             self.votes[tile] = self.votes.get(tile, np.zeros(2)) + change
         self.n_votes += abs(weight)
+
+    def stall(self, place: Place, seconds: float) -> None:
+        """The robot spent `seconds` at `place` without the guess seeing progress."""
+        for tile in self._tiles(*place):
+            self.stalled[tile] = self.stalled.get(tile, 0.0) + seconds
+
+    def weight(self, place: Place) -> float:
+        """kappa at a place: the guess's weight, lower where it has stalled the robot."""
+        if not self.stall_s or not self.stalled:
+            return self.kappa
+        stalled = sum(self.stalled.get(t, 0.0) for t in self._tiles(*place)) / self.tilings
+        return self.kappa / (1.0 + stalled / self.stall_s)
+
+    def fade(self, votes: float, stalls: float) -> None:
+        """An episode has ended: the votes and the stalls count that much less."""
+        for tile in self.votes:
+            self.votes[tile] *= votes
+        for tile in self.stalled:
+            self.stalled[tile] *= stalls
 
     def phi(self, place: Place) -> float:
         """The guess's potential, metres (0 without one)."""
@@ -83,13 +105,17 @@ class Way:
         W = self.W(here) if words and self.votes else None
         if W is None or not W.any():
             return rise
-        kappa = self.kappa
-        believed = kappa * self.gradient(here) + W
+        kappa = self.weight(here)
+        g = self.gradient(here)
+        believed = kappa * g + W
+        norm = float(np.hypot(*believed))
+        if g.any() and norm and believed @ g > norm * self.agree_cos:
+            return rise  # the words turn the way less than the dead zone: the guess's own
         move = np.subtract(there, here)
-        return float((kappa * rise + W @ move) / max(float(np.hypot(*believed)), kappa))
+        return float((kappa * rise + W @ move) / max(norm, kappa))
 
     def direction(self, place: Place) -> np.ndarray:
         """The believed way's unit direction at a place (0 where there is none)."""
-        believed = self.kappa * self.gradient(place) + self.W(place)
+        believed = self.weight(place) * self.gradient(place) + self.W(place)
         norm = float(np.hypot(*believed))
         return believed / norm if norm > 1e-12 else np.zeros(2)
