@@ -78,7 +78,7 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         said.put(utterance("ana", "r1", "avanza", onset + 0.2))
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")
-        assert command.credits[0].step == 29
+        assert sorted(c.step for c in command.credits) == list(range(14, 27))  # as "good"
 
         stats = collect(node, 1, TeachingStats, timeout=5)[0]
         (ana,) = stats.teachers

@@ -153,7 +153,7 @@ def _variables_in_help(command: str) -> set[str]:
 FIVE = 'velocities={"stop": [0, 0], "forward": [0.5, 0], "back": [-0.3, 0], "left": [0.3, 1], %s}'
 REFUSED = [
     ("traces=replace", 'traces "replace" is not one of replacing, accumulating'),
-    ("shaping=bias", 'shaping "bias" is not one of additive, action_bias'),
+    ("potential=bias", 'potential "bias" is not one of straight_line, oracle, none'),
     (
         'velocities={"left": [0.3, 1.0]}',
         "velocities takes every key of stop, forward, back, left, right "
@@ -165,7 +165,7 @@ REFUSED = [
     ),
     (FIVE % '"right": [0.3]', "velocities[right] takes 2 values, not [0.3]"),
     (FIVE % '"right": [0.3, "x"]', 'velocities[right][1] takes a float, not "x"'),
-    ("tilings=2.5", "tilings takes an int, like 8, not 2.5"),
+    ("max_hold=2.5", "max_hold takes an int, like 20, not 2.5"),
     ("use_sonar=1", "use_sonar takes a bool, like true, not 1"),
     ('distance_edges=[1, "far"]', 'distance_edges[1] takes a float, not "far"'),
     ("ask.stuck_s=soon", 'stuck_s takes a float, like 10.0, not "soon"'),
@@ -232,9 +232,9 @@ def test_a_record_that_does_not_fit_is_refused_naming_it(tmp_path, written, erro
 
 @pytest.mark.parametrize("command", ["up", "demo"])
 def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_path):
-    argv = [VOXSHAPE, command, "--compose", str(ROOT / "compose.yaml"), "--set", "shaping=bias"]
+    argv = [VOXSHAPE, command, "--compose", str(ROOT / "compose.yaml"), "--set", "potential=bias"]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 2, done.stdout + done.stderr
-    error = f"voxshape {command}: error: --set 'shaping=bias': {dict(REFUSED)['shaping=bias']}"
+    error = f"voxshape {command}: error: --set 'potential=bias': {dict(REFUSED)['potential=bias']}"
     assert done.stderr.strip().splitlines() == [error]
     assert not (tmp_path / "runs").exists()  # nothing started, no run folder made

@@ -26,7 +26,6 @@ import numpy as np
 
 from voxshape.lab.experiment.bouts import BumpBouts
 from voxshape.lab.experiment.dictation import Dictation, dictate
-from voxshape.lab.experiment.oracle import OraclePotential
 from voxshape.protocol import CreditedFeedback, TeacherNotice, Utterance
 from voxshape.protocol.vocabulary import load_vocabulary
 from voxshape.runtime.settings import replaced
@@ -111,8 +110,7 @@ class RunResult:
     outcomes: list[str] = field(default_factory=list)  # of every episode run
     bump_bout_s: float = 0.0  # robot seconds in bump bouts of 10 s or more until convergence
     bump_bouts_s: list[float] = field(default_factory=list)  # ... in each episode run
-    credit_on_judged: float = 0.0  # share of the words' credit on the decisions judged
-    states: int = 0  # the learner's states (features) at the end
+    states: int = 0  # the learner's states at the end
     timeout_s: float = 0.0  # of the map's episodes (0: not recorded)
     # Of the greedy decisions until convergence, the share the person's input changed against
     # what the robot would have done without it; of those, the share that led along the true
@@ -163,9 +161,7 @@ def run(
     try:
         for episode in range(spec.max_episodes):
             if book and episode == 0:
-                book.replay(session.learner)
-            elif book:
-                book.replay_if_due(session.learner)
+                book.show(session.learner)
             result = session.episode()
             if on_episode is not None:
                 on_episode(result, session.learner)
@@ -188,11 +184,7 @@ class _Session:
             noise=setting.noise if spec.noise is None else spec.noise,
             delay=profile.delay if spec.delay is None else spec.delay,
         )
-        self.learner = Learner(config, seed=spec.seed)
-        if config.potential == "oracle":
-            self.learner.potential = OraclePotential(m)
-            if self.learner.way is not None:
-                self.learner.way.guess = self.learner.potential
+        self.learner = Learner(config, seed=spec.seed, task=m)
         self.toward = [0, 0]  # changed decisions that led along the way, and all of them
         self.learner.on_changed = self._judge_change
         self.teacher = (
@@ -287,8 +279,6 @@ class _Session:
     ) -> RunResult:
         learner, arbiter = self.learner, self.arbiter
         window = arbiter.delay_window(TEACHER)
-        shares = learner.credit_shares
-        on_judged = float(shares[0])
         counters = {f"arbiter.{k}": v for k, v in arbiter.counters.items()}
         counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
         if self.asker is not None:
@@ -313,9 +303,8 @@ class _Session:
             counters=counters,
             outcomes=self.outcomes,
             bump_bout_s=round(sum(self.bump_bouts[: progress.n_episodes]), 1),
-            credit_on_judged=round(on_judged / total, 3) if (total := shares[1]) else 0.0,
             bump_bouts_s=self.bump_bouts,
-            states=len(learner.features),
+            states=len(learner.states),
             timeout_s=self.sim.map.timeout,
             changed_by_person=round(changed / greedy, 4) if greedy else 0.0,
             changed_toward_way=round(self.toward[0] / changed, 3) if changed else None,
