@@ -12,6 +12,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -229,6 +230,27 @@ def test_the_make_targets_run_what_the_readme_says():
         result = run(["env", "-u", "TEST_WORKERS", "make", "-n", target], ROOT, timeout=30)
         assert result.returncode == 0, result.stderr
         assert set(lines) <= set(result.stdout.splitlines()), (target, result.stdout)
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="no make")
+def test_make_demo_installs_what_running_needs_and_make_test_the_rest():
+    """`make -n -B` prints what a clean clone's target would install: the demo none of the
+    tests' packages (pytest, Playwright, Ray, a vosk model: pyproject's test and cluster
+    extras; chromium), the tests all of them."""
+    installs = {}
+    for target in ("demo", "test"):
+        result = run(["make", "-n", "-B", target], ROOT, timeout=30)
+        assert result.returncode == 0, result.stderr
+        lines = result.stdout.splitlines()
+        installs[target] = [line for line in lines if "install" in line or "PACKAGES=" in line]
+    assert any("-e '.[whisper]'" in line for line in installs["demo"]), installs["demo"]
+    assert not any(w in " ".join(installs["demo"]) for w in ("test", "cluster", "chromium"))
+    assert any("-e '.[whisper,test,cluster]'" in line for line in installs["test"])
+    assert any("chromium" in line for line in installs["test"]), installs["test"]
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    running = " ".join(extras["dependencies"] + extras["optional-dependencies"]["whisper"])
+    for tested in ("pytest", "playwright", "ray", "vosk-model", "rosbags", "hypothesis"):
+        assert tested not in running
 
 
 def test_ci_runs_make_test():

@@ -281,6 +281,7 @@ def teacher_spec(
 
 
 def run(args: argparse.Namespace) -> int:
+    launcher.interrupt_on_stop_signals()
     if args.rtf is None:
         args.rtf = float(os.environ.get("VOXSHAPE_RTF") or (1 if args.web else 10))
     if args.max_episodes < 3 or args.rtf <= 0:

@@ -132,6 +132,11 @@ def presence_key(session: str, role: str = "*", node: str = "*") -> str:
     return f"{ROOT}/{check_id(session, 'session')}/presence/{role}/{node}"
 
 
+def presence_in_every_session() -> str:
+    """Every node's presence token in every session (of a router several sessions share)."""
+    return f"{ROOT}/*/presence/*/*"
+
+
 def router_access_key(session: str) -> str:
     """The query any user may ask the session's router: which access file it enforces."""
     return f"{ROOT}/{check_id(session, 'session')}/router/access"
