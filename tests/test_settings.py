@@ -92,7 +92,7 @@ def test_the_help_says_the_variable_and_the_default_once_written():
         ([], {"EXAMPLE_MODE": "warp"}, "EXAMPLE_MODE='warp' is not one of slow, fast"),
         ([], {"EXAMPLE_LOUD": "maybe"}, "EXAMPLE_LOUD='maybe': say true or false"),
         (["--set", "rate=2"], {}, "'rate=2': rate has a flag of its own: --rate"),
-        (["--set", "rat=2"], {}, "use KEY=VALUE with KEY one of inner, loud, mode"),
+        (["--set", "rat=2"], {}, "no setting 'rat'; did you mean rate? KEY is one of inner"),
         (["--set", "tuned=slow"], {}, "tuned takes a float"),
     ],
 )
@@ -238,3 +238,31 @@ def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_p
     error = f"voxshape {command}: error: --set 'shaping=bias': {dict(REFUSED)['shaping=bias']}"
     assert done.stderr.strip().splitlines() == [error]
     assert not (tmp_path / "runs").exists()  # nothing started, no run folder made
+
+
+@pytest.mark.parametrize(
+    ("setting", "error"),
+    [
+        ("alpha=7", "alpha 7 is outside (0, 1]"),  # a learning rate
+        ("alpha=0", "alpha 0 is outside (0, 1]"),
+        ("lookahead_s=-5", "lookahead_s -5 is outside (0, inf)"),  # a duration
+        ("epsilon_start=1.5", "epsilon_start 1.5 is outside [0, 1]"),
+        ("max_hold=1", "max_hold 1 is below min_hold 3"),
+    ],
+)
+def test_a_setting_out_of_its_range_is_refused(setting, error):
+    with pytest.raises(SettingsError, match=re.escape(error)):
+        with_settings([setting])
+    assert with_settings(["alpha=1", "lam=0", "gamma=1"]).alpha == 1.0  # the ends that are in
+
+
+@pytest.mark.parametrize(
+    ("setting", "meant"),
+    [("lookahead=banana", "lookahead_s or lookahead_weight"), ("aplha=0.1", "alpha")],
+)
+def test_a_key_mistyped_is_answered_with_the_close_ones(setting, meant):
+    key = setting.partition("=")[0]
+    with pytest.raises(
+        SettingsError, match=re.escape(f"no setting {key!r}; did you mean {meant}?")
+    ):
+        with_settings([setting])

@@ -13,6 +13,22 @@ from voxshape.runtime.settings import replaced
 # The fields of a state's key (states.py).
 KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
 
+# Numbers' ranges: (lowest, highest); "(": the lowest itself refused. Others are unbounded.
+RANGES: dict[str, tuple[str, float, float]] = {
+    "alpha": ("(", 0.0, 1.0),  # a learning rate
+    "gamma": ("(", 0.0, 1.0),
+    "lam": ("[", 0.0, 1.0),
+    "epsilon_start": ("[", 0.0, 1.0),
+    "epsilon_end": ("[", 0.0, 1.0),
+    "bias_decay": ("(", 0.0, 1.0),
+    "lookahead_s": ("(", 0.0, math.inf),  # a duration
+    "judged_s": ("(", 0.0, math.inf),
+    "temperature": ("(", 0.0, math.inf),
+    "converge_slack": ("(", 0.0, math.inf),
+    "min_hold": ("[", 1, math.inf),
+    "converge_episodes": ("[", 1, math.inf),
+}
+
 
 @dataclass(frozen=True)
 class AskConfig:
@@ -150,6 +166,13 @@ class LearnerConfig:
     ask: AskConfig = field(default_factory=AskConfig)
 
     def __post_init__(self) -> None:
+        for name, (bracket, low, high) in RANGES.items():
+            value = getattr(self, name)
+            if not (low < value <= high or (bracket == "[" and value == low)):
+                end = "]" if high < math.inf else ")"
+                raise ValueError(f"{name} {value:g} is outside {bracket}{low:g}, {high:g}{end}")
+        if self.max_hold < self.min_hold:
+            raise ValueError(f"max_hold {self.max_hold} is below min_hold {self.min_hold}")
         if self.representation not in ("tiles", "keys", "pearson"):
             raise ValueError(f"representation {self.representation!r}: one of tiles, keys, pearson")
         if self.tilings < 1 or self.tile_width <= 0 or self.heading_tiles < 1:
