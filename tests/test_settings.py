@@ -247,7 +247,6 @@ def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_p
         ("alpha=0", "alpha 0 is outside (0, 1]"),
         ("lookahead_s=-5", "lookahead_s -5 is outside (0, inf)"),  # a duration
         ("epsilon_start=1.5", "epsilon_start 1.5 is outside [0, 1]"),
-        ("max_hold=1", "max_hold 1 is below min_hold 3"),
     ],
 )
 def test_a_setting_out_of_its_range_is_refused(setting, error):

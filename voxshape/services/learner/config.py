@@ -171,8 +171,6 @@ class LearnerConfig:
             if not (low < value <= high or (bracket == "[" and value == low)):
                 end = "]" if high < math.inf else ")"
                 raise ValueError(f"{name} {value:g} is outside {bracket}{low:g}, {high:g}{end}")
-        if self.max_hold < self.min_hold:
-            raise ValueError(f"max_hold {self.max_hold} is below min_hold {self.min_hold}")
         if self.representation not in ("tiles", "keys", "pearson"):
             raise ValueError(f"representation {self.representation!r}: one of tiles, keys, pearson")
         if self.tilings < 1 or self.tile_width <= 0 or self.heading_tiles < 1:
