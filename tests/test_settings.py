@@ -265,3 +265,31 @@ def test_a_key_mistyped_is_answered_with_the_close_ones(setting, meant):
         SettingsError, match=re.escape(f"no setting {key!r}; did you mean {meant}?")
     ):
         with_settings([setting])
+
+
+def subcommand(*names: str) -> argparse.ArgumentParser:
+    """The parser of `voxshape NAME [SUBNAME]`."""
+    found = parser(only=names[0])
+    for name in names:
+        (sub,) = [a for a in found._actions if isinstance(a, argparse._SubParsersAction)]
+        found = sub.choices[name]
+    return found
+
+
+def undocumented_defaults(command: argparse.ArgumentParser) -> list[str]:
+    """The flags of a command whose default (a value, not off or empty) its help leaves out."""
+    return [
+        action.option_strings[0]
+        for action in command._actions
+        if action.option_strings
+        and action.default not in (None, False, [], (), argparse.SUPPRESS)
+        and action.help != argparse.SUPPRESS
+        and "default" not in (action.help or "")
+    ]
+
+
+@pytest.mark.parametrize(
+    "names", [("experiment", e) for e in ("paper", "sweep", "pool", "distributed")]
+)
+def test_every_default_of_a_command_is_in_its_help(names):
+    assert undocumented_defaults(subcommand(*names)) == []

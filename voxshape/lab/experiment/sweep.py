@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from voxshape.lab.experiment.inprocess import SETTINGS, RunResult, RunSpec
-from voxshape.lab.experiment.intervals import speedup_interval, task_means
+from voxshape.lab.experiment.intervals import few_seeds_note, speedup_interval, task_means
 from voxshape.lab.experiment.legend import SETTING_STYLES
 from voxshape.lab.experiment.runner import run_all, start_log
 from voxshape.services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
@@ -254,6 +254,8 @@ def sweep(
         if rows[0]["converged_fraction"] < 1
         else ""
     )
+    if few := few_seeds_note(len(seeds)):
+        note += f"\n{few}\n"
     (out / "sweep.md").write_text(table(rows) + "\n" + note)
     figure(rows, out / "sweep.png")
     return rows
