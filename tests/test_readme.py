@@ -49,6 +49,9 @@ COVERED: dict[str, tuple[str, ...]] = {
         "tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",
         "tests.test_first_hour::test_the_first_hour_of_a_new_user",
     ),
+    "voxshape status --connect ...": (
+        "tests.test_session_end::test_sigterm_ends_the_session_and_status_names_it_before",
+    ),
     "voxshape up --robots r1,r2 --rtf 5": (
         "tests.test_launcher::test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes",
     ),

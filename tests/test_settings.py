@@ -289,7 +289,7 @@ def undocumented_defaults(command: argparse.ArgumentParser) -> list[str]:
 
 
 @pytest.mark.parametrize(
-    "names", [("experiment", e) for e in ("paper", "sweep", "pool", "distributed")]
+    "names", [("experiment", e) for e in ("paper", "sweep", "pool", "distributed")] + [("ros2",)]
 )
 def test_every_default_of_a_command_is_in_its_help(names):
     assert undocumented_defaults(subcommand(*names)) == []
