@@ -13,7 +13,7 @@ import time
 import pytest
 
 from tests.conftest import ROOT, free_port
-from voxshape.lab.demo import ConvergenceWatch
+from voxshape.lab.progress import ConvergenceWatch
 from voxshape.launcher import LoopbackSession, ServiceDied
 from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, TeachingStats
