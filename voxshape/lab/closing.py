@@ -23,7 +23,7 @@ def plural(n: int, word: str) -> str:
 
 
 @dataclass
-class Words:
+class WordCount:
     """The words said to the robot (the simulated teacher says what it speaks, a Said), those
     the arbiter had (heard: recognized, or typed) and understood, per teacher, as its
     TeachingStats count them for the robot."""
@@ -53,7 +53,7 @@ class Ending:
     episodes: int
     robot_minutes: float
     wall_minutes: float
-    words: Words
+    words: WordCount
     more: int = 0
     goals: int = 0  # episodes that reached the goal (said when it gave up)
 

@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 
 from voxshape import launcher
-from voxshape.lab.closing import Words, closing_lines
+from voxshape.lab.closing import WordCount, closing_lines
 from voxshape.lab.progress import FINAL_WAIT_S, ConvergenceWatch, StallWatch
 from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import INTERVENTIONS_ARE, EpisodeCounts
@@ -210,7 +210,7 @@ def run(args: argparse.Namespace) -> int:
         session.say(f"error: {problem}")
         return 2
     _introduce(session, session_id, args, mode, simulated)
-    robot, progress, words = args.robots[0], watch_of(args), Words()
+    robot, progress, words = args.robots[0], watch_of(args), WordCount()
     for topic in ("episode", "teaching", "learning"):  # its steps, from the first one
         session.subscribe(topic, robot)
     session.subscribe("said", "*")
@@ -273,7 +273,7 @@ def _introduce(
 def _train_session(
     session: launcher.LocalSession,
     progress: ConvergenceWatch,
-    words: Words,
+    words: WordCount,
     args: argparse.Namespace,
 ) -> int:
     """Starts the session, trains until done and stops it: 0, 1 on an error, 130 on Ctrl-C."""
@@ -302,7 +302,7 @@ def _train_session(
 def train(
     session: launcher.LocalSession,
     progress: ConvergenceWatch,
-    words: Words,
+    words: WordCount,
     stall_timeout: float,
     interactive: bool = False,
 ) -> None:

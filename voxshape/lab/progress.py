@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from voxshape.lab.closing import Ending, Words
+from voxshape.lab.closing import Ending, WordCount
 from voxshape.lab.report.summary import STEP_SECONDS
 from voxshape.protocol import EpisodeEvent, TeachingStats
 from voxshape.services.learner.convergence import Convergence, EpisodeResult
@@ -109,7 +109,7 @@ class ConvergenceWatch:
             + ("  <- converged" if converged else "")
         )
 
-    def ending(self, code: int, title: str, words: Words, now: float) -> Ending:
+    def ending(self, code: int, title: str, words: WordCount, now: float) -> Ending:
         """How the demo ended, from its training's exit code (0: done, 1: an error, 130:
         interrupted, which ends a lasting demo as its person meant)."""
         c = self.convergence

@@ -248,14 +248,19 @@ def sweep(
             indent=1,
         )
     )
+    (out / "sweep.md").write_text(table(rows) + "\n" + _notes(rows, len(seeds)))
+    figure(rows, out / "sweep.png")
+    return rows
+
+
+def _notes(rows: list[dict], seeds: int) -> str:
+    """What sweep.md says below its table: RL's censored runs, too few seeds."""
     note = (
         "\nRL did not always converge within the episode limit: its mean is a lower bound, and "
         "so is every speedup.\n"
         if rows[0]["converged_fraction"] < 1
         else ""
     )
-    if few := few_seeds_note(len(seeds)):
+    if few := few_seeds_note(seeds):
         note += f"\n{few}\n"
-    (out / "sweep.md").write_text(table(rows) + "\n" + note)
-    figure(rows, out / "sweep.png")
-    return rows
+    return note

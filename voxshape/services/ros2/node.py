@@ -110,6 +110,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="cmd_vel's type: twist, or twist_stamped (Jazzy's diff_drive_controller) "
         "(default twist)",
     )
+    _add_episodes(parser, robot)
+
+
+def _add_episodes(parser: argparse.ArgumentParser, robot: argparse._ArgumentGroup) -> None:
+    """The robot's id, task, limits, and what happens between its episodes."""
+    env = os.environ.get
     robot.add_argument(
         "--robot",
         default=env("VOXSHAPE_ROBOT", "r1"),
