@@ -122,16 +122,13 @@ def test_the_closing_lines_say_episodes_minutes_and_words_plainly():
     for n, steps in enumerate([2000, 400, 150, 160, 170]):
         progress.on_episode(ended(n, steps), now=60.0 * (n + 1))
     words = WordCount(said=6, heard={"simteacher": 5}, understood={"simteacher": 1})
-    lines = closing_lines(progress.ending(0, "task 1", words, now=400.0))
+    lines = closing_lines(progress.ending(0, words, now=400.0))
     assert lines == [
         "The robot learnt task 1 in 5 episodes (4.8 robot minutes, 5.0 wall minutes).",
         "6 words said to it: 5 heard, 1 understood.",
     ]
     one = WordCount(heard={"ana": 1}, understood={"ana": 1})
-    assert (
-        closing_lines(progress.ending(0, "task 1", one, 400.0))[1]
-        == "1 word reached it, 1 understood."
-    )
+    assert closing_lines(progress.ending(0, one, 400.0))[1] == "1 word reached it, 1 understood."
 
 
 def test_an_interrupted_run_says_nothing_converged():
@@ -143,7 +140,7 @@ def test_an_interrupted_run_says_nothing_converged():
     stopped = watch(10)
     for n, steps in enumerate([2000, 400]):
         stopped.on_episode(ended(n, steps), now=1.0)
-    text = " ".join(closing_lines(stopped.ending(130, "task 1", WordCount(), now=1.0)))
+    text = " ".join(closing_lines(stopped.ending(130, WordCount(), now=1.0)))
     assert text.startswith("Stopped after 2 episodes") and "before it learnt task 1" in text
     assert "converged" not in text and "No word was said to it." in text
 

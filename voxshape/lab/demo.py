@@ -60,7 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="teach it yourself in a browser: serves the web page (its address is printed) "
         "and runs no simulated teacher unless --sim-teacher; the robot runs at real time "
-        "unless --rtf",
+        "unless --rtf. It has no time limit: once the robot has learnt, the page says so and "
+        "the robot goes on, episode after episode, until you end it (Ctrl-C)",
     )
     parser.add_argument(
         "--sim-teacher",
@@ -68,7 +69,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --web: the simulated teacher teaches too",
     )
     parser.add_argument(
-        "--max-episodes", type=int, default=60, help="give up if not converged by then"
+        "--max-episodes",
+        type=int,
+        default=60,
+        help="give up if not converged by then (default 60; not with --web, which its person ends)",
     )
     parser.add_argument(
         "--speech",
@@ -103,9 +107,13 @@ def task_title(task: str, m: Map) -> str:
 def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
     """The first robot's watch, judged by the map of --task and the learner's --set; a web
     demo's lasts until its person ends it."""
-    convergence = convergence_on(load_map(args.task), with_settings(args.set))
+    m = load_map(args.task)
+    convergence = convergence_on(m, with_settings(args.set))
     lasting = bool(getattr(args, "web", False))
-    return ConvergenceWatch(args.robots[0], args.max_episodes, convergence, lasting=lasting)
+    title = task_title(args.task, m)
+    return ConvergenceWatch(
+        args.robots[0], args.max_episodes, convergence, title=title, lasting=lasting
+    )
 
 
 def demo_table(
@@ -218,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     now = time.monotonic()
     for line in progress.due_lines(now, flush=True, mark=code == 0):
         session.say(line)
-    ending = progress.ending(code, task_title(args.task, load_map(args.task)), words, now)
+    ending = progress.ending(code, words, now)
     closing = closing_lines(ending)
     for line in closing:
         session.say(line)
@@ -312,7 +320,7 @@ def train(
     bus = session.bus
     assert bus is not None
     stall, cpu_then = StallWatch(stall_timeout, time.monotonic()), session.cpu_seconds()
-    warned, done_at, learnt = False, None, False
+    warned, done_at, learnt = False, None, None
     for event in bus.events(tick=0.5):
         now = time.monotonic()
         message = event.message if isinstance(event, Input) else None
@@ -333,9 +341,10 @@ def train(
                 cpu_then = session.cpu_seconds()  # a stall's CPU figures count from here
         for line in progress.due_lines(now):
             session.say(line)
-        if progress.convergence.converged and progress.lasting and not learnt:
-            learnt = True
-            session.say(_learnt_now(progress))
+        if not learnt and (learnt := progress.learnt()) is not None:
+            bus.publish(learnt)  # the pages say so (a lasting demo goes on)
+            if progress.lasting:
+                session.say(_learnt_now(progress))
         if progress.done:
             done_at = done_at or now
             if progress.all_shown or now - done_at > FINAL_WAIT_S:

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from voxshape.lab.closing import Ending, WordCount
 from voxshape.lab.report.summary import STEP_SECONDS
-from voxshape.protocol import EpisodeEvent, TeachingStats
+from voxshape.protocol import EpisodeEvent, Learnt, TeachingStats
 from voxshape.services.learner.convergence import Convergence, EpisodeResult
 
 FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within the arbiter's
@@ -59,6 +59,7 @@ class ConvergenceWatch:
     convergence: Convergence
     episodes: list[ShownEpisode] = field(default_factory=list)
     interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
+    title: str = "its task"  # what it learns: "task 1", "map office.toml (Office)"
     lasting: bool = False  # episodes go on after convergence (a web demo, until its person)
     started: float = 0.0  # monotonic: when the session was up
     learnt_at: float | None = None  # monotonic: when the episode it converged in ended
@@ -109,7 +110,21 @@ class ConvergenceWatch:
             + ("  <- converged" if converged else "")
         )
 
-    def ending(self, code: int, title: str, words: WordCount, now: float) -> Ending:
+    def learnt(self) -> Learnt | None:
+        """What the pages are told once the robot has learnt (None before)."""
+        c = self.convergence
+        if not c.converged:
+            return None
+        number = self.episodes[c.n_episodes - 1].number
+        return Learnt(
+            robot=self.robot,
+            episode=number,
+            episodes=c.n_episodes,
+            robot_seconds=c.learning_time,
+            task=self.title,
+        )
+
+    def ending(self, code: int, words: WordCount, now: float) -> Ending:
         """How the demo ended, from its training's exit code (0: done, 1: an error, 130:
         interrupted, which ends a lasting demo as its person meant)."""
         c = self.convergence
@@ -118,7 +133,7 @@ class ConvergenceWatch:
         )
         until = self.learnt_at if self.learnt_at is not None else now
         return Ending(
-            task=title,
+            task=self.title,
             how=how,  # type: ignore[arg-type]
             learnt=c.converged,
             episodes=c.n_episodes,

@@ -9,6 +9,7 @@ voxshape/<session>/robot/<robot>/teaching         TeachingStats (interventions, 
 voxshape/<session>/robot/<robot>/help             HelpRequest (the robot asks which way)
 voxshape/<session>/robot/<robot>/answer           HelpAnswer (who answered, with what)
 voxshape/<session>/robot/<robot>/limits           RobotLimits (how fast it may be driven)
+voxshape/<session>/robot/<robot>/learnt           Learnt (it has learnt its task: the demo says)
 voxshape/<session>/teacher/<teacher>/audio        AudioChunk
 voxshape/<session>/teacher/<teacher>/utterance    Utterance
 voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for the mock engine)
@@ -41,6 +42,7 @@ from voxshape.protocol.messages import (
     HelpAnswer,
     HelpRequest,
     LearningSummary,
+    Learnt,
     Message,
     Observation,
     Placed,
@@ -64,6 +66,7 @@ ROBOT_TOPICS: dict[str, type[Message]] = {
     "help": HelpRequest,
     "answer": HelpAnswer,
     "limits": RobotLimits,
+    "learnt": Learnt,
 }
 TEACHER_TOPICS: dict[str, type[Message]] = {
     "audio": AudioChunk,
