@@ -18,6 +18,7 @@ Its flows are its `ros2` row of voxshape/protocol/dataflow.py
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 
@@ -146,6 +147,13 @@ def _add_episodes(parser: argparse.ArgumentParser, robot: argparse._ArgumentGrou
         "--rtf", type=float, default=1.0, help="a simulated robot's time factor (default 1)"
     )
     robot.add_argument(
+        "--scan-yaw",
+        type=float,
+        default=0.0,
+        help="degrees: where the scan's angle 0 points, left of the robot's heading (the "
+        "lidar's mounting yaw; a TurtleBot 4's is 90, docs/robot.md#turtlebot-4) (default 0)",
+    )
+    robot.add_argument(
         "--attachment",
         choices=("auto", "33", "77"),
         default="auto",
@@ -204,12 +212,15 @@ def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
     start = None
     if args.start is not None:
         x, y, degrees = args.start
-        start = (x, y, degrees * 3.141592653589793 / 180)
+        start = (x, y, math.radians(degrees))
     contact = ContactConfig(args.radius, args.stuck_after)
     goal = Goal(args.goal[0], args.goal[1], m.goal_radius)
     rules = EpisodeRules(goal, contact, steps_of(m.timeout, CONTROL_PERIOD_S))
     homing = HomingConfig(timeout=args.homing_timeout)
-    bridge = BridgeConfig(rules, robot, args.reset, start, limits, homing, rtf=args.rtf)
+    yaw = math.radians(args.scan_yaw)
+    bridge = BridgeConfig(
+        rules, robot, args.reset, start, limits, homing, rtf=args.rtf, scan_yaw=yaw
+    )
     connect = tuple(e.strip() for e in args.robot_connect.split(",") if e.strip())
     node_name = "voxshape_" + "".join(c if c.isalnum() else "_" for c in robot)
     link = LinkConfig(
