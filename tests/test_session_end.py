@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -37,6 +38,15 @@ def session_pids(session_id: str) -> set[int]:
             if mark in (entry / "environ").read_bytes().split(b"\0") and running(int(entry.name)):
                 found.add(int(entry.name))
     return found
+
+
+@pytest.fixture
+def ended(session_id) -> Iterator[str]:
+    """A session id whose processes, any left when the test is over, are ended by pid."""
+    yield session_id
+    for pid in session_pids(session_id):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
 
 
 def start_session(spawn, session_id: str, cwd: Path, **popen: object) -> tuple:
@@ -85,7 +95,8 @@ def assert_log_whole(cwd: Path, session_id: str) -> None:
 
 
 @pytest.mark.long
-def test_a_terminal_closed_ends_the_session(spawn, session_id, tmp_path):
+def test_a_terminal_closed_ends_the_session(spawn, ended, tmp_path):
+    session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)
     up.stdout.close()  # the terminal is gone: the launcher's output goes nowhere
     os.killpg(up.pid, signal.SIGHUP)
@@ -95,7 +106,8 @@ def test_a_terminal_closed_ends_the_session(spawn, session_id, tmp_path):
 
 
 @pytest.mark.long
-def test_ctrl_c_twice_still_stops_every_service(spawn, session_id, tmp_path):
+def test_ctrl_c_twice_still_stops_every_service(spawn, ended, tmp_path):
+    session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)
     os.killpg(up.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the launcher's group
     read_until(up, r"(took|stopped) |left the bus", timeout=30)  # it is stopping
@@ -107,7 +119,8 @@ def test_ctrl_c_twice_still_stops_every_service(spawn, session_id, tmp_path):
 
 
 @pytest.mark.long
-def test_sigterm_ends_the_session_and_status_names_it_before(spawn, session_id, tmp_path):
+def test_sigterm_ends_the_session_and_status_names_it_before(spawn, ended, tmp_path):
+    session_id = ended
     up, port, _ = start_session(spawn, session_id, tmp_path)
     status = subprocess.run(  # the default session is not there: this one is named
         [VOXSHAPE, "status", "--connect", f"tcp/127.0.0.1:{port}"],
@@ -137,7 +150,8 @@ def test_sigterm_ends_the_session_and_status_names_it_before(spawn, session_id, 
 
 
 @pytest.mark.long
-def test_the_launcher_killed_alone_takes_its_services_with_it(spawn, session_id, tmp_path):
+def test_the_launcher_killed_alone_takes_its_services_with_it(spawn, ended, tmp_path):
+    session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)
     up.kill()  # the launcher alone: its services are in sessions of their own
     up.wait(10)
