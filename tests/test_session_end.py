@@ -80,10 +80,12 @@ def wait_ended(session_id: str) -> float:
 
 
 def assert_log_whole(cwd: Path, session_id: str) -> None:
-    """The event log reads to its end (no record cut short) and replays."""
+    """The event log reads to its end (no record cut short) and replays; the live recording
+    was written."""
     run = cwd / "runs" / session_id
     log = read_events(run / "events.msgpack")
     assert log.records and log.incomplete_tail == 0, log.describe_tail()
+    assert (run / "recording.rrd").stat().st_size > 0
     replay = subprocess.run(
         [VOXSHAPE, "replay", str(run), "--output", str(cwd / "again.rrd")],
         capture_output=True,
