@@ -11,6 +11,7 @@ import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -19,7 +20,7 @@ import pytest
 
 from tests.conftest import VOXSHAPE, free_port, read_until
 from voxshape.launcher.record import RECORD_FILE, SessionRecord, running
-from voxshape.runtime.processes import ORPHAN_GRACE_S, PARENT_VARIABLE
+from voxshape.runtime.processes import ORPHAN_GRACE_S, PARENT_VARIABLE, ending_with_me
 from voxshape.services.logger.eventlog import read_events
 
 ENDED_WITHIN_S = 5.0  # what the design aims for; the test allows a loaded machine more
@@ -179,3 +180,25 @@ def test_a_child_whose_parent_is_gone_is_ended_by_the_watch(spawn, kind, ended_b
     env = {**os.environ, PARENT_VARIABLE: "1"}  # a parent that is not its own: gone already
     child = spawn([sys.executable, "-c", ORPHAN, kind], env=env)
     assert child.wait(ORPHAN_GRACE_S + 30) == ended_by
+
+
+def test_a_child_started_from_a_thread_outlives_that_thread():
+    """The kernel's parent-death signal follows the thread that started a child: a child a
+    launcher starts from another thread watches the launcher's pid alone, and lives on when
+    that thread ends."""
+    children: list[subprocess.Popen] = []
+
+    def start() -> None:
+        env = ending_with_me(dict(os.environ))
+        children.append(subprocess.Popen([sys.executable, "-c", ORPHAN, "stops"], env=env))
+
+    starter = threading.Thread(target=start)
+    starter.start()
+    starter.join()
+    (child,) = children
+    try:
+        time.sleep(1.0)  # the kernel's signal would come at once
+        assert child.poll() is None
+    finally:
+        child.kill()
+        child.wait(10)

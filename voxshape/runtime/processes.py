@@ -42,8 +42,11 @@ def end_process(proc: subprocess.Popen, grace_s: float, kill_wait_s: float = 10.
 
 
 def ending_with_me(environment: MutableMapping[str, str]) -> MutableMapping[str, str]:
-    """`environment` for a child that is to end with this process."""
-    environment[PARENT_VARIABLE] = str(os.getpid())
+    """`environment` for a child that is to end with this process. The kernel's signal comes
+    when the thread that started the child ends, not its process: a child started from
+    another thread than the main one is told to watch the pid alone (`<pid>:watch`)."""
+    main = threading.current_thread() is threading.main_thread()
+    environment[PARENT_VARIABLE] = f"{os.getpid()}{'' if main else ':watch'}"
     return environment
 
 
@@ -51,11 +54,11 @@ def end_with_parent(environ: MutableMapping[str, str] = os.environ) -> int | Non
     """When PARENT_VARIABLE names this process's parent: SIGTERM to this process once that
     parent is gone, SIGKILL ORPHAN_GRACE_S later. The variable is taken out (this process's
     own children are not its parent's). The parent's pid, or None when none was named."""
-    named = environ.pop(PARENT_VARIABLE, None)
-    if not named or not named.isdigit():
+    named, _, how = (environ.pop(PARENT_VARIABLE, None) or "").partition(":")
+    if not named.isdigit():
         return None
     parent = int(named)
-    if sys.platform.startswith("linux"):
+    if sys.platform.startswith("linux") and how != "watch":
         with contextlib.suppress(OSError, AttributeError):
             libc = ctypes.CDLL(None, use_errno=True)
             libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
