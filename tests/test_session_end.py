@@ -23,6 +23,7 @@ from voxshape.launcher.record import RECORD_FILE, SessionRecord, running
 from voxshape.runtime.processes import ORPHAN_GRACE_S, PARENT_VARIABLE, ending_with_me
 from voxshape.services.logger.eventlog import read_events
 
+PIPE = subprocess.PIPE
 ENDED_WITHIN_S = 5.0  # what the design aims for; the test allows a loaded machine more
 ENDED_BOUND_S = 30.0
 
@@ -188,9 +189,13 @@ def test_a_child_started_from_a_thread_outlives_that_thread():
     that thread ends."""
     children: list[subprocess.Popen] = []
 
-    def start() -> None:
+    def start() -> None:  # the thread ends once the child watches
         env = ending_with_me(dict(os.environ))
-        children.append(subprocess.Popen([sys.executable, "-c", ORPHAN, "stops"], env=env))
+        said = "\nprint('watching', flush=True)\ntime.sleep(60)"
+        script = ORPHAN.replace("\ntime.sleep(60)", said)
+        child = subprocess.Popen([sys.executable, "-c", script, "stops"], env=env, stdout=PIPE)
+        children.append(child)
+        assert child.stdout.readline() == b"watching\n"
 
     starter = threading.Thread(target=start)
     starter.start()
