@@ -239,7 +239,6 @@ class LocalSession:
             except BusError:
                 if time.monotonic() > deadline or self._stop_requested:
                     raise
-                time.sleep(0.1)  # a router not listening yet refuses at once
                 continue
             node.watch_presence()
             for topic, of in self._inputs:

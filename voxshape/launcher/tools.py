@@ -38,7 +38,7 @@ def add_status_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def status(args: argparse.Namespace) -> int:
-    config = bus_config("status", args)
+    config = bus_config("status", args, fail_fast=True)
     if args.mode is None and config.mode == "peer":
         config = replace(config, mode="client")  # a one-shot look needs no listener
     with Node("status", config, quiet=True) as node:
@@ -174,7 +174,7 @@ def jsonable(value: object) -> object:
 def listen(args: argparse.Namespace) -> int:
     received = 0
     deadline = time.monotonic() + args.duration if args.duration else None
-    with Node("listen", bus_config("listen", args)) as node:
+    with Node("listen", bus_config("listen", args, fail_fast=True)) as node:
         node.input("all", args.key or node.everything)
         node.log.info("listening", extra={"voxshape_fields": {"key": args.key or "session"}})
         for event in node.events(tick=0.2):

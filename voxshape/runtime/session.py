@@ -21,11 +21,12 @@ def open_zenoh(config: BusConfig) -> zenoh.Session:
     """Opens a zenoh session, translating zenoh's errors into what a user should do. A user
     whose router answers is either let in within milliseconds or refused: refused, it is told
     so at once, not after the whole connect timeout."""
-    if config.mode != "router" and _refused_at_once(config.connect):
+    if config.fail_fast and config.mode != "router" and _refused_at_once(config.connect):
         raise BusError(
             f"nothing listens at {', '.join(config.connect)} (refused at once). Is the "
             "session's router running? Locally, `voxshape up` starts one; for another "
-            f"session's, check {config.connect_flag}/VOXSHAPE_CONNECT."
+            f"session's, check {config.connect_flag}/VOXSHAPE_CONNECT (--connect-timeout "
+            "waits for one that is starting)."
         )
     answering = config.mode != "router" and _router_answers(config.connect)
     if config.user is not None and answering:

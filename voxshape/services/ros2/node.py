@@ -244,7 +244,7 @@ def open_link(config: LinkConfig, node: Node) -> RobotLink:
 
 def run(args: argparse.Namespace) -> int:
     bridge_config, link_config = configs(args)
-    bus = bus_config("ros2", args)
+    bus = bus_config("ros2", args, fail_fast=True)
     with Node("ros2", bus) as node:
         robot = bridge_config.robot
         outputs = {
