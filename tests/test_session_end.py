@@ -24,6 +24,9 @@ from voxshape.runtime.processes import ORPHAN_GRACE_S, PARENT_VARIABLE, ending_w
 from voxshape.services.logger.eventlog import read_events
 
 PIPE = subprocess.PIPE
+# Whole sessions, one after another on one worker of a parallel run: seven services starting
+# at once, four times over, would crowd the timing tests beside them.
+SESSIONS = pytest.mark.xdist_group("sessions")
 ENDED_WITHIN_S = 5.0  # what the design aims for; the test allows a loaded machine more
 ENDED_BOUND_S = 30.0
 
@@ -99,6 +102,7 @@ def assert_log_whole(cwd: Path, session_id: str) -> None:
 
 
 @pytest.mark.long
+@SESSIONS
 def test_a_terminal_closed_ends_the_session(spawn, ended, tmp_path):
     session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)
@@ -110,6 +114,7 @@ def test_a_terminal_closed_ends_the_session(spawn, ended, tmp_path):
 
 
 @pytest.mark.long
+@SESSIONS
 def test_ctrl_c_twice_still_stops_every_service(spawn, ended, tmp_path):
     session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)
@@ -123,6 +128,7 @@ def test_ctrl_c_twice_still_stops_every_service(spawn, ended, tmp_path):
 
 
 @pytest.mark.long
+@SESSIONS
 def test_sigterm_ends_the_session_and_status_names_it_before(spawn, ended, tmp_path):
     session_id = ended
     up, port, _ = start_session(spawn, session_id, tmp_path)
@@ -154,6 +160,7 @@ def test_sigterm_ends_the_session_and_status_names_it_before(spawn, ended, tmp_p
 
 
 @pytest.mark.long
+@SESSIONS
 def test_the_launcher_killed_alone_takes_its_services_with_it(spawn, ended, tmp_path):
     session_id = ended
     up, _, _ = start_session(spawn, session_id, tmp_path)

@@ -38,6 +38,7 @@ def test_a_web_demos_watch_is_never_done():
 @pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is missing")
 @pytest.mark.timeout(400)
 @pytest.mark.long
+@pytest.mark.xdist_group("sessions")  # as tests/test_session_end.py's
 def test_the_web_demo_goes_on_after_the_robot_learnt(spawn, session_id, tmp_path):
     web_port = free_port()
     env = {**os.environ, "VOXSHAPE_SESSION": session_id, "VOXSHAPE_WEB_PORT": str(web_port)}
