@@ -101,30 +101,31 @@ def assert_log_whole(cwd: Path, session_id: str) -> None:
     assert not (run / RECORD_FILE).exists() or not SessionRecord.read(run / RECORD_FILE).alive()
 
 
-@pytest.mark.long
-@SESSIONS
-def test_a_terminal_closed_ends_the_session(spawn, ended, tmp_path):
-    session_id = ended
-    up, _, _ = start_session(spawn, session_id, tmp_path)
+def close_its_terminal(up: subprocess.Popen) -> None:
     up.stdout.close()  # the terminal is gone: the launcher's output goes nowhere
-    os.killpg(up.pid, signal.SIGHUP)
-    wait_ended(session_id)
-    assert up.wait(30) == 0  # stopped as on Ctrl-C, its output going nowhere
-    assert_log_whole(tmp_path, session_id)
+    os.killpg(up.pid, signal.SIGHUP)  # and its process group is hung up
 
 
-@pytest.mark.long
-@SESSIONS
-def test_ctrl_c_twice_still_stops_every_service(spawn, ended, tmp_path):
-    session_id = ended
-    up, _, _ = start_session(spawn, session_id, tmp_path)
+def press_ctrl_c_twice(up: subprocess.Popen) -> None:
     os.killpg(up.pid, signal.SIGINT)  # a terminal's Ctrl-C reaches the launcher's group
     read_until(up, r"(took|stopped) |left the bus", timeout=30)  # it is stopping
     os.killpg(up.pid, signal.SIGINT)
     read_until(up, r"at once", timeout=30)
-    wait_ended(session_id)
-    up.communicate(timeout=30)
-    assert_log_whole(tmp_path, session_id)
+
+
+def kill_the_launcher_alone(up: subprocess.Popen) -> None:
+    up.kill()  # its services are in sessions of their own: nothing reaches them
+
+
+@pytest.mark.long
+@SESSIONS
+@pytest.mark.parametrize("end", [close_its_terminal, press_ctrl_c_twice, kill_the_launcher_alone])
+def test_its_services_end_with_the_launcher(spawn, ended, tmp_path, end):
+    up, _, _ = start_session(spawn, ended, tmp_path)
+    end(up)
+    wait_ended(ended)
+    up.wait(30)
+    assert_log_whole(tmp_path, ended)
 
 
 @pytest.mark.long
@@ -156,17 +157,6 @@ def test_sigterm_ends_the_session_and_status_names_it_before(spawn, ended, tmp_p
     out, _ = up.communicate(timeout=30)
     assert "stopped" in out
     assert "\x1b[" not in out and "write_footer" not in out  # rerun's warning is left out
-    assert_log_whole(tmp_path, session_id)
-
-
-@pytest.mark.long
-@SESSIONS
-def test_the_launcher_killed_alone_takes_its_services_with_it(spawn, ended, tmp_path):
-    session_id = ended
-    up, _, _ = start_session(spawn, session_id, tmp_path)
-    up.kill()  # the launcher alone: its services are in sessions of their own
-    up.wait(10)
-    wait_ended(session_id)
     assert_log_whole(tmp_path, session_id)
 
 
