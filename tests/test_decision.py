@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from voxshape.protocol import load_vocabulary
-from voxshape.protocol.vocabulary import written_phrases
+from voxshape.protocol.vocabulary import spot, written_phrases
 from voxshape.services.speech import decision
 from voxshape.services.speech.decision import Margins
 from voxshape.services.speech.sound_alikes import SoundAlikes, cmudict, one_edit
@@ -70,4 +70,4 @@ def test_confidence_grows_with_every_margin_and_with_pocketsphinx():
     ],
 )
 def test_a_phrase_is_spotted_in_a_sentence_unless_negated(transcript, spotted):
-    assert decision.spot(transcript, PHRASES) == spotted
+    assert spot(transcript, PHRASES) == spotted

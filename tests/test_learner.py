@@ -262,7 +262,7 @@ def test_settings_from_the_command_line_are_typed_and_checked():
     optional = with_settings(["clear_range=2", "near_range=null"])  # float | None fields
     assert (optional.clear_range, optional.near_range) == (2.0, None)
     assert type(optional.clear_range) is float
-    with pytest.raises(SettingsError, match="KEY one of"):
+    with pytest.raises(SettingsError, match="KEY is one of"):
         with_settings(["alhpa=0.1"])
     with pytest.raises(SettingsError, match="blend takes a bool"):
         with_settings(["blend=3"])

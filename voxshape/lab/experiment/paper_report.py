@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from voxshape.lab.experiment.inprocess import SETTINGS
+from voxshape.lab.experiment.intervals import few_seeds_note
 from voxshape.lab.experiment.legend import label, teacher_line
 from voxshape.lab.experiment.published import (
     PAPER_EPISODES,
@@ -162,6 +163,7 @@ def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]
         "converge within the episode limit counts with its time so far, so its cell's mean "
         f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored{named}).",
         "",
+        *([note, ""] if (note := few_seeds_note(summary["seeds"])) else []),
     ]
 
 

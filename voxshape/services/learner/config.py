@@ -10,6 +10,35 @@ from typing import ClassVar, Literal
 from voxshape.runtime.settings import add_settings_argument as add_setting
 from voxshape.runtime.settings import replaced
 
+# Numbers' ranges: (lowest, highest); "(": the lowest itself refused. Others are unbounded.
+RANGES: dict[str, tuple[str, float, float]] = {
+    "alpha": ("(", 0.0, 1.0),  # a learning rate
+    "gamma": ("(", 0.0, 1.0),
+    "lam": ("[", 0.0, 1.0),
+    "epsilon_start": ("[", 0.0, 1.0),
+    "epsilon_end": ("[", 0.0, 1.0),
+    "lookahead_fade": ("[", 0.0, 1.0),
+    "word_fade": ("[", 0.0, 1.0),
+    "lookahead_s": ("(", 0.0, math.inf),  # a duration
+    "judged_s": ("(", 0.0, math.inf),
+    "feedback_window_s": ("(", 0.0, math.inf),
+    "way_tile_m": ("(", 0.0, math.inf),  # a length
+    "temperature": ("(", 0.0, math.inf),
+    "converge_slack": ("(", 0.0, math.inf),
+    "lookahead_weight": ("[", 0.0, math.inf),
+    "guess_weight": ("[", 0.0, math.inf),
+    "potential_scale": ("[", 0.0, math.inf),
+    "stall_s": ("[", 0.0, math.inf),
+    "min_judged_move": ("[", 0.0, math.inf),
+    "dead_zone": ("[", 0.0, 180.0),  # degrees
+    "command_turn": ("[", 0.0, 180.0),
+    "command_aim": ("[", 0.0, 180.0),
+    "min_hold": ("[", 1, math.inf),  # steps
+    "max_hold": ("[", 1, math.inf),
+    "command_steps": ("[", 1, math.inf),
+    "converge_episodes": ("[", 1, math.inf),
+}
+
 
 @dataclass(frozen=True)
 class AskConfig:
@@ -138,26 +167,11 @@ class LearnerConfig:
     ask: AskConfig = field(default_factory=AskConfig)
 
     def __post_init__(self) -> None:
-        ranges = {
-            "alpha": (self.alpha, 0.0, 1.0, "a learning rate in (0, 1]"),
-            "gamma": (self.gamma, 0.0, 1.0, "a discount in (0, 1]"),
-            "lam": (self.lam, -1e-12, 1.0, "a trace decay in [0, 1]"),
-            "lookahead_fade": (self.lookahead_fade, -1e-12, 1.0, "a fade in [0, 1]"),
-            "word_fade": (self.word_fade, -1e-12, 1.0, "a fade in [0, 1]"),
-        }
-        for name, (value, above, at_most, what) in ranges.items():
-            if not above < value <= at_most:
-                raise ValueError(f"{name}={value}: {what}")
-        positive = ("lookahead_s", "judged_s", "way_tile_m", "feedback_window_s")
-        for name in positive:
-            if getattr(self, name) <= 0:
-                raise ValueError(f"{name}={getattr(self, name)}: a length of time or space > 0")
-        at_least_zero = ("lookahead_weight", "guess_weight", "stall_s", "min_judged_move")
-        for name in (*at_least_zero, "potential_scale", "dead_zone", "epsilon_start"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"{name}={getattr(self, name)}: needs a value >= 0")
-        if min(self.min_hold, self.max_hold, self.command_steps) < 1:
-            raise ValueError("need min_hold, max_hold and command_steps >= 1 (steps)")
+        for name, (bracket, low, high) in RANGES.items():
+            value = getattr(self, name)
+            if not (low < value <= high or (bracket == "[" and value == low)):
+                end = "]" if high < math.inf else ")"
+                raise ValueError(f"{name} {value:g} is outside {bracket}{low:g}, {high:g}{end}")
         unknown = set(self.policy_actions) - set(self.velocities)
         if unknown:
             raise ValueError(f"policy_actions {sorted(unknown)}: not in velocities")
