@@ -9,13 +9,14 @@ import json
 import os
 import re
 import subprocess
+from dataclasses import replace
 
 import pytest
 
 from tests.conftest import VOXSHAPE, free_port
 from tests.logger_support import LONG_ROOM
 from voxshape.cli import parser
-from voxshape.lab.closing import WordCount, closing_lines
+from voxshape.lab.closing import Alone, WordCount, closing_lines
 from voxshape.lab.demo import demo_table, task_title, watch_of
 from voxshape.lab.progress import FINAL_WAIT_S, StallWatch
 from voxshape.lab.report.counts import count_episodes
@@ -45,6 +46,8 @@ def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(se
     assert result.returncode == 0, digest(out)
     learnt = re.search(r"The robot learnt task 1 in (\d+) episodes \(.* wall \w+\)\.", out)
     assert learnt and re.search(r"\d+ words? (said to it|reached it)", out), digest(out)
+    bought = r"Alone \(the same room and seed, .*\) it learnt it in .*: the words (saved|cost)"
+    assert re.search(bought, out), digest(out)  # what the words bought, or cost
     print(learnt.group(0))
     (run_dir,) = (tmp_path / "runs").iterdir()
     table = (run_dir / "demo.md").read_text()
@@ -129,6 +132,23 @@ def test_the_closing_lines_say_episodes_minutes_and_words_plainly():
     ]
     one = WordCount(heard={"ana": 1}, understood={"ana": 1})
     assert closing_lines(progress.ending(0, one, 400.0))[1] == "1 word reached it, 1 understood."
+
+
+def test_the_closing_lines_say_what_the_words_bought_against_the_robot_alone():
+    progress = watch(10)
+    progress.started = 0.0
+    for n, steps in enumerate([2000, 400, 150, 160, 170]):
+        progress.on_episode(ended(n, steps), now=60.0 * (n + 1))
+    ending = progress.ending(0, WordCount(said=3, heard={"ana": 3}), now=400.0)
+    alone = Alone(learnt=True, episodes=7, robot_minutes=6.0, wall_seconds=2.0)
+    assert closing_lines(replace(ending, alone=alone))[-1] == (
+        "Alone (the same room and seed, nobody speaking, 2 wall seconds in one process) it "
+        "learnt it in 7 episodes and 6.0 robot minutes: the words saved 1.2 robot minutes."
+    )
+    quicker = replace(alone, robot_minutes=4.0)
+    assert closing_lines(replace(ending, alone=quicker))[-1].endswith("cost 0.8 robot minutes.")
+    never = replace(alone, learnt=False, episodes=30)
+    assert "had not learnt it after 30 episodes" in closing_lines(replace(ending, alone=never))[-1]
 
 
 def test_an_interrupted_run_says_nothing_converged():

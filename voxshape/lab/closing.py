@@ -56,6 +56,17 @@ class Ending:
     words: WordCount
     more: int = 0
     goals: int = 0  # episodes that reached the goal (said when it gave up)
+    alone: Alone | None = None  # the same room and seed learnt without a person
+
+
+@dataclass(frozen=True)
+class Alone:
+    """The same room and seed learnt in one process without anybody speaking."""
+
+    learnt: bool
+    episodes: int
+    robot_minutes: float
+    wall_seconds: float
 
 
 def learnt_sentence(e: Ending) -> str:
@@ -91,7 +102,32 @@ def words_sentence(e: Ending) -> str:
     return f"{plural(said, 'word')} said to it: {heard} heard, {understood} understood."
 
 
-CLOSING: tuple[Callable[[Ending], str | None], ...] = (learnt_sentence, words_sentence)
+def bought_sentence(e: Ending) -> str | None:
+    """What the words bought, or cost: the taught run against the same room and seed learnt
+    alone (in one process)."""
+    a = e.alone
+    if a is None or not e.learnt:
+        return None
+    if not a.learnt:
+        return (
+            f"Alone, the same robot had not learnt it after {plural(a.episodes, 'episode')} "
+            f"({a.robot_minutes:.1f} robot minutes): the words made the difference."
+        )
+    saved = a.robot_minutes - e.robot_minutes
+    verdict = "saved" if saved >= 0 else "cost"
+    return (
+        f"Alone (the same room and seed, nobody speaking, {a.wall_seconds:.0f} wall seconds "
+        f"in one process) it learnt it in {plural(a.episodes, 'episode')} and "
+        f"{a.robot_minutes:.1f} robot minutes: the words {verdict} "
+        f"{abs(saved):.1f} robot minutes."
+    )
+
+
+CLOSING: tuple[Callable[[Ending], str | None], ...] = (
+    learnt_sentence,
+    words_sentence,
+    bought_sentence,
+)
 
 
 def closing_lines(ending: Ending) -> list[str]:

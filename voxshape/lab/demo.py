@@ -27,10 +27,13 @@ import os
 import shutil
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from voxshape import launcher
-from voxshape.lab.closing import WordCount, closing_lines
+from voxshape.lab.closing import Alone, WordCount, closing_lines
+from voxshape.lab.experiment.inprocess import RunSpec
+from voxshape.lab.experiment.inprocess import run as run_experiment
 from voxshape.lab.progress import FINAL_WAIT_S, ConvergenceWatch, StallWatch
 from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import INTERVENTIONS_ARE, EpisodeCounts
@@ -227,11 +230,23 @@ def run(args: argparse.Namespace) -> int:
     for line in progress.due_lines(now, flush=True, mark=code == 0):
         session.say(line)
     ending = progress.ending(code, words, now)
+    if ending.learnt:
+        ending = replace(ending, alone=learnt_alone(args, ending.episodes))
     closing = closing_lines(ending)
     for line in closing:
         session.say(line)
     written = outputs(session, session_id, progress, args.task, closing)
     return written or {"learnt": 0, "ended by its person": 0, "interrupted": 130}.get(ending.how, 1)
+
+
+def learnt_alone(args: argparse.Namespace, episodes: int) -> Alone:
+    """The demo's room and seed learnt in one process with nobody speaking, for at most
+    three times the demo's episodes and 30 (a few wall seconds on a small map)."""
+    began = time.monotonic()
+    spec = RunSpec(args.task, "rl", args.seed, max(30, 3 * episodes), learner=tuple(args.set))
+    result = run_experiment(spec)
+    wall = time.monotonic() - began
+    return Alone(result.converged, result.episodes, result.learning_time_s / 60, wall)
 
 
 def _arrange_services(
