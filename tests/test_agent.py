@@ -16,7 +16,7 @@ from voxshape.protocol import QUESTION_OPEN_S, Credit, CreditedFeedback
 from voxshape.services.learner import checkpoint
 from voxshape.services.learner.agent import Agent
 from voxshape.services.learner.asking import Asker
-from voxshape.services.learner.online import OnlineLearner
+from voxshape.services.learner.online import online_agent
 from voxshape.services.learner.sarsa import Learner
 from voxshape.world.robot import CONTROL_PERIOD_S
 
@@ -80,7 +80,7 @@ def test_credited_feedback_is_taken_whole_and_names_the_steps_it_dropped():
 
 
 def test_online_feedback_is_taken_once_even_when_delivered_again():
-    online = OnlineLearner(Learner(EXACT, seed=0), checkpoint.Bookmark(), Counter(), 300.0)
+    online = online_agent(Learner(EXACT, seed=0), checkpoint.Bookmark(), Counter(), 300.0)
     online.learner.step(P(WALL_LEFT, step=0))
     feedback = CreditedFeedback(
         robot="r1", kind="reward", reward=10.0, command=None,

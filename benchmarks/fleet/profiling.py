@@ -190,19 +190,21 @@ def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
     """The learner: each observation decoded, learned from and answered, encoded."""
     from voxshape.services.learner.checkpoint import Bookmark
     from voxshape.services.learner.config import LearnerConfig
-    from voxshape.services.learner.online import OnlineLearner
+    from voxshape.services.learner.online import observe, online_agent
     from voxshape.services.learner.sarsa import Learner
+    from voxshape.services.learner.traces import TraceBook
 
-    online = {
-        r: OnlineLearner(Learner(LearnerConfig(), i), Bookmark(), Counter(), 60.0)
+    agents = {
+        r: online_agent(Learner(LearnerConfig(), i), Bookmark(), Counter(), 60.0)
         for i, r in enumerate(robots)
     }
+    books = {r: TraceBook() for r in robots}
 
     def work() -> None:
         for tick in recorded:
             for b in tick:
                 obs = decode(b, Observation)
-                action, summary, question = online[obs.robot].observe(obs)
+                action, summary, question = observe(agents[obs.robot], books[obs.robot], obs)
                 for m in (action, summary, question):
                     if m is not None:
                         encode(m)

@@ -41,9 +41,9 @@ from voxshape.runtime import (
 )
 from voxshape.runtime.logs import worth_logging
 from voxshape.runtime.settings import add_options, option, read_options, write_settings
-from voxshape.services.learner import checkpoint
+from voxshape.services.learner import checkpoint, online
+from voxshape.services.learner.agent import Agent
 from voxshape.services.learner.config import LearnerConfig, add_settings_argument, with_settings
-from voxshape.services.learner.online import OnlineLearner
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.learner.traces import TraceBook
 from voxshape.world.maps import Map, load_map, task_option
@@ -113,7 +113,8 @@ class Driven:
     path: Path
     learner: Learner
     bookmark: checkpoint.Bookmark
-    online: OnlineLearner
+    agent: Agent
+    book: TraceBook  # the episodes a teacher steered, saved as initial traces
     act: Output
     summary: Output
     ask: Output
@@ -137,7 +138,7 @@ class Driven:
     def observe(self, obs: Observation) -> None:
         """Learns from the step, then publishes the next action, the summary and a
         question, if any."""
-        action, learnt, question = self.online.observe(obs)
+        action, learnt, question = online.observe(self.agent, self.book, obs)
         if action is not None and action.v is not None and self.scale < 1.0:
             action = replace(action, v=action.v * self.scale, omega=action.omega * self.scale)
         if action is not None:
@@ -149,7 +150,7 @@ class Driven:
     def hear(self, node: Node, feedback: CreditedFeedback) -> None:
         """A credited word: the agent takes it (once), then what it could not credit (its
         steps had left the window) is logged."""
-        dropped = self.online.take(feedback)
+        dropped = self.agent.take(feedback)
         if dropped and worth_logging(node.counters["learner.feedback_partly_dropped"]):
             node.log.warning(
                 "feedback for steps outside the window dropped",
@@ -210,8 +211,8 @@ def run(args: argparse.Namespace) -> int:
                 driven[parse_key(event.key).owner].hear(node, event.message)
         for one in driven.values():
             one.save()
-            if one.online.book.episodes:
-                one.online.book.save(one.path.with_name(f"traces-{one.robot}.npz"))
+            if one.book.episodes:
+                one.book.save(one.path.with_name(f"traces-{one.robot}.npz"))
             node.counters.update({f"learner.{k}": v for k, v in one.learner.counters.items()})
     return 0
 
@@ -265,11 +266,11 @@ def drive(
     if initial:
         shown = initial.show(learner)
         node.log.info("shown the way by initial traces", extra=fields(robot=robot, traces=shown))
-    online = OnlineLearner(learner, bookmark, node.counters, timeout_s)
+    agent = online.online_agent(learner, bookmark, node.counters, timeout_s)
     node.subscribe("obs", robot)
     node.subscribe("feedback", robot)
     node.subscribe("limits", robot)
     act = node.advertise("action", robot)
     summary = node.advertise("learning", robot)
     ask = node.advertise("help", robot)
-    return Driven(robot, path, learner, bookmark, online, act, summary, ask)
+    return Driven(robot, path, learner, bookmark, agent, TraceBook(), act, summary, ask)
