@@ -30,7 +30,12 @@ from benchmarks.common import percentile, spread
 from voxshape.launcher import LoopbackSession
 from voxshape.protocol import CreditedFeedback
 from voxshape.runtime import Input, Node, Output, Presence
-from voxshape.services.arbiter.scripted import ScriptedTeacher, observation, rehearse, utterance
+from voxshape.services.arbiter.scripted import (
+    ScriptedTeacher,
+    rehearse,
+    scripted_observation,
+    scripted_utterance,
+)
 
 ROBOT, TEACHER = "r1", "bench"
 OBS_EVERY = 0.1  # seconds between observations: a person-paced session (10 Hz)
@@ -82,7 +87,7 @@ def _time_utterances(
     latencies, lost = [], 0
     for _ in range(utterances):
         stream.maybe_step()
-        u = utterance(TEACHER, ROBOT, "good", onset=time.time() - 0.3, confidence=1.0)
+        u = scripted_utterance(TEACHER, ROBOT, "good", onset=time.time() - 0.3, confidence=1.0)
         t0 = time.perf_counter()
         said.put(u)
         if _wait_for_feedback(node, u.id):
@@ -103,7 +108,7 @@ class _ObservationStream:
     def maybe_step(self) -> None:
         now = time.time()
         if now - self.last >= OBS_EVERY:
-            self.output.put(observation(ROBOT, self.step, now))
+            self.output.put(scripted_observation(ROBOT, self.step, now))
             self.step += 1
             self.last = now
 
@@ -119,7 +124,7 @@ def _wait_for_arbiter(
         present = isinstance(event, Presence) and event.role == "arbiter" and event.alive
     while time.monotonic() < deadline:
         stream.maybe_step()
-        u = utterance(TEACHER, ROBOT, "good", onset=time.time(), confidence=1.0)
+        u = scripted_utterance(TEACHER, ROBOT, "good", onset=time.time(), confidence=1.0)
         said.put(u)
         if _wait_for_feedback(node, u.id, 0.2):
             return

@@ -35,10 +35,10 @@ from voxshape.services.arbiter.hygiene import RecentIds
 from voxshape.services.arbiter.node import config_from
 from voxshape.services.arbiter.scripted import (
     ScriptedTeacher,
-    observation,
     rehearse,
+    scripted_observation,
+    scripted_utterance,
     sync_in_process,
-    utterance,
 )
 
 T0 = 1_700_000_000.0  # wall time of step 0
@@ -54,7 +54,7 @@ def arbiter(steps: int = 100, **settings) -> Arbiter:
     """An arbiter that has seen robot r1 step at exactly 10 Hz, steps 0..steps-1."""
     a = Arbiter(ArbiterConfig(**settings), VOCABULARY)
     for k in range(steps):
-        a.on_observation(observation("r1", k, shown(k)), shown(k))
+        a.on_observation(scripted_observation("r1", k, shown(k)), shown(k))
     return a
 
 
@@ -76,7 +76,7 @@ def credits(message: CreditedFeedback) -> dict[int, float]:
 def test_known_step_timing_and_delay_credit_the_steps_displayed_in_the_window():
     a = arbiter(learning=DelayLearning(enabled=False))  # TAMER's 0.2-0.8 s window
     onset = shown(50) + 0.55  # window: [shown(50) - 0.25, shown(50) + 0.35]
-    out = a.on_utterance(utterance("ana", "r1", "good", onset), received_at=shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r1", "good", onset), received_at=shown(99))
     (fb,) = feedback(out)
     assert fb.kind == "reward" and fb.reward == 10.0 and fb.teachers == ("ana",)
     sixth, twelfth = round(1 / 6, 6), round(1 / 12, 6)
@@ -94,7 +94,7 @@ def test_known_step_timing_and_delay_credit_the_steps_displayed_in_the_window():
 
 def test_recognition_latency_and_arrival_time_do_not_move_the_credit():
     a, b = arbiter(), arbiter()
-    quick = utterance("ana", "r1", "bad", shown(40))
+    quick = scripted_utterance("ana", "r1", "bad", shown(40))
     slow = replace(quick, recognized_at=quick.onset + 2.5, end=quick.onset + 1.1)
     (fast,) = feedback(a.on_utterance(quick, received_at=shown(41)))
     (late,) = feedback(b.on_utterance(slow, received_at=shown(70)))
@@ -104,7 +104,7 @@ def test_recognition_latency_and_arrival_time_do_not_move_the_credit():
 def test_a_teachers_own_window_is_used():
     a = arbiter(teacher_delay={"bob": DelayWindow(1.0, 1.1)}, learning=DelayLearning(enabled=False))
     onset = shown(60) + 1.05 + 0.05  # centre of step 60's display
-    (fb,) = feedback(a.on_utterance(utterance("bob", "r1", "good", onset), shown(99)))
+    (fb,) = feedback(a.on_utterance(scripted_utterance("bob", "r1", "good", onset), shown(99)))
     assert credits(fb) == {60: 1.0}
 
 
@@ -116,12 +116,16 @@ def test_a_robot_time_teachers_window_is_robot_seconds_at_any_pace():
     config = ArbiterConfig(robot_time=frozenset({"sim"}), learning=DelayLearning(enabled=False))
     a = Arbiter(config, VOCABULARY)
     for k in range(400):
-        a.on_observation(observation("r1", k, T0 + k * fast), T0 + k * fast)
+        a.on_observation(scripted_observation("r1", k, T0 + k * fast), T0 + k * fast)
     onset = T0 + (300 + 5.5) * fast  # 0.55 robot seconds after step 300 was displayed
-    (simulated,) = feedback(a.on_utterance(utterance("sim", "r1", "good", onset), T0 + 399 * fast))
+    (simulated,) = feedback(
+        a.on_utterance(scripted_utterance("sim", "r1", "good", onset), T0 + 399 * fast)
+    )
     expected = {297: 1 / 12, **dict.fromkeys(range(298, 303), 1 / 6), 303: 1 / 12}
     assert credits(simulated) == pytest.approx(expected, abs=1e-4)  # 5 ms steps: rounding
-    (person,) = feedback(a.on_utterance(utterance("ana", "r1", "good", onset), T0 + 399 * fast))
+    (person,) = feedback(
+        a.on_utterance(scripted_utterance("ana", "r1", "good", onset), T0 + 399 * fast)
+    )
     assert min(credits(person)) == 145 and max(credits(person)) == 265
 
 
@@ -141,15 +145,17 @@ def test_terminal_steps_are_never_credited():
     for k in range(20):
         end = k == 10
         a.on_observation(
-            observation("r1", k, shown(k), outcome="goal" if end else "running"), shown(k)
+            scripted_observation("r1", k, shown(k), outcome="goal" if end else "running"), shown(k)
         )
-    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", "good", shown(10) + 0.5), shown(19)))
+    (fb,) = feedback(
+        a.on_utterance(scripted_utterance("ana", "r1", "good", shown(10) + 0.5), shown(19))
+    )
     assert 10 not in credits(fb) and abs(sum(credits(fb).values()) - 1) < 1e-6
 
 
 def test_feedback_older_than_the_history_is_too_late_and_the_teacher_is_told():
     a = arbiter(history_seconds=5.0)
-    out = a.on_utterance(utterance("ana", "r1", "good", shown(10)), shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r1", "good", shown(10)), shown(99))
     assert not feedback(out)
     (notice,) = notices(out)
     assert notice.kind == "too_late" and "too late" in notice.text
@@ -166,8 +172,10 @@ def test_a_skewed_teacher_clock_is_corrected(skew):
     estimate, _ = sync_in_process(skewed, ScriptedTeacher("ana", skew=skew), T0, random.Random(1))
     assert abs(estimate.offset - (-skew)) < 0.002  # within the round trip of the exchange
     onset = shown(50) + 0.55
-    (want,) = feedback(reference.on_utterance(utterance("ana", "r1", "good", onset), shown(99)))
-    said = utterance("ana", "r1", "good", onset + skew)  # the teacher's clock
+    (want,) = feedback(
+        reference.on_utterance(scripted_utterance("ana", "r1", "good", onset), shown(99))
+    )
+    said = scripted_utterance("ana", "r1", "good", onset + skew)  # the teacher's clock
     (got,) = feedback(skewed.on_utterance(said, shown(99)))
     assert credits(got).keys() == credits(want).keys()
     assert all(abs(credits(got)[s] - w) < 0.02 for s, w in credits(want).items())
@@ -175,9 +183,13 @@ def test_a_skewed_teacher_clock_is_corrected(skew):
 
 def test_without_sync_a_skew_moves_the_credit():
     a = arbiter(learning=DelayLearning(enabled=False))
-    (behind,) = feedback(a.on_utterance(utterance("ana", "r1", "good", shown(80) - 5), shown(99)))
+    (behind,) = feedback(
+        a.on_utterance(scripted_utterance("ana", "r1", "good", shown(80) - 5), shown(99))
+    )
     assert max(credits(behind)) < 40  # 5 s = 50 steps too early
-    (ahead,) = feedback(a.on_utterance(utterance("bob", "r1", "good", shown(80) + 5), shown(99)))
+    (ahead,) = feedback(
+        a.on_utterance(scripted_utterance("bob", "r1", "good", shown(80) + 5), shown(99))
+    )
     # An onset after its arrival is a clock error: the arrival is the best bound, and counted.
     assert set(credits(ahead)) == set(range(91, 97))
     assert a.counters["onset_after_arrival"] == 1 and a.counters["unsynced_teacher_utterances"] == 2
@@ -264,7 +276,7 @@ def test_delay_is_not_learnt_from_too_few_events_or_when_disabled():
 )
 def test_words_and_phrases_of_both_languages(text, kind, expected):
     a = arbiter()
-    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99)))
+    (fb,) = feedback(a.on_utterance(scripted_utterance("ana", "r1", text, shown(90)), shown(99)))
     assert fb.kind == kind
     assert (fb.reward if kind == "reward" else fb.command) == expected
 
@@ -274,7 +286,7 @@ def test_words_and_phrases_of_both_languages(text, kind, expected):
 )
 def test_unknown_words_and_phrases_are_ignored_and_the_teacher_asked_to_repeat(text):
     a = arbiter()
-    out = a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r1", text, shown(90)), shown(99))
     assert not feedback(out)
     (notice,) = notices(out)
     assert notice.kind == "not_understood" and notice.text.startswith(
@@ -285,14 +297,18 @@ def test_unknown_words_and_phrases_are_ignored_and_the_teacher_asked_to_repeat(t
 
 def test_low_confidence_is_ignored_and_the_teacher_asked_to_repeat():
     a = arbiter(min_confidence=0.6)
-    out = a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.59), shown(99))
+    out = a.on_utterance(
+        scripted_utterance("ana", "r1", "good", shown(90), confidence=0.59), shown(99)
+    )
     (notice,) = notices(out)
     assert not feedback(out) and notice.kind == "low_confidence"
     assert notice.text == (
         "not used: heard 'good' with confidence 0.59, below 0.60; say it again, clearly"
     )
     assert feedback(
-        a.on_utterance(utterance("ana", "r1", "good", shown(90), confidence=0.6), shown(99))
+        a.on_utterance(
+            scripted_utterance("ana", "r1", "good", shown(90), confidence=0.6), shown(99)
+        )
     )
 
 
@@ -301,7 +317,7 @@ def test_a_command_is_credited_to_the_steps_the_teacher_saw_when_deciding_it():
     where the robot was when the teacher decided it: the steps a judgement said then would
     be credited to."""
     a = arbiter(learning=DelayLearning(enabled=False))  # TAMER's 0.2-0.8 s window
-    out = a.on_utterance(utterance("ana", "r1", "avanza", shown(50) + 0.55), shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r1", "avanza", shown(50) + 0.55), shown(99))
     (fb,) = feedback(out)
     assert (fb.kind, fb.command, fb.reward) == ("command", "forward", None)
     assert set(credits(fb)) == set(range(47, 54))
@@ -318,8 +334,8 @@ def test_rewards_are_merged_unbounded_the_learner_bounds_them_by_g():
         {"version": 1, "huge": {"kind": "qualifier", "reward": 500.0, "en": ["amazing"]}}
     )
     a = Arbiter(ArbiterConfig(teacher_weight={"bob": 3.0}), loud)
-    a.on_observation(observation("r1", 0, T0), T0)
-    (fb,) = feedback(a.on_utterance(utterance("ana", "r1", "amazing", T0 + 0.5), T0 + 1))
+    a.on_observation(scripted_observation("r1", 0, T0), T0)
+    (fb,) = feedback(a.on_utterance(scripted_utterance("ana", "r1", "amazing", T0 + 0.5), T0 + 1))
     assert fb.reward == 500.0
     with pytest.raises(ArbiterConfigError, match="within \\[0, 100\\]"):
         ArbiterConfig(teacher_weight={"bob": 1000.0})
@@ -331,7 +347,9 @@ def test_rewards_are_merged_unbounded_the_learner_bounds_them_by_g():
 def judge_same_steps(a: Arbiter, *said: tuple[str, str]) -> list:
     out = []
     for i, (teacher, text) in enumerate(said):
-        out += a.on_utterance(utterance(teacher, "r1", text, shown(60) + 0.01 * i), shown(99))
+        out += a.on_utterance(
+            scripted_utterance(teacher, "r1", text, shown(60) + 0.01 * i), shown(99)
+        )
     return out
 
 
@@ -365,8 +383,8 @@ def test_majority_keeps_the_heavier_side_and_drops_a_tie():
 
 def test_judgements_about_different_steps_are_not_merged():
     a = arbiter(merge="mean")
-    a.on_utterance(utterance("ana", "r1", "good", shown(20)), shown(99))
-    a.on_utterance(utterance("bob", "r1", "bad", shown(70)), shown(99))
+    a.on_utterance(scripted_utterance("ana", "r1", "good", shown(20)), shown(99))
+    a.on_utterance(scripted_utterance("bob", "r1", "bad", shown(70)), shown(99))
     assert sorted(f.reward for f in feedback(a.on_tick(shown(99) + 1.0))) == [-10.0, 10.0]
 
 
@@ -375,12 +393,14 @@ def test_per_teacher_statistics_and_interventions_per_episode():
     for k in range(30):
         end = k == 19
         episode = 0 if k <= 19 else 1
-        obs = observation("r1", k, shown(k), episode=episode, outcome="goal" if end else "running")
+        obs = scripted_observation(
+            "r1", k, shown(k), episode=episode, outcome="goal" if end else "running"
+        )
         a.on_observation(obs, shown(k))
         if k == 15:
-            a.on_utterance(utterance("ana", "r1", "good", shown(14)), shown(k))
-            a.on_utterance(utterance("ana", "r1", "banana", shown(14)), shown(k))
-            a.on_utterance(utterance("bob", "r1", "left", shown(14)), shown(k))
+            a.on_utterance(scripted_utterance("ana", "r1", "good", shown(14)), shown(k))
+            a.on_utterance(scripted_utterance("ana", "r1", "banana", shown(14)), shown(k))
+            a.on_utterance(scripted_utterance("bob", "r1", "left", shown(14)), shown(k))
     live = [m for m in a.on_tick(shown(29)) if isinstance(m, TeachingStats)]
     assert [(s.episode, s.final) for s in live] == [(1, False)]
     assert not [m for m in a.on_tick(shown(19) + 2.9) if isinstance(m, TeachingStats)]
@@ -396,7 +416,7 @@ def test_per_teacher_statistics_and_interventions_per_episode():
 
 def test_duplicates_are_dropped_and_counted():
     a = arbiter()
-    said = utterance("ana", "r1", "good", shown(90))
+    said = scripted_utterance("ana", "r1", "good", shown(90))
     assert feedback(a.on_utterance(said, shown(99)))
     assert a.on_utterance(said, shown(99)) == []
     assert a.counters["rejected.duplicate"] == 1
@@ -406,13 +426,15 @@ def test_a_flood_is_cut_counted_and_the_teacher_told_once():
     a = arbiter(utterances_per_s=4.0, utterances_at_once=8.0)
     out = []
     for i in range(100):  # 100 in one second
-        out += a.on_utterance(utterance("ana", "r1", "good", shown(90)), shown(90) + i * 0.01)
+        out += a.on_utterance(
+            scripted_utterance("ana", "r1", "good", shown(90)), shown(90) + i * 0.01
+        )
     # the burst, then 4/s until 0.4 s in, when each claims to have ended (said at one moment)
     assert len(feedback(out)) == 8 + 1
     limited = [n for n in notices(out) if n.kind == "rate_limited"]
     assert len(limited) == 1 and "slow down" in limited[0].text
     assert a.counters["rejected.rate_limited"] == 100 - len(feedback(out))
-    other = a.on_utterance(utterance("bob", "r1", "good", shown(90)), shown(91))
+    other = a.on_utterance(scripted_utterance("bob", "r1", "good", shown(90)), shown(91))
     assert feedback(other)  # another teacher is not limited
 
 
@@ -423,27 +445,31 @@ def test_a_robot_time_teachers_rate_is_per_robot_second():
     config = ArbiterConfig(robot_time=frozenset({"sim"}), learning=DelayLearning(enabled=False))
     a = Arbiter(config, VOCABULARY)
     for k in range(800):
-        a.on_observation(observation("r1", k, T0 + k * fast), T0 + k * fast)
+        a.on_observation(scripted_observation("r1", k, T0 + k * fast), T0 + k * fast)
     said = {"sim": 0, "ana": 0}
     for i in range(40):  # one every 10 steps: a robot second, 50 ms of wall time
         at = T0 + (400 + 10 * i) * fast
         for teacher in said:
-            said[teacher] += len(feedback(a.on_utterance(utterance(teacher, "r1", "good", at), at)))
+            said[teacher] += len(
+                feedback(a.on_utterance(scripted_utterance(teacher, "r1", "good", at), at))
+            )
     assert said == {"sim": 40, "ana": 8 + 7}  # ana: the burst, then 4/s over 1.95 s
 
 
 def test_an_unknown_robot_is_rejected_and_the_teacher_told():
     a = arbiter()
-    out = a.on_utterance(utterance("ana", "r9", "good", shown(90)), shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r9", "good", shown(90)), shown(99))
     (notice,) = notices(out)
     assert not feedback(out) and notice.kind == "unknown_robot" and "robots: r1" in notice.text
-    quiet = a.on_utterance(utterance("ana", "r1", "good", shown(99)), shown(99) + 60)
+    quiet = a.on_utterance(scripted_utterance("ana", "r1", "good", shown(99)), shown(99) + 60)
     assert notices(quiet)[0].kind == "unknown_robot"  # its simulator went quiet
 
 
 def test_an_utterance_on_another_teachers_key_is_rejected():
     a = arbiter()
-    assert a.on_utterance(utterance("ana", "r1", "good", shown(90)), shown(99), "bob") == []
+    assert (
+        a.on_utterance(scripted_utterance("ana", "r1", "good", shown(90)), shown(99), "bob") == []
+    )
     assert a.counters["rejected.teacher_mismatch"] == 1
 
 
@@ -526,19 +552,19 @@ def test_recovered_steps_behind_live_ones_go_in_their_place():
 def test_a_just_started_arbiter_holds_words_for_a_robot_until_it_is_seen():
     """Restarted, it may recover a teacher's utterances before the robot's observations."""
     a = Arbiter(ArbiterConfig(), VOCABULARY, started_at=shown(30))
-    said = utterance("ana", "r1", "good", shown(15))  # said before the arbiter started
+    said = scripted_utterance("ana", "r1", "good", shown(15))  # said before the arbiter started
     assert a.on_utterance(said, shown(30)) == []  # held: r1 not seen yet
     out = []
     for k in range(30):  # recovered: they arrive late, in a burst
-        a.on_observation(observation("r1", k, shown(k)), shown(30) + 0.001 * k)
+        a.on_observation(scripted_observation("r1", k, shown(k)), shown(30) + 0.001 * k)
     assert a.on_tick(shown(31)) == []  # still starting
     out = a.on_tick(shown(30) + 3.0)
     assert feedback(out) and notices(out)[0].kind == "understood"
     late = Arbiter(ArbiterConfig(), VOCABULARY, started_at=T0)
-    assert late.on_utterance(utterance("ana", "r9", "good", T0 - 1), T0) == []
+    assert late.on_utterance(scripted_utterance("ana", "r9", "good", T0 - 1), T0) == []
     (notice,) = notices(late.on_tick(T0 + 3.0))  # nobody came: unknown after the wait
     assert notice.kind == "unknown_robot"
-    live = late.on_utterance(utterance("ana", "r8", "good", T0 + 1), T0 + 1)
+    live = late.on_utterance(scripted_utterance("ana", "r8", "good", T0 + 1), T0 + 1)
     assert notices(live)[0].kind == "unknown_robot"  # said after the start: told at once
 
 
@@ -551,15 +577,15 @@ def test_words_that_arrive_at_once_but_were_said_at_a_pace_are_no_flood():
         ArbiterConfig(utterances_per_s=4.0, utterances_at_once=8.0), VOCABULARY, started_at=shown(0)
     )
     for k in range(300):
-        a.on_observation(observation("r1", k, shown(k)), shown(k))
+        a.on_observation(scripted_observation("r1", k, shown(k)), shown(k))
     out = []
     for i in range(20):  # said a word every 10 steps (a second) while it was frozen
-        said = utterance("ana", "r1", "good", shown(100 + 10 * i))
+        said = scripted_utterance("ana", "r1", "good", shown(100 + 10 * i))
         out += a.on_utterance(said, shown(300) + 0.1 + 0.001 * i)
     assert len(feedback(out)) == 20 and a.counters["rejected.rate_limited"] == 0
     at_once = []
     for i in range(20):
-        said = utterance("bob", "r1", "good", shown(290))
+        said = scripted_utterance("bob", "r1", "good", shown(290))
         at_once += a.on_utterance(said, shown(300) + 0.2 + 0.001 * i)
     assert len(feedback(at_once)) == 8 and a.counters["rejected.rate_limited"] == 12
 
@@ -574,9 +600,13 @@ def test_a_restarted_arbiter_drops_long_recovered_words_before_its_rate_limit():
         started_at=shown(1000),
     )
     for k in range(700, 1000):  # its recovered observations
-        a.on_observation(observation("r1", k, shown(k)), shown(1000) + 0.0001 * k)
-    old = [utterance("ana", "r1", "good", shown(k)) for k in range(0, 600, 3)]  # 40-100 s ago
-    new = [utterance("ana", "r1", "bad", shown(k)) for k in range(900, 1000, 10)]  # the outage
+        a.on_observation(scripted_observation("r1", k, shown(k)), shown(1000) + 0.0001 * k)
+    old = [
+        scripted_utterance("ana", "r1", "good", shown(k)) for k in range(0, 600, 3)
+    ]  # 40-100 s ago
+    new = [
+        scripted_utterance("ana", "r1", "bad", shown(k)) for k in range(900, 1000, 10)
+    ]  # the outage
     out = []
     for i, said in enumerate(old + new):
         out += a.on_utterance(said, shown(1000) + 0.1 + 0.001 * i)
@@ -593,19 +623,21 @@ def test_the_first_command_after_a_question_answers_it_credited_to_its_step():
     a = arbiter()
     asked = HelpRequest(robot="r1", episode=0, step=60, reason="stuck", detail="stuck", x=0, y=0)
     assert a.on_help(asked, shown(60)) == [] and a.counters["questions"] == 1
-    praise = a.on_utterance(utterance("ana", "r1", "good", shown(61)), shown(62))
+    praise = a.on_utterance(scripted_utterance("ana", "r1", "good", shown(61)), shown(62))
     assert feedback(praise)[0].kind == "reward"  # a qualifier is no answer to "which way?"
-    out = a.on_utterance(utterance("bob", "r1", "left", shown(80)), shown(85))  # 2 s later
+    out = a.on_utterance(scripted_utterance("bob", "r1", "left", shown(80)), shown(85))  # 2 s later
     (fb,) = feedback(out)
     assert (fb.kind, fb.command, credits(fb)) == ("command", "left", {60: 1.0})
     assert fb.question == asked.id  # the learner matches it by the question's id
     (answered,) = [m for m in out if isinstance(m, HelpAnswer)]
     assert (answered.question, answered.teacher, answered.meaning) == (asked.id, "bob", "left")
     assert "answer" in notices(out)[0].text
-    (second,) = feedback(a.on_utterance(utterance("ana", "r1", "right", shown(86)), shown(87)))
+    (second,) = feedback(
+        a.on_utterance(scripted_utterance("ana", "r1", "right", shown(86)), shown(87))
+    )
     assert max(credits(second)) < 86 and second.question is None  # a command about then
     a.on_help(replace(asked, step=90), shown(90))
-    late = a.on_utterance(utterance("ana", "r1", "left", shown(90) + 7.0), shown(99))
+    late = a.on_utterance(scripted_utterance("ana", "r1", "left", shown(90) + 7.0), shown(99))
     assert not any(isinstance(m, HelpAnswer) for m in late)  # said 7 s after it: not an answer
 
 
@@ -620,7 +652,7 @@ def test_an_answer_has_the_id_the_same_command_would_have_so_a_learner_takes_it_
     """An arbiter restarted without the question turns the recovered answer into a plain
     command: the same feedback id, so the learner that took the answer skips it."""
     asked = HelpRequest(robot="r1", episode=0, step=60, reason="stuck", detail="stuck", x=0, y=0)
-    said = utterance("ana", "r1", "left", shown(80))
+    said = scripted_utterance("ana", "r1", "left", shown(80))
     a = arbiter()
     a.on_help(asked, shown(60))
     (answer,) = feedback(a.on_utterance(said, shown(85)))

@@ -23,7 +23,7 @@ from voxshape.protocol import (
 )
 from voxshape.runtime import Node
 from voxshape.runtime.clock import ClockSyncError, sync_clock
-from voxshape.services.arbiter.scripted import observation, utterance
+from voxshape.services.arbiter.scripted import scripted_observation, scripted_utterance
 
 PERIOD = 0.05  # the fake simulator's step period
 SKEW = 5.0  # the teacher's clock is this far ahead
@@ -51,11 +51,11 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         start = time.time()  # a simulator stepping every PERIOD: step k shown at start + k P
         for k in range(30):
             time.sleep(max(0.0, start + k * PERIOD - time.time()))
-            obs.put(observation("r1", k, start + k * PERIOD))
+            obs.put(scripted_observation("r1", k, start + k * PERIOD))
         # Seen at the middle of step 20, said 0.5 s later on the teacher's clock: TAMER's
         # 0.2-0.8 s window covers steps 14.5 to 26.5.
         onset = start + 20.5 * PERIOD + 0.5 + SKEW
-        said.put(utterance("ana", "r1", "good", onset))
+        said.put(scripted_utterance("ana", "r1", "good", onset))
         # The feedback and the teacher's notice travel on different keys, in either order.
         got = collect(node, 2, (CreditedFeedback, TeacherNotice))
         (fb,) = [m for m in got if isinstance(m, CreditedFeedback)]
@@ -69,13 +69,13 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
 
         # Malformed utterances are rejected without harm; unknown words get a notice.
         key = teacher_key(session_id, "ana", "utterance")
-        bad = to_wire(utterance("ana", "r1", "good", onset))
+        bad = to_wire(scripted_utterance("ana", "r1", "good", onset))
         node.zenoh.put(key, msgpack.packb({**bad, "confidence": 2.0}))
         node.zenoh.put(key, b"\x00garbage")
-        said.put(utterance("ana", "r1", "cucumber", onset + 0.1))
+        said.put(scripted_utterance("ana", "r1", "cucumber", onset + 0.1))
         notice = collect(node, 1, TeacherNotice)[0]
         assert notice.kind == "not_understood" and "not in the vocabulary" in notice.text
-        said.put(utterance("ana", "r1", "avanza", onset + 0.2))
+        said.put(scripted_utterance("ana", "r1", "avanza", onset + 0.2))
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")
         assert sorted(c.step for c in command.credits) == list(range(14, 27))  # as "good"

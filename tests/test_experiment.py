@@ -13,9 +13,9 @@ from voxshape.lab.experiment import distributed
 from voxshape.lab.experiment.inprocess import SETTINGS, RunResult, RunSpec, run
 from voxshape.lab.experiment.intervals import mean_ci, speedup_interval
 from voxshape.lab.experiment.legend import SETTING_STYLES
-from voxshape.lab.experiment.paper_report import report
+from voxshape.lab.experiment.paper_report import paper_markdown
 from voxshape.lab.experiment.published import PAPER_AVERAGE, paper_average
-from voxshape.lab.experiment.summary import summarize
+from voxshape.lab.experiment.results import summarize_runs
 from voxshape.runtime.settings import SettingsError, replaced
 from voxshape.services.sim.task import Simulation
 from voxshape.services.simteacher.teacher import PERSON, TIRELESS, TeacherProfile
@@ -362,9 +362,9 @@ def test_the_papers_averages_are_over_the_tasks_run():
 def test_a_report_on_some_tasks_compares_with_the_paper_on_those_tasks_only():
     runs = [result("1", "rl", s, 20.0) for s in range(2)]
     runs += [result("1", "rl+t+f", s, 5.0, 30) for s in range(2)]
-    summary = summarize(runs, 2)
+    summary = summarize_runs(runs, 2)
     assert summary["paper"]["tasks"] == ["1"]
-    text = report(summary, "voxshape experiment paper --tasks 1", 1.0)
+    text = paper_markdown(summary, "voxshape experiment paper --tasks 1", 1.0)
     assert "| Avg of T1 | 20.0 | 103.93 | 5.0 | 12.85 |" in text  # not the four-task 92.54
     assert f"| RL + T + F | 4.00 | 4.00-4.00 | {103.93 / 12.85:.2f} |" in text  # not 5.4
     assert "| Avg of T1 | 30.0 | 23 |" in text  # interventions: task 1's, not 42
@@ -374,7 +374,9 @@ def test_a_report_on_some_tasks_compares_with_the_paper_on_those_tasks_only():
     # With a map file: the average of all tasks has no paper figure, the built-in one has.
     runs += [result("/x/my-room.toml", "rl", s, 40.0) for s in range(2)]
     runs += [result("/x/my-room.toml", "rl+t+f", s, 10.0, 50) for s in range(2)]
-    text = report(summarize(runs, 2), "voxshape experiment paper --tasks 1,my-room.toml", 1.0)
+    text = paper_markdown(
+        summarize_runs(runs, 2), "voxshape experiment paper --tasks 1,my-room.toml", 1.0
+    )
     assert "| Avg of my-room.toml, T1 | 30.0 | - | 7.5 | - |" in text
     assert "| Avg of T1 | 20.0 | 103.93 | 5.0 | 12.85 |" in text
     assert "| RL + T + F | 4.00 | 4.00-4.00 | - |" in text
@@ -383,7 +385,7 @@ def test_a_report_on_some_tasks_compares_with_the_paper_on_those_tasks_only():
 
     four = [result(t, st, s, m) for t in "1234" for st, m in (("rl", 20.0), ("rl+f", 10.0))
             for s in range(2)]  # fmt: skip
-    text = report(summarize(four, 2), "voxshape experiment paper", 1.0)
+    text = paper_markdown(summarize_runs(four, 2), "voxshape experiment paper", 1.0)
     assert "| Avg | 20.0 | 92.54 | 10.0 | 24.08 |" in text  # the printed four-task figures
     assert "| RL + F | 2.00 | 2.00-2.00 | 3.84 |" in text
 
@@ -403,6 +405,8 @@ def test_a_report_of_too_few_seeds_says_its_intervals_mean_little():
         pairs = (("rl", 20.0), ("rl+f", 10.0))
         return [result("1", st, s, m + s) for st, m in pairs for s in range(seeds)]
 
-    text = report(summarize(runs(2), 2), "voxshape experiment paper --seeds 2", 1.0)
+    text = paper_markdown(summarize_runs(runs(2), 2), "voxshape experiment paper --seeds 2", 1.0)
     assert "**Too few seeds to say much**: 2 seed(s)" in text and "--seeds 5 or more" in text
-    assert "Too few seeds" not in report(summarize(runs(5), 5), "voxshape experiment paper", 1.0)
+    assert "Too few seeds" not in paper_markdown(
+        summarize_runs(runs(5), 5), "voxshape experiment paper", 1.0
+    )

@@ -52,7 +52,7 @@ from voxshape.protocol import (
     to_wire,
 )
 from voxshape.runtime import Input, Node, bus_config
-from voxshape.services.arbiter.scripted import utterance
+from voxshape.services.arbiter.scripted import scripted_utterance
 
 JSON_LOGS = {**os.environ, "VOXSHAPE_LOG_FORMAT": "json"}
 RTF = 5.0  # the paced simulator's speed: 50 steps/s
@@ -147,7 +147,7 @@ def test_a_killed_learner_resumes_from_its_checkpoint_and_loses_no_feedback(
             """n judgements 0.3 s apart (within the arbiter's rate limit), meanwhile noting
             the learner's summaries and the feedback the arbiter published."""
             for k in range(n):
-                said.put(utterance("ana", "r1", "good" if k % 2 else "bad", time.time()))
+                said.put(scripted_utterance("ana", "r1", "good" if k % 2 else "bad", time.time()))
                 deadline = time.monotonic() + 0.3
                 while time.monotonic() < deadline:
                     event = node.poll(0.02)
@@ -541,7 +541,7 @@ def test_a_flooding_teacher_is_rate_limited_and_another_is_unaffected(
 
         def flooding() -> None:
             for _ in range(flood_n):
-                flood.put(utterance("flood", "r1", "good", time.time()))
+                flood.put(scripted_utterance("flood", "r1", "good", time.time()))
                 time.sleep(0.005)
 
         notices: list[tuple[float, TeacherNotice]] = []
@@ -557,7 +557,7 @@ def test_a_flooding_teacher_is_rate_limited_and_another_is_unaffected(
         thread.start()
         sent: dict[str, float] = {}
         for _ in range(ana_n):
-            said = utterance("ana", "r1", "good", time.time())
+            said = scripted_utterance("ana", "r1", "good", time.time())
             sent[said.id] = time.monotonic()
             ana.put(said)
             listen(0.3)

@@ -97,7 +97,7 @@ def test_every_package_and_module_is_on_a_floor():
 @pytest.mark.parametrize(
     ("where", "source"),
     [
-        ("runtime/node.py", "from voxshape.teaching.session import join"),
+        ("runtime/node.py", "from voxshape.teaching.joining import join"),
         ("world/maps.py", "from voxshape.services.sim.task import Simulation"),
         ("services/speech/node.py", "from voxshape.services.arbiter import config"),
         ("services/speech/node.py", "from ..arbiter import config"),

@@ -25,7 +25,7 @@ from tests.logger_support import (
 from voxshape.cli import main
 from voxshape.lab.report import write_report
 from voxshape.lab.report.pictures import moving_average
-from voxshape.lab.report.summary import summarize
+from voxshape.lab.report.summary import summarize_session
 from voxshape.protocol import encode
 from voxshape.protocol.examples import example_messages
 from voxshape.services.logger.decoding import decode_record
@@ -187,7 +187,7 @@ def test_replay_command_renders_what_the_recorder_draws_and_explains_bad_input(
 
 def test_report_draws_pictures_and_sums_up(scripted_run, capsys):
     run, script = scripted_run
-    summary = summarize(read_events(run.events).records, "s1")
+    summary = summarize_session(read_events(run.events).records, "s1")
     robot = summary.robots["r1"]
     assert [e.env_return for e in robot.ended] == [script.returns[e] for e in range(3)]
     assert [e.interventions for e in robot.ended] == [0, 1, 0]

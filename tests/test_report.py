@@ -14,7 +14,7 @@ from tests.logger_support import LONG_ROOM, scripted_session, write_script
 from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import count_episodes
 from voxshape.lab.report.pictures import pick_episodes, robust_limits
-from voxshape.lab.report.summary import RobotSummary, summarize
+from voxshape.lab.report.summary import RobotSummary, summarize_session
 from voxshape.protocol import EpisodeEvent, TeachingStats
 from voxshape.runtime.settings import write_settings
 from voxshape.services.learner.config import LearnerConfig, with_settings
@@ -40,7 +40,7 @@ def restarted_run(tmp_path):
 
 def test_a_simulator_restarting_within_a_log_starts_a_new_run_never_merged(restarted_run):
     run, first, second = restarted_run
-    robot = summarize(read_events(run.events).records, "s1").robots["r1"]
+    robot = summarize_session(read_events(run.events).records, "s1").robots["r1"]
     assert robot.runs == 2
     assert [robot.label(e) for e in robot.episodes] == ["1:0", "1:1", "1:2", "2:0", "2:1"]
     assert [e.position for e in robot.episodes] == [0, 1, 2, 3, 4]
@@ -77,7 +77,7 @@ def test_a_simulator_restarting_within_a_log_starts_a_new_run_never_merged(resta
 
 def test_an_unbroken_log_keeps_the_simulators_numbers(tmp_path):
     records = write_script(tmp_path / "events.msgpack", "s1", scripted_session("s1", episodes=3))
-    robot = summarize(records, "s1").robots["r1"]
+    robot = summarize_session(records, "s1").robots["r1"]
     assert robot.runs == 1 and [robot.label(e) for e in robot.episodes] == ["0", "1", "2"]
     assert robot.steps == sorted(robot.steps) and robot.steps[0] == 0
 

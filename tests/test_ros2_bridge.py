@@ -30,7 +30,7 @@ from voxshape.services.ros2.safety import STOP, Limits, Safety
 from voxshape.services.sim.task import Simulation
 from voxshape.world.maps import load_map
 from voxshape.world.robot import RobotModel
-from voxshape.world.task import Goal, Rewards
+from voxshape.world.rules import Goal, Rewards
 
 MODEL = RobotModel()
 FULL = ScanGeometry(0.0, 2 * math.pi / 360, 0.12, 3.5)  # a TurtleBot's 360 beams
@@ -94,7 +94,7 @@ def percept(x: float = 1.0, y: float = 1.0, near: float = 3.0, theta: float = 0.
 
 def test_the_bridge_tells_a_pose_as_the_simulator_does():
     """The same task, the same pose: the bridge's observation carries the simulator's goal
-    distance and bearing, and its steps the simulator's rewards (voxshape/world/task.py)."""
+    distance and bearing, and its steps the simulator's rewards (voxshape/world/rules.py)."""
     m = load_map("1")
     sim = Simulation(m, ("r1",), seed=3)
     try:

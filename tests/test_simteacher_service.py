@@ -20,7 +20,7 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.runtime import Input, Node, Presence
-from voxshape.services.arbiter.scripted import observation
+from voxshape.services.arbiter.scripted import scripted_observation
 from voxshape.services.simteacher.display import DisplayClock, DisplayTeacher
 from voxshape.services.simteacher.synthesis import synthesize
 from voxshape.services.simteacher.teacher import TIRELESS, SimulatedTeacher
@@ -32,7 +32,9 @@ TASK = load_map("1")
 
 def obs(step: int, x: float, episode: int = 0, episode_step: int | None = None) -> Observation:
     """Robot r1 of task 1 at (x, y of the start) at `step`, shown at 1000 + step."""
-    shown = observation("r1", step, 1000.0 + step, episode=episode, episode_step=episode_step)
+    shown = scripted_observation(
+        "r1", step, 1000.0 + step, episode=episode, episode_step=episode_step
+    )
     return replace(shown, x=x, y=TASK.start.y)
 
 

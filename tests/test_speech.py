@@ -22,7 +22,7 @@ from voxshape.services.speech.recognizer import EngineError, Recognition
 from voxshape.services.speech.segmenter import Segmenter, SegmenterConfig
 from voxshape.services.speech.streams import AudioStreams, StreamLimits
 from voxshape.services.speech.transcriber import MockTranscriber
-from voxshape.services.speech.vosk_engine import MODELS_URL, model_folder
+from voxshape.services.speech.vosk_engine import MODELS_URL, vosk_model_folder
 
 FIXTURES = Path(__file__).parent / "fixtures" / "speech"
 VOCABULARY = load_vocabulary()
@@ -407,15 +407,15 @@ def test_the_summary_reports_each_split_condition_voice_and_false_accept():
 
 def test_a_missing_vosk_model_says_where_to_get_one(tmp_path):
     with pytest.raises(EngineError) as info:
-        model_folder(None, "es", env={})
+        vosk_model_folder(None, "es", env={})
     text = str(info.value)
     assert "none is configured" in text and MODELS_URL in text
     assert "vosk-model-small-es-0.42" in text and "vosk-model-small-en-us-0.15" in text
     assert "--model" in text and "VOSK_MODEL_PATH" in text
     with pytest.raises(EngineError, match="is not a directory"):
-        model_folder(tmp_path / "nowhere", "en", env={})
+        vosk_model_folder(tmp_path / "nowhere", "en", env={})
     with pytest.raises(EngineError, match="holds no vosk model"):
-        model_folder(None, "en", env={"VOSK_MODEL_PATH": str(tmp_path)})
+        vosk_model_folder(None, "en", env={"VOSK_MODEL_PATH": str(tmp_path)})
 
 
 # -- the mock engine -------------------------------------------------------------------------

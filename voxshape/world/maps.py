@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from voxshape.runtime.settings import option, option_of
-from voxshape.world.task import Goal
+from voxshape.world.rules import Goal
 
 MAPS_DIR = Path(__file__).with_name("maps")
 TASKS = {str(i): MAPS_DIR / f"task{i}.toml" for i in range(1, 5)}

@@ -367,7 +367,7 @@ def run_distributed(args: argparse.Namespace) -> int:
     comparison["command"] = command_line()
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
-    text = distributed.report(comparison) + f"\n\nReproduce: `{comparison['command']}`"
+    text = distributed.comparison_markdown(comparison) + f"\n\nReproduce: `{comparison['command']}`"
     (args.out / "distributed.md").write_text(text + "\n")
     record_settings(args.out, [])
     print(text)

@@ -212,7 +212,7 @@ def _summary(outcomes: list[dict]) -> dict:
     }
 
 
-def report(comparison: dict) -> str:
+def comparison_markdown(comparison: dict) -> str:
     """A Markdown table of a comparison, and its means."""
     lines = [
         f"Task {comparison['task']}, setting `{comparison['setting']}`: in-process vs every "

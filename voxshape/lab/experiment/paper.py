@@ -34,9 +34,9 @@ from pathlib import Path
 
 from voxshape.lab.experiment.figure2 import figure2
 from voxshape.lab.experiment.inprocess import RunResult, RunSpec
-from voxshape.lab.experiment.paper_report import report
+from voxshape.lab.experiment.paper_report import paper_markdown
+from voxshape.lab.experiment.results import summarize_runs
 from voxshape.lab.experiment.runner import run_all, spec_key, start_log
-from voxshape.lab.experiment.summary import summarize
 from voxshape.services.simteacher.teacher import PROFILES
 
 
@@ -82,7 +82,7 @@ def experiment(
     done = start_log(out / "runs.jsonl", specs, resume)
     results = run_all(specs, workers, progress, out / "runs.jsonl", cluster=cluster, done=done)
     wall = clock() - began
-    summary = summarize(results, len(seeds))
+    summary = summarize_runs(results, len(seeds))
     summary["first_seed"] = seeds.start
     summary.update(command=command, wall_time_s=round(wall, 1), max_episodes=max_episodes)
     summary.update(learner_settings=list(learner), teacher_settings=list(teacher))
@@ -96,7 +96,9 @@ def experiment(
 def _write(out: Path, summary: dict, results: list[RunResult]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(summary, indent=1))
-    (out / "report.md").write_text(report(summary, summary["command"], summary["wall_time_s"]))
+    (out / "report.md").write_text(
+        paper_markdown(summary, summary["command"], summary["wall_time_s"])
+    )
     figure2(results, out / "figure2.png")
 
 
@@ -136,7 +138,7 @@ def pool(dirs: list[Path], out: Path, command: str) -> dict:
             f"task {task} {setting} seed {seed} is in more than one of {', '.join(map(str, dirs))}"
             ": pool experiments of other seeds (run them with --first-seed)"
         )
-    summary = summarize(runs, len({r.seed for r in runs}))
+    summary = summarize_runs(runs, len({r.seed for r in runs}))
     summary["first_seed"] = min(r.seed for r in runs)
     summary.update({key: loaded[0].get(key) for key in POOLED_ALIKE})
     summary.update(

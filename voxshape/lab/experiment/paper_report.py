@@ -128,7 +128,7 @@ class _Scope:
         return "Avg" if self.tasks == list(TASKS) else f"Avg of {_labels(self.tasks)}"
 
 
-def report(summary: dict, command: str, wall_seconds: float) -> str:
+def paper_markdown(summary: dict, command: str, wall_seconds: float) -> str:
     """The Markdown report: what was run, then each of SECTIONS (Tables 2 and 3 in the
     paper's layout, ours beside the paper's, and what follows them)."""
     scope = _Scope.of(summary)

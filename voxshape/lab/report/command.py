@@ -15,8 +15,8 @@ from voxshape.lab.report.pictures import (
     draw_trajectories,
     pick_episodes,
 )
-from voxshape.lab.report.summary import SessionSummary, summarize
-from voxshape.lab.report.summary_md import markdown
+from voxshape.lab.report.summary import SessionSummary, summarize_session
+from voxshape.lab.report.summary_md import summary_markdown
 from voxshape.runtime.settings import read_settings
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.logger.eventlog import EventLog, EventLogError, read_events
@@ -51,7 +51,7 @@ def load_run(run: RunDir, task: str | None = None) -> LoadedRun:
         session = read_session_info(run).session
     except RunError:
         session = log.header.session
-    return LoadedRun(summarize(log.records, session), m, log, learning_settings(run))
+    return LoadedRun(summarize_session(log.records, session), m, log, learning_settings(run))
 
 
 def learning_settings(run: RunDir) -> LearnerConfig:
@@ -85,7 +85,7 @@ def write_report(
         draw_rewards(robot, paths[2])
         pictures[name] = paths
         written += paths
-    text = markdown(summary, m, pictures, counts)
+    text = summary_markdown(summary, m, pictures, counts)
     if loaded.log.describe_tail():
         text += f"\nNote: {loaded.log.describe_tail()}.\n"
     (out / "summary.md").write_text(text, encoding="utf-8")

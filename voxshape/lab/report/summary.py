@@ -210,7 +210,7 @@ class SessionSummary:
         return self.robots[name]
 
 
-def summarize(records: Iterable[EventRecord], session: str = "") -> SessionSummary:
+def summarize_session(records: Iterable[EventRecord], session: str = "") -> SessionSummary:
     """The session's numbers from its event-log records."""
     summary = SessionSummary(session)
     for record in records:

@@ -10,7 +10,7 @@ from voxshape.lab.report.summary import MOVING_AVERAGE, SessionSummary
 from voxshape.world.maps import Map
 
 
-def markdown(
+def summary_markdown(
     summary: SessionSummary,
     m: Map,
     pictures: dict[str, list[Path]],

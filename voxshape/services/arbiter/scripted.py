@@ -26,7 +26,7 @@ from voxshape.services.arbiter.config import ArbiterConfig, DelayLearning
 START = 1_700_000_000.0  # true time of the first step
 
 
-def observation(
+def scripted_observation(
     robot: str,
     step: int,
     wall_time: float,
@@ -59,7 +59,7 @@ def observation(
     )
 
 
-def utterance(
+def scripted_utterance(
     teacher: str, robot: str, text: str, onset: float, *, confidence: float = 0.95
 ) -> Utterance:
     return Utterance(
@@ -163,7 +163,7 @@ def rehearse(
     truth: dict[str, int] = {}
     for step, text in reactions:
         onset = shown[step + 1] + max(0.0, rng.gauss(teacher.delay, teacher.jitter))
-        said = utterance(teacher.name, robot, text, onset + teacher.skew)
+        said = scripted_utterance(teacher.name, robot, text, onset + teacher.skew)
         truth[said.id] = step
         arrival = onset + 0.4 + rng.uniform(0.1, 0.6) + rng.uniform(2e-4, 3e-3)
         events.append((arrival, len(events), "utterance", said))
@@ -172,7 +172,7 @@ def rehearse(
         t, _, kind, payload = heapq.heappop(events)
         if kind == "obs":
             k = int(payload)  # type: ignore[call-overload]
-            arbiter.on_observation(observation(robot, k, shown[k], collided=k in bumps), t)
+            arbiter.on_observation(scripted_observation(robot, k, shown[k], collided=k in bumps), t)
             continue
         assert isinstance(payload, Utterance)
         _judge(arbiter, teacher.name, payload, t, truth[payload.id], result)

@@ -1,7 +1,7 @@
 """A real robot's episodes, told as the simulator tells them: a step's observation with R_RL
 and the episode's outcome, and the start and end events. Pure.
 
-The rules are the task's, the simulator's own (voxshape/world/task.py): an episode ends at the
+The rules are the task's, the simulator's own (voxshape/world/rules.py): an episode ends at the
 goal (the robot's odometry within the task's goal radius), at a bump or when it has lasted
 the task's timeout in control steps; -1 a step, +100 at the goal, -100 for a bump. A bump
 ends the episode (a real robot must not push on); what a bump is, all round, is contact.py's.
@@ -17,7 +17,7 @@ import numpy as np
 
 from voxshape.protocol import EpisodeEvent, Observation
 from voxshape.services.ros2.contact import Contact, ContactConfig
-from voxshape.world.task import Goal, Outcome, Rewards, judge
+from voxshape.world.rules import Goal, Outcome, Rewards, judge
 
 SPEED_BOUND, TURN_BOUND = 10.0, 20.0  # Observation's bounds on v and omega
 

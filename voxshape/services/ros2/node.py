@@ -52,7 +52,7 @@ from voxshape.services.ros2.robot_link import LinkConfig, RobotLink, RobotProble
 from voxshape.services.ros2.safety import Limits
 from voxshape.world.maps import add_task_argument, load_map
 from voxshape.world.robot import CONTROL_PERIOD_S
-from voxshape.world.task import Goal, steps_of
+from voxshape.world.rules import Goal, steps_of
 
 LOOP_TICK_S = 0.02  # wall seconds between checks of stops and steps due
 BUS_CHECK_S = 0.1  # how often the link to the session's router is looked at
@@ -259,7 +259,7 @@ def run(args: argparse.Namespace) -> int:
         bridge = Bridge(bridge_config, time.monotonic())
         node.log.info("bridging", extra=fields(robot=robot, **describe(link)))
         try:
-            drive(node, link, bridge, outputs)
+            bridge_robot(node, link, bridge, outputs)
         except InsideRadius as e:
             raise ConfigError(f"not starting: {e}") from None
         finally:
@@ -273,7 +273,7 @@ def describe(link: RobotLink) -> dict[str, str]:
             "odom": link.keys["odom"], "cmd_vel": link.keys["cmd"]}  # fmt: skip
 
 
-def drive(node: Node, link: RobotLink, bridge: Bridge, outputs: dict[str, Output]) -> None:
+def bridge_robot(node: Node, link: RobotLink, bridge: Bridge, outputs: dict[str, Output]) -> None:
     """The loop: the robot's samples, the session's actions and placings, stops when due."""
     bus_ok, checked, started = True, 0.0, time.monotonic()
     heard: set[str] = set()

@@ -1,7 +1,7 @@
 """Episodes of a navigation task: the simulator's pure core (no bus).
 
 `Simulation` steps every robot of one world at once, one control step of `control_period`
-simulated seconds, and tells each robot's outcome by the task's rules (voxshape/world/task.py,
+simulated seconds, and tells each robot's outcome by the task's rules (voxshape/world/rules.py,
 which a real robot's bridge follows too). The service publishes what it returns; the
 Gymnasium environment wraps it for single-robot RL; the experiments run it in-process.
 """
@@ -19,9 +19,9 @@ from voxshape.services.sim.sensors import Sensors
 from voxshape.services.sim.world import World
 from voxshape.world.maps import PASSAGE_RADIUS, ROBOT_CLEARANCE, Map, Pose
 from voxshape.world.robot import CONTROL_PERIOD_S, RobotModel
-from voxshape.world.task import Outcome, Rewards, judge, steps_of
+from voxshape.world.rules import Outcome, Rewards, judge, steps_of
 
-__all__ = ["Outcome", "Reading", "Rewards", "SimConfig", "Simulation"]  # the rules: world/task.py
+__all__ = ["Outcome", "Reading", "Rewards", "SimConfig", "Simulation"]  # the rules: world/rules.py
 
 
 @dataclass(frozen=True)

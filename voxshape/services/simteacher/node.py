@@ -65,7 +65,7 @@ from voxshape.services.simteacher.teacher import (
     SimulatedTeacher,
     TeacherProfile,
 )
-from voxshape.teaching.session import join_as_teacher
+from voxshape.teaching.joining import join_as_teacher
 from voxshape.teaching.sources import wav_stream
 from voxshape.world.maps import load_map, task_option
 

@@ -39,7 +39,9 @@ def missing_model_help(problem: str, language: str) -> str:
     )
 
 
-def model_folder(model: Path | None, language: str, env: Mapping[str, str] = os.environ) -> Path:
+def vosk_model_folder(
+    model: Path | None, language: str, env: Mapping[str, str] = os.environ
+) -> Path:
     """The configured model folder, checked; raises EngineError naming what is wrong."""
     raw = model or env.get("VOSK_MODEL_PATH")
     if not raw:
@@ -106,7 +108,7 @@ class VoskRecognizer:
         model: Path | None = None,
         env: Mapping[str, str] = os.environ,
     ) -> None:
-        path = model_folder(model, language, env)
+        path = vosk_model_folder(model, language, env)
         import vosk
 
         vosk.SetLogLevel(-1)

