@@ -1,7 +1,9 @@
 """The house's rules of size and naming (docs/architecture.md#layout), checked from the code's
 syntax trees: no .py file over 500 lines and no function over 60 lines in voxshape/ or
-benchmarks/, and no top-level class name defined twice in voxshape/ or benchmarks/ (one name,
-one idea)."""
+benchmarks/, no top-level class name defined twice in voxshape/ or benchmarks/, and no public
+module-level function or class name defined twice in voxshape/ (one name, one idea) but the
+entry points every command's module has for the command line's table (`add_arguments`,
+`run`)."""
 
 from __future__ import annotations
 
@@ -21,6 +23,15 @@ NAMED = ("voxshape", "benchmarks")
 FILES_ALLOWED_LONG: set[str] = set()
 FUNCTIONS_ALLOWED_LONG: set[str] = set()
 CLASSES_ALLOWED_TWICE: dict[str, set[str]] = {}
+# Public names defined twice in voxshape/, with the files defining them. The learner's
+# add_settings_argument is no longer used (the services' is runtime/settings.py's): to go
+# once the learner's tuning, which holds learner/config.py, has landed.
+NAMES_ALLOWED_TWICE: dict[str, set[str]] = {
+    "add_settings_argument": {
+        "voxshape/runtime/settings.py",
+        "voxshape/services/learner/config.py",
+    },
+}
 
 
 def sources(root: Path, folders: tuple[str, ...]) -> dict[str, ast.Module]:
@@ -64,6 +75,54 @@ def classes_defined_twice(root: Path) -> dict[str, set[str]]:
     return {name: set(paths) for name, paths in where.items() if len(paths) > 1}
 
 
+def command_entry_points(root: Path) -> set[tuple[str, str]]:
+    """(name, path) of each function voxshape/cli.py's COMMANDS table names, in the file that
+    defines it (a package's __init__.py that imports it names the module it comes from)."""
+    cli = ast.parse((root / "voxshape" / "cli.py").read_text(encoding="utf-8"))
+    table = next(
+        node.value
+        for node in cli.body
+        if isinstance(node, ast.AnnAssign | ast.Assign) and "COMMANDS" in ast.unparse(node)
+    )
+    found = set()
+    for _, module, *functions in ast.literal_eval(table).values():
+        for name in functions:
+            found.add((name, defined_in(root, module, name)))
+    return found
+
+
+def defined_in(root: Path, module: str, name: str) -> str:
+    """The file (relative to root) that defines `name` for `module`: the module's own, or the
+    one its `from X import name` names."""
+    path = root / Path(*module.split("."))
+    path = path / "__init__.py" if path.is_dir() else path.with_suffix(".py")
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    imported = {
+        alias.asname or alias.name: (node.module, alias.name)
+        for node in tree.body
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0
+        for alias in node.names
+    }
+    defined = {getattr(node, "name", None) for node in tree.body}
+    if name in imported and name not in defined:
+        return defined_in(root, *imported[name])
+    return path.relative_to(root).as_posix()
+
+
+def names_defined_twice(root: Path) -> dict[str, set[str]]:
+    """The public module-level functions' and classes' names defined in more than one file of
+    root/voxshape, but the commands' entry points, with the files defining them."""
+    entry_points = command_entry_points(root)
+    where = defaultdict(set)
+    for path, tree in sources(root, ("voxshape",)).items():
+        for node in tree.body:
+            kinds = ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef
+            public = isinstance(node, kinds) and not node.name.startswith("_")
+            if public and (node.name, path) not in entry_points:
+                where[node.name].add(path)
+    return {name: paths for name, paths in where.items() if len(paths) > 1}
+
+
 def unexpected(found: dict, allowed: dict | set, rule: str) -> list[str]:
     """What breaks `rule` without an allowance, then allowances no longer needed."""
     wrong = [f"{key}: {found[key]} ({rule})" for key in sorted(found) if key not in allowed]
@@ -101,6 +160,44 @@ def test_no_class_name_is_defined_twice():
         if found.get(name) != paths
     ]
     assert not wrong, "\n".join(wrong)
+
+
+def test_no_public_name_is_defined_twice():
+    found = names_defined_twice(ROOT)
+    wrong = [
+        f"{name} in {', '.join(sorted(paths))}: name each by what it holds or does"
+        for name, paths in sorted(found.items())
+        if NAMES_ALLOWED_TWICE.get(name) != paths
+    ]
+    wrong += [
+        f"{name} is allowed in {', '.join(sorted(paths))} but no longer defined there twice: "
+        "remove it from NAMES_ALLOWED_TWICE in tests/test_house.py"
+        for name, paths in sorted(NAMES_ALLOWED_TWICE.items())
+        if found.get(name) != paths
+    ]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_a_name_defined_twice_is_caught(tmp_path):
+    """Two public functions of one name are caught, a class too; a private one, a method and
+    a command's entry point (named by the command line's table) are not."""
+    package = tmp_path / "voxshape"
+    (package / "a").mkdir(parents=True)
+    (package / "b").mkdir()
+    (package / "cli.py").write_text(
+        'COMMANDS: dict = {"x": ("help", "voxshape.a", "add_arguments", "run"),\n'
+        '                  "y": ("help", "voxshape.b", "add_arguments", "run")}\n'
+    )
+    (package / "a" / "__init__.py").write_text("from voxshape.a.command import run, add_arguments")
+    body = "def add_arguments(p): ...\ndef run(a): ...\ndef _private(): ...\n"
+    (package / "a" / "command.py").write_text(body + "def helper(): ...\nclass Thing: ...\n")
+    (package / "b" / "__init__.py").write_text(
+        body + "def helper(): ...\nclass Thing:\n    def helper(self): ...\n"
+    )
+    assert names_defined_twice(tmp_path) == {
+        "helper": {"voxshape/a/command.py", "voxshape/b/__init__.py"},
+        "Thing": {"voxshape/a/command.py", "voxshape/b/__init__.py"},
+    }
 
 
 def test_the_checks_see_what_they_check(tmp_path):
