@@ -16,7 +16,8 @@ import statistics
 from concurrent.futures import ProcessPoolExecutor
 
 from voxshape.lab.experiment.inprocess import RunSpec, run
-from voxshape.services.learner.config import add_settings_argument
+from voxshape.runtime.settings import add_settings_argument
+from voxshape.services.learner.config import LearnerConfig
 
 
 def one(job: tuple[str, int, bool, bool, int, tuple[str, ...]]) -> dict:
@@ -45,7 +46,7 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--max-episodes", type=int, default=150)
     parser.add_argument("--goal-features", default="on,off", help="on, off or on,off")
-    add_settings_argument(parser)
+    add_settings_argument(parser, LearnerConfig, "alpha=0.1")
     parser.add_argument("--tasks", default="1,2,3,4")
     parser.add_argument("--blend", action="store_true")
     parser.add_argument("--out", default="plain_rl.jsonl")

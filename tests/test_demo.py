@@ -53,7 +53,8 @@ def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(se
     table = (run_dir / "demo.md").read_text()
     assert learnt.group(0) in table  # the closing lines, kept
     assert f"converged after {learnt.group(1)} episodes" in table  # as the report counts
-    assert json.loads((run_dir / "settings.json").read_text())["learner"]["converge_slack"] == 3
+    recorded = json.loads((run_dir / "settings.json").read_text())["learner"]
+    assert recorded["LearnerConfig"]["converge_slack"] == 3
     assert "each within 3x the map's shortest time" in table
     interventions = [int(n) for n in re.findall(r"\| (\d+) \|\s*$", table, re.MULTILINE)]
     assert sum(interventions) > 0, table  # the teacher was heard

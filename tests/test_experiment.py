@@ -155,9 +155,10 @@ def test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first(tmp_pat
     results = json.loads((out / "results.json").read_text())
     assert results["learner_settings"] == ["goal_sectors=8", "converge_margin=0.3"]
     recorded = json.loads((out / "settings.json").read_text())  # the effective settings
-    assert recorded["learner"]["goal_sectors"] == 8 and recorded["learner"]["alpha"] == 0.2
+    learner = recorded["learner"]["LearnerConfig"]
+    assert learner["goal_sectors"] == 8 and learner["alpha"] == 0.2
     assert "the slowest within 30% of the fastest" in (out / "report.md").read_text()
-    assert recorded["teacher"]["words_per_robot_minute"] == 4.0  # the person's
+    assert recorded["teacher"]["TeacherProfile"]["words_per_robot_minute"] == 4.0  # the person's
 
 
 def test_first_seed_runs_other_seeds_and_says_which(tmp_path):

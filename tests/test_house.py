@@ -23,15 +23,8 @@ NAMED = ("voxshape", "benchmarks")
 FILES_ALLOWED_LONG: set[str] = set()
 FUNCTIONS_ALLOWED_LONG: set[str] = set()
 CLASSES_ALLOWED_TWICE: dict[str, set[str]] = {}
-# Public names defined twice in voxshape/, with the files defining them. The learner's
-# add_settings_argument is no longer used (the services' is runtime/settings.py's): to go
-# once the learner's tuning, which holds learner/config.py, has landed.
-NAMES_ALLOWED_TWICE: dict[str, set[str]] = {
-    "add_settings_argument": {
-        "voxshape/runtime/settings.py",
-        "voxshape/services/learner/config.py",
-    },
-}
+# Public names defined twice in voxshape/, with the files defining them.
+NAMES_ALLOWED_TWICE: dict[str, set[str]] = {}
 
 
 def sources(root: Path, folders: tuple[str, ...]) -> dict[str, ast.Module]:

@@ -81,7 +81,10 @@ def test_up_starts_the_compose_services_and_stops_cleanly(spawn, session_id, tmp
             not Path(f"/proc/{pid}").exists() or "zombie" in Path(f"/proc/{pid}/status").read_text()
         )
     recorded = json.loads((tmp_path / "runs" / session_id / "settings.json").read_text())
-    assert recorded["learner"]["alpha"] == 0.1  # --set reached the learner, which recorded it
+    assert recorded["learner"]["LearnerConfig"]["alpha"] == 0.1  # --set reached the learner
+    started = re.search(r"service\(s\) from compose: (.*)", "\n".join(lines))
+    assert started, lines
+    assert sorted(recorded) == sorted(started.group(1).split(", "))  # one section per service
 
 
 def compose_with(tmp_path: Path, services: str) -> Path:

@@ -21,10 +21,10 @@ from tests.learner_support import (
 from voxshape.lab.experiment.inprocess import RunSpec, run
 from voxshape.protocol import ACTION_NAMES, ProtocolError
 from voxshape.runtime import ConfigError
-from voxshape.runtime.settings import SettingsError
+from voxshape.runtime.settings import SettingsError, replaced
 from voxshape.services.learner import node as learner_node
 from voxshape.services.learner.actions import ActionSet
-from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.learner.states import CLEAR, StateSpace
 from voxshape.services.learner.traces import TraceBook
@@ -249,8 +249,9 @@ def test_plain_sarsa_lambda_learns_task_1_within_a_bounded_number_of_episodes():
 
 
 def test_settings_from_the_command_line_are_typed_and_checked():
-    config = with_settings(
-        ["alpha=0.05", "blend=true", "traces=accumulating", "distance_edges=[1, 3]", "max_hold=3"]
+    config = replaced(
+        LearnerConfig(),
+        ["alpha=0.05", "blend=true", "traces=accumulating", "distance_edges=[1, 3]", "max_hold=3"],
     )
     assert (config.alpha, config.blend, config.traces, config.distance_edges, config.max_hold) == (
         0.05,
@@ -259,13 +260,15 @@ def test_settings_from_the_command_line_are_typed_and_checked():
         (1, 3),
         3,
     )
-    optional = with_settings(["clear_range=2", "near_range=null"])  # float | None fields
+    optional = replaced(
+        LearnerConfig(), ["clear_range=2", "near_range=null"]
+    )  # float | None fields
     assert (optional.clear_range, optional.near_range) == (2.0, None)
     assert type(optional.clear_range) is float
     with pytest.raises(SettingsError, match="KEY is one of"):
-        with_settings(["alhpa=0.1"])
+        replaced(LearnerConfig(), ["alhpa=0.1"])
     with pytest.raises(SettingsError, match="blend takes a bool"):
-        with_settings(["blend=3"])
+        replaced(LearnerConfig(), ["blend=3"])
 
 
 def test_the_summary_reports_the_episode_return():

@@ -16,8 +16,9 @@ from voxshape.lab.report.counts import count_episodes
 from voxshape.lab.report.pictures import pick_episodes, robust_limits
 from voxshape.lab.report.summary import RobotSummary, summarize_session
 from voxshape.protocol import EpisodeEvent, TeachingStats
-from voxshape.runtime.settings import write_settings
-from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.runtime.settings import replaced
+from voxshape.runtime.settings_file import write_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.logger.eventlog import read_events
 from voxshape.services.logger.run import RunDir, RunError, describe_session, write_session_info
 from voxshape.world.maps import load_map
@@ -170,7 +171,7 @@ def test_a_run_is_judged_with_the_settings_its_learner_recorded(tmp_path):
     write_session_info(run, describe_session("s1", str(LONG_ROOM), {}))
     write_script(run.events, "s1", scripted_session("s1", episodes=3, steps=20))
     slow = {a: (v / 2, w) for a, (v, w) in LearnerConfig().velocities.items()}
-    learner = with_settings([f"velocities={json.dumps(slow)}", "converge_slack=3"])
+    learner = replaced(LearnerConfig(), [f"velocities={json.dumps(slow)}", "converge_slack=3"])
     write_settings(run.path, "learner", learner)
     loaded = load_run(run)
     assert loaded.learner == learner

@@ -18,20 +18,22 @@ import yaml
 from tests.conftest import ROOT, VOXSHAPE
 from voxshape.cli import COMMANDS, parser
 from voxshape.runtime.settings import (
-    SETTINGS_FILE,
     ConfigError,
     SettingsError,
     add_options,
     add_settings_argument,
-    from_record,
     option,
     read_options,
+    replaced,
+)
+from voxshape.runtime.settings_file import (
+    SETTINGS_FILE,
+    from_record,
     read_settings,
     record,
-    replaced,
     write_settings,
 )
-from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.learner.config import LearnerConfig
 
 
 @dataclass(frozen=True)
@@ -56,7 +58,7 @@ class Example:
 def example(*argv: str, env: dict[str, str] | None = None) -> Example:
     command = argparse.ArgumentParser()
     add_options(command, Example)
-    add_settings_argument(command, "Example", "tuned=0.7")
+    add_settings_argument(command, Example, "tuned=0.7")
     args = command.parse_args(list(argv))
     return replaced(read_options(Example, args, env or {}), args.set)
 
@@ -175,11 +177,11 @@ REFUSED = [
 @pytest.mark.parametrize(("setting", "error"), REFUSED)
 def test_a_setting_out_of_its_type_is_refused_naming_what_is_allowed(setting, error):
     with pytest.raises(SettingsError, match=re.escape(f"--set {setting!r}: {error}")):
-        with_settings([setting])
+        replaced(LearnerConfig(), [setting])
 
 
 def test_a_whole_dict_and_the_choices_of_a_literal_are_taken():
-    config = with_settings(["traces=accumulating", FIVE % '"right": [0.2, -1]'])
+    config = replaced(LearnerConfig(), ["traces=accumulating", FIVE % '"right": [0.2, -1]'])
     assert config.traces == "accumulating"
     assert config.velocities["right"] == (0.2, -1.0) and config.velocities["stop"] == (0.0, 0.0)
 
@@ -196,7 +198,9 @@ def test_the_experiment_command_refuses_a_bad_setting_in_one_line(setting, tmp_p
 
 
 def test_a_record_reads_back_as_the_settings_it_was(tmp_path):
-    config = with_settings(["alpha=0.1", "traces=accumulating", "ask.stuck_s=3", "near_range=null"])
+    config = replaced(
+        LearnerConfig(), ["alpha=0.1", "traces=accumulating", "ask.stuck_s=3", "near_range=null"]
+    )
     assert from_record(LearnerConfig, json.loads(json.dumps(record(config))), "x") == config
     assert from_record(LearnerConfig, {}, "x") == LearnerConfig()  # written before a field was
     write_settings(tmp_path, "learner", config)
@@ -251,8 +255,10 @@ def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_p
 )
 def test_a_setting_out_of_its_range_is_refused(setting, error):
     with pytest.raises(SettingsError, match=re.escape(error)):
-        with_settings([setting])
-    assert with_settings(["alpha=1", "lam=0", "gamma=1"]).alpha == 1.0  # the ends that are in
+        replaced(LearnerConfig(), [setting])
+    assert (
+        replaced(LearnerConfig(), ["alpha=1", "lam=0", "gamma=1"]).alpha == 1.0
+    )  # the ends that are in
 
 
 @pytest.mark.parametrize(
@@ -264,7 +270,7 @@ def test_a_key_mistyped_is_answered_with_the_close_ones(setting, meant):
     with pytest.raises(
         SettingsError, match=re.escape(f"no setting {key!r}; did you mean {meant}?")
     ):
-        with_settings([setting])
+        replaced(LearnerConfig(), [setting])
 
 
 def subcommand(*names: str) -> argparse.ArgumentParser:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import time
@@ -17,10 +18,15 @@ import pytest
 from benchmarks.speech.scoring import load_clips
 from tests.conftest import VOXSHAPE, bus_args, collect, quiet
 from tests.test_speech import FIXTURES
+from voxshape.cli import parser
 from voxshape.protocol import AudioChunk, Utterance, teacher_key, to_wire
 from voxshape.protocol.messages import SAMPLE_RATE
-from voxshape.runtime import Node
+from voxshape.recognition.confusion import MockSettings
+from voxshape.runtime import ConfigError, Node
 from voxshape.runtime.audio import read_wav
+from voxshape.runtime.settings import read_options
+from voxshape.services.speech.node import SpeechOptions, engine_settings
+from voxshape.services.speech.pocketsphinx_engine import PocketsphinxSettings
 
 CLIPS = {c.path.name: c for c in load_clips(FIXTURES)}
 
@@ -198,3 +204,27 @@ def test_a_missing_vosk_model_is_a_clear_error_not_a_crash(tmp_path):
     stderr = speech_refuses(tmp_path, "--engine", "vosk", "--language", "es", env=env)
     assert "https://alphacephei.com/vosk/models" in stderr
     assert "vosk-model-small-es-0.42" in stderr and "VOSK_MODEL_PATH" in stderr
+
+
+@pytest.mark.parametrize(
+    ("argv", "refused"),
+    [
+        (["--engine", "mock", "--model", "m"], "--model m: the mock engine hears text"),
+        (["--engine", "vosk", "--dictionary", "d"], "--dictionary d: pocketsphinx's"),
+        (["--engine", "cascade", "--error-rate", "0.2"], "--error-rate: the mock engine's"),
+    ],
+)
+def test_a_setting_its_engine_cannot_honour_is_refused_at_start(argv, refused):
+    args = parser(only="speech").parse_args(["speech", *argv])
+    with pytest.raises(ConfigError, match=re.escape(refused)):
+        engine_settings(args, read_options(SpeechOptions, args))
+
+
+def test_the_engine_settings_it_runs_with_are_its_engines():
+    args = parser(only="speech").parse_args(["speech", "--engine", "mock", "--error-rate", "0.2"])
+    mock = engine_settings(args, read_options(SpeechOptions, args))
+    assert isinstance(mock, MockSettings) and mock.error_rate == 0.2
+    args = parser(only="speech").parse_args(["speech", "--engine", "cascade"])
+    assert isinstance(
+        engine_settings(args, read_options(SpeechOptions, args)), PocketsphinxSettings
+    )

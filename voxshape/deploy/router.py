@@ -55,6 +55,7 @@ from voxshape.deploy.enforced import serve_access
 from voxshape.runtime import BusConfig, ConfigError, Node, Presence, bus_config, fields
 from voxshape.runtime.config import add_bus_arguments
 from voxshape.runtime.settings import add_options, option, read_options
+from voxshape.runtime.settings_file import write_run_settings
 
 ROUTER_NAME = "router"  # the common name of a router's certificate (voxshape certs)
 LOOPBACK = ("tcp/127.", "tcp/localhost:", "tls/127.", "tls/localhost:", "tcp/[::1]")
@@ -208,10 +209,12 @@ def _private_copy(passwords: dict[str, str]) -> Path:
 def run(args: argparse.Namespace) -> int:
     given, env = bus_config("router", args), dict(os.environ)
     bus, note = secured(given, args, env)
-    if read_options(RouterOptions, args, env).print_access:
+    options = read_options(RouterOptions, args, env)
+    if options.print_access:
         acl = dict(bus.extra).get("access_control")
         print(json.dumps(json.loads(acl), indent=2) if acl else "access control is off: " + note)
         return 0
+    write_run_settings(given, "router", options)
     with Node("router", bus) as node:
         node.log.info(note)
         answering = serve_access(

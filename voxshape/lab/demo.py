@@ -41,7 +41,8 @@ from voxshape.lab.report.summary import RobotSummary
 from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, LearningSummary, Said, TeachingStats
 from voxshape.runtime import BusError, Input, Tick
-from voxshape.services.learner.config import with_settings
+from voxshape.runtime.settings import replaced
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import convergence_on
 from voxshape.services.logger.run import RUNS, RunDir, RunError
 from voxshape.services.simteacher.teacher import PROFILES
@@ -111,7 +112,7 @@ def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
     """The first robot's watch, judged by the map of --task and the learner's --set; a web
     demo's lasts until its person ends it."""
     m = load_map(args.task)
-    convergence = convergence_on(m, with_settings(args.set))
+    convergence = convergence_on(m, replaced(LearnerConfig(), args.set))
     lasting = bool(getattr(args, "web", False))
     title = task_title(args.task, m)
     return ConvergenceWatch(

@@ -7,7 +7,7 @@ service dies it stops the others and exits non-zero, naming the service.
 Each `voxshape up` (and `voxshape demo`) is a new run: an earlier run in runs/<session>/ is
 kept aside under a dated name and the learners start afresh, unless --resume. Its flags
 --task, --rtf and --robots set the variables compose.yaml gives the services; --set goes to
-the learner, which records its settings in runs/<session>/settings.json.
+the learner. Every service records the settings it runs with in runs/<session>/settings.json.
 """
 
 from __future__ import annotations
@@ -37,8 +37,9 @@ from voxshape.launcher.topology import (
 from voxshape.protocol import ProtocolError, check_id
 from voxshape.runtime import BusError, ConfigError, free_loopback_port
 from voxshape.runtime.config import tcp_address
+from voxshape.runtime.settings import add_settings_argument, replaced
 from voxshape.services.learner import checkpoint
-from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.logger.run import RUNS, hold_run, holds_a_run, keep_earlier_run
 from voxshape.services.web import page_url
 from voxshape.world.maps import load_map
@@ -108,7 +109,8 @@ def add_arguments(
         help="a service that dies stops the session (default: restarted as compose.yaml's "
         "`restart` says)",
     )
-    add_settings_argument(parser)  # the learner's; it records them in runs/<session>/
+    # the learner's; every service records its own in runs/<session>/settings.json
+    add_settings_argument(parser, LearnerConfig, "alpha=0.1 or potential=oracle")
 
 
 def add_up_arguments(parser: argparse.ArgumentParser) -> None:
@@ -234,7 +236,7 @@ def port_taken(taken: list[str]) -> str:
 def with_learner_settings(specs: list[ServiceSpec], settings: list[str]) -> list[ServiceSpec]:
     """The learner given the `--set` settings (checked here first: SettingsError names a bad
     one before anything starts)."""
-    with_settings(settings)
+    replaced(LearnerConfig(), settings)
     added = tuple(a for setting in settings for a in ("--set", setting))
     return [replace(s, command=s.command + added) if s.name == "learner" else s for s in specs]
 

@@ -227,16 +227,14 @@ def _one(given: Any, how: Option, kind: type | None, choices: tuple | None, wher
         raise ConfigError(f"{said}: {why}") from None
 
 
-def add_settings_argument(
-    parser: argparse.ArgumentParser, source: str, example: str, flag: str = "--set"
-) -> None:
-    """`flag KEY=VALUE`, repeatable: a field of the config dataclass in `source`."""
+def add_settings_argument(parser: argparse.ArgumentParser, config: type, example: str) -> None:
+    """`--set KEY=VALUE`, repeatable: a field of the config dataclass `config`."""
     parser.add_argument(
-        flag,
+        "--set",
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help=f"a setting of {source} (repeatable), e.g. {example}",
+        help=f"a setting of {config.__name__} ({config.__module__}) (repeatable), e.g. {example}",
     )
 
 
@@ -373,73 +371,3 @@ def _entries(args: tuple, value: dict, default: Any, name: str) -> dict:
             raise ValueError(f"{name} takes every key of {', '.join(default)} ({said})")
     kind = args[1] if len(args) == 2 else Any
     return {k: checked(kind, v, None, f"{name}[{k}]") for k, v in value.items()}
-
-
-def record(config: object) -> dict[str, Any]:
-    """A config dataclass as JSON-ready data (nested ones as dicts, tuples as lists, paths as
-    text): what `from_record` reads back."""
-    return json.loads(json.dumps(dataclasses.asdict(config), default=str))  # type: ignore[call-overload]
-
-
-def from_record(cls: type[Config], data: Mapping[str, Any], where: str) -> Config:
-    """The config dataclass `cls` that `record` wrote as `data`, each value checked as a
-    `--set` is; a field the record lacks (written before it existed) keeps its default, and
-    one since removed (named in the class's RETIRED) is passed over. SettingsError names
-    `where` the record came from and the field that does not fit."""
-    defaults, hints = cls(), typing.get_type_hints(cls)
-    fields = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-    retired = set(getattr(cls, "RETIRED", ()))
-    unknown = sorted(set(data) - fields - retired)
-    if unknown:
-        raise SettingsError(f"{where}: no setting {', '.join(unknown)} in {cls.__name__}")
-    changes = {}
-    for key, value in data.items():
-        if key in retired:
-            continue
-        current = getattr(defaults, key)
-        try:
-            if dataclasses.is_dataclass(current):
-                changes[key] = from_record(type(current), value, f"{where} {key}")
-            else:
-                changes[key] = checked(hints[key], value, current, key)
-        except (ValueError, TypeError) as e:
-            raise SettingsError(f"{where}: {e}") from None
-    try:
-        return dataclasses.replace(defaults, **changes)
-    except ValueError as e:
-        raise SettingsError(f"{where}: {e}") from None
-
-
-SETTINGS_FILE = "settings.json"  # a run's effective settings, by section: {"learner": {...}}
-
-
-def write_settings(folder: Path, section: str, config: object) -> Path:
-    """Records `config` as `section` of `folder`'s settings.json (the other sections kept),
-    atomically: the settings a run or an experiment ran with."""
-    path = folder / SETTINGS_FILE
-    folder.mkdir(parents=True, exist_ok=True)
-    sections = _sections(path)
-    sections[section] = record(config)
-    part = path.with_name(f".{SETTINGS_FILE}.{os.getpid()}")
-    part.write_text(json.dumps(sections, indent=1) + "\n", "utf-8")
-    part.replace(path)
-    return path
-
-
-def read_settings(folder: Path, section: str, cls: type[Config]) -> Config | None:
-    """The `cls` recorded as `section` of `folder`'s settings.json; None if none is (a run
-    made before runs recorded it). SettingsError names a record that does not fit."""
-    data = _sections(folder / SETTINGS_FILE).get(section)
-    return None if data is None else from_record(cls, data, f"{folder / SETTINGS_FILE} {section}")
-
-
-def _sections(path: Path) -> dict[str, Any]:
-    try:
-        sections = json.loads(path.read_text("utf-8"))
-    except FileNotFoundError:
-        return {}
-    except (OSError, ValueError) as e:
-        raise SettingsError(f"{path}: unreadable ({e}); move it aside to write it anew") from None
-    if not isinstance(sections, dict):
-        raise SettingsError(f"{path}: not an object of sections; move it aside")
-    return sections

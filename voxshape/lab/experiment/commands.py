@@ -17,8 +17,9 @@ from voxshape.lab.experiment.paper import PoolError, experiment, pool
 from voxshape.lab.experiment.published import TASKS
 from voxshape.lab.experiment.runner import ResumeError, RunsFailed
 from voxshape.lab.experiment.sweep import sweep
-from voxshape.runtime.settings import SettingsError, replaced, write_settings
-from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.runtime.settings import SettingsError, add_settings_argument, replaced
+from voxshape.runtime.settings_file import write_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.logger.run import keep_earlier_run
 from voxshape.services.simteacher.teacher import PROFILES, TeacherProfile
 from voxshape.world.maps import MapError, load_map
@@ -106,7 +107,7 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         "runs.jsonl are kept, the others run",
     )
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_settings_argument(parser)
+    add_settings_argument(parser, LearnerConfig, "alpha=0.1")
     parser.add_argument(
         "--teacher-profile",
         choices=tuple(PROFILES),
@@ -241,10 +242,11 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    learner, teacher = LearnerConfig(), None
     if args.experiment != "distributed":
-        try:
-            with_settings(args.set)  # a bad --set or --teacher is refused before any run
-            replaced(TeacherProfile(), args.teacher, "--teacher")
+        try:  # a bad --set or --teacher is refused before any run
+            learner = replaced(LearnerConfig(), args.set)
+            teacher = replaced(PROFILES[args.teacher_profile], args.teacher, "--teacher")
         except SettingsError as e:
             print(f"voxshape experiment: {e}", file=sys.stderr)
             return 2
@@ -256,11 +258,13 @@ def run(args: argparse.Namespace) -> int:
         )
     keep_earlier_results(args)
     if args.experiment == "distributed":
-        return run_distributed(args)
+        return run_distributed(args, learner)
     if args.resume is not None:
         args.out = args.resume
     try:
-        return run_sweep(args) if args.experiment == "sweep" else run_paper(args)
+        assert teacher is not None  # read above for paper and sweep
+        running = run_sweep if args.experiment == "sweep" else run_paper
+        return running(args, learner, teacher)
     except (ClusterError, ResumeError) as e:
         print(f"voxshape experiment: {e}", file=sys.stderr)
         return 2
@@ -273,18 +277,16 @@ def run(args: argparse.Namespace) -> int:
         return 1
 
 
-def record_settings(
-    out: Path, learner: list[str], profile: str | None = None, teacher: list[str] = ()
-) -> None:
+def record_settings(out: Path, learner: LearnerConfig, teacher: TeacherProfile | None) -> None:
     """The settings every run of an experiment learned and was taught with, in `out`'s
     settings.json beside its results: the learner's and the simulated teacher's (none in
     `distributed`, whose teacher is each setting's)."""
-    write_settings(out, "learner", with_settings(list(learner)))
-    if profile is not None:
-        write_settings(out, "teacher", replaced(PROFILES[profile], list(teacher), "--teacher"))
+    write_settings(out, "learner", learner)
+    if teacher is not None:
+        write_settings(out, "teacher", teacher)
 
 
-def run_paper(args: argparse.Namespace) -> int:
+def run_paper(args: argparse.Namespace, learner: LearnerConfig, teacher: TeacherProfile) -> int:
     command = command_line()
     summary = experiment(
         args.out,
@@ -295,7 +297,7 @@ def run_paper(args: argparse.Namespace) -> int:
         command,
         **_running(args),
     )
-    record_settings(args.out, args.set, args.teacher_profile, args.teacher)
+    record_settings(args.out, learner, teacher)
     _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({summary['wall_time_s'] / 60:.1f} min)")  # fmt: skip
     return 0
@@ -327,18 +329,21 @@ def run_pool(args: argparse.Namespace) -> int:
     except PoolError as e:
         print(f"voxshape experiment pool: {e}", file=sys.stderr)
         return 2
+    # the settings the pooled results recorded (of before profiles: no teacher section)
+    profile = summary.get("teacher_profile")
     record_settings(
         args.out,
-        summary.get("learner_settings", []),
-        summary.get("teacher_profile"),  # results of before profiles: no teacher section
-        summary.get("teacher_settings", []),
+        replaced(LearnerConfig(), summary.get("learner_settings", [])),
+        None
+        if profile is None
+        else replaced(PROFILES[profile], summary.get("teacher_settings", []), "--teacher"),
     )
     _show(args.out, "report.md", f"results.json, report.md, figure2.png "
           f"({len(summary['runs'])} runs of {len(args.dirs)} experiments)")  # fmt: skip
     return 0
 
 
-def run_sweep(args: argparse.Namespace) -> int:
+def run_sweep(args: argparse.Namespace, learner: LearnerConfig, teacher: TeacherProfile) -> int:
     if not (args.noise or args.delay or args.frequency or args.rate):
         print(
             "voxshape experiment sweep: give --noise, --delay, --frequency or --rate",
@@ -356,12 +361,12 @@ def run_sweep(args: argparse.Namespace) -> int:
         args.rate,
         **_running(args),
     )
-    record_settings(args.out, args.set, args.teacher_profile, args.teacher)
+    record_settings(args.out, learner, teacher)
     _show(args.out, "sweep.md", "sweep.json, sweep.md, sweep.png")
     return 0
 
 
-def run_distributed(args: argparse.Namespace) -> int:
+def run_distributed(args: argparse.Namespace, learner: LearnerConfig) -> int:
     spec = RunSpec(args.task, args.setting, 0, args.max_episodes)
     comparison = distributed.compare(spec, list(seeds_of(args)))
     comparison["command"] = command_line()
@@ -369,7 +374,7 @@ def run_distributed(args: argparse.Namespace) -> int:
     (args.out / "distributed.json").write_text(json.dumps(comparison, indent=1))
     text = distributed.comparison_markdown(comparison) + f"\n\nReproduce: `{comparison['command']}`"
     (args.out / "distributed.md").write_text(text + "\n")
-    record_settings(args.out, [])
+    record_settings(args.out, learner, None)
     print(text)
     print(f"wrote {args.out / 'distributed.json'}, distributed.md")
     return 0

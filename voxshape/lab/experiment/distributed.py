@@ -30,7 +30,7 @@ from voxshape.launcher import LoopbackSession
 from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, TeacherNotice
 from voxshape.runtime import Input, Node
-from voxshape.runtime.settings import read_settings
+from voxshape.runtime.settings_file import RUNS, read_settings
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from voxshape.services.sim.task import SimConfig
@@ -88,7 +88,7 @@ def _services(spec: RunSpec, session: LoopbackSession, folder: Path) -> list[Ser
     """The teacher's services in a feedback setting, then the learner, replaying the
     in-process run's traces (the simulator is apart: it starts last)."""
     services = _teacher_services(spec, session) if SETTINGS[spec.setting].feedback else []
-    learner = ["--robot", ROBOT, "--fresh", "--seed", str(spec.seed)]
+    learner = ["--robot", ROBOT, "--task", spec.task, "--fresh", "--seed", str(spec.seed)]
     learner += [a for setting in spec.learner for a in ("--set", setting)]
     learner += ["--checkpoint", str(folder / "learner.npz")]
     if dictation := initial_traces(spec):  # the in-process run's traces, replayed alike
@@ -134,9 +134,10 @@ def _follow(
         # answer to each observation (ACTION_WAIT_S at most), so none may miss the first one.
         session.add(_simulator(spec, session))
         # judged with the settings the learner ran with, as it recorded them
-        learner = read_settings(folder, "learner", LearnerConfig)
+        run = folder / RUNS / session.session_id  # the services run in `folder`
+        learner = read_settings(run, "learner", LearnerConfig)
         if learner is None:
-            raise RuntimeError(f"the learner recorded no settings in {folder}")
+            raise RuntimeError(f"the learner recorded no settings in {run}")
         progress = convergence_on(load_map(spec.task), learner)
         return progress, _watch(node, session, progress, spec.max_episodes, deadline)
 

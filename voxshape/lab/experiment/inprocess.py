@@ -33,7 +33,7 @@ from voxshape.services.arbiter.arbiter import Arbiter
 from voxshape.services.arbiter.config import ArbiterConfig, DelayLearning
 from voxshape.services.learner.agent import Agent
 from voxshape.services.learner.asking import Asker, Question
-from voxshape.services.learner.config import LearnerConfig, with_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
 from voxshape.services.learner.potential import Place
 from voxshape.services.learner.sarsa import Learner
@@ -153,7 +153,7 @@ def run(
     path; `reference` runs the reference path with full scans instead: the same results,
     slower (benchmarks/experiment.py compares them). `on_episode` sees each episode."""
     m = load_map(spec.task)
-    learner_config = with_settings(list(spec.learner))
+    learner_config = replaced(LearnerConfig(), list(spec.learner))
     session = _Session(spec, m, learner_config, reference)
     progress = convergence_on(m, learner_config)
     dictation = initial_traces(spec, m)
@@ -319,7 +319,7 @@ def initial_traces(spec: RunSpec, m: Map | None = None) -> Dictation | None:
     traces = setting.traces if spec.traces is None else spec.traces
     if not traces:
         return None
-    config = with_settings(list(spec.learner))
+    config = replaced(LearnerConfig(), list(spec.learner))
     noise = setting.noise if spec.noise is None else spec.noise
     profile = DictationProfile(noise=noise, confusion=spec.profile.confusion)
     m = m or load_map(spec.task)

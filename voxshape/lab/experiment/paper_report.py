@@ -19,7 +19,8 @@ from voxshape.lab.experiment.published import (
     TASKS,
     paper_average,
 )
-from voxshape.services.learner.config import with_settings
+from voxshape.runtime.settings import replaced
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import Convergence
 
 
@@ -157,7 +158,7 @@ def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]
         "",
         "Ours: mean ± half-width of the 95% confidence interval (Student's t) over seeds. "
         "Learning time is the robot's simulated time until convergence ("
-        + Convergence(with_settings(summary.get("learner_settings", []))).rule()
+        + Convergence(replaced(LearnerConfig(), summary.get("learner_settings", []))).rule()
         + ", the shortest time of each task's map); with initial traces, the robot's time "
         "they took to dictate comes first and is counted. **Censored runs**: a run that did not "
         "converge within the episode limit counts with its time so far, so its cell's mean "

@@ -11,7 +11,8 @@ from tqdm import tqdm
 
 from voxshape.lab.experiment.inprocess import RunSpec
 from voxshape.lab.experiment.inprocess import run as run_spec
-from voxshape.services.learner.config import add_settings_argument, with_settings
+from voxshape.runtime.settings import add_settings_argument, replaced
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import EpisodeResult
 from voxshape.services.learner.sarsa import Learner
 from voxshape.world.robot import CONTROL_PERIOD_S
@@ -21,12 +22,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--task", default="1", help="task number (1-4) or map file")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-episodes", type=int, default=500)
-    add_settings_argument(parser)
+    add_settings_argument(parser, LearnerConfig, "alpha=0.1")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    config = with_settings(args.set)  # a bad --set is refused before the run
+    config = replaced(LearnerConfig(), args.set)  # a bad --set is refused before the run
     spec = RunSpec(args.task, "rl", args.seed, args.max_episodes, learner=tuple(args.set))
     with tqdm(total=args.max_episodes, unit="episode", disable=args.json, leave=False) as bar:
 

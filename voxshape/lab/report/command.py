@@ -17,7 +17,7 @@ from voxshape.lab.report.pictures import (
 )
 from voxshape.lab.report.summary import SessionSummary, summarize_session
 from voxshape.lab.report.summary_md import summary_markdown
-from voxshape.runtime.settings import read_settings
+from voxshape.runtime.settings_file import read_settings
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.logger.eventlog import EventLog, EventLogError, read_events
 from voxshape.services.logger.run import RunDir, RunError, read_session_info, session_map

@@ -43,6 +43,7 @@ from voxshape.runtime.settings import (
     read_options,
     replaced,
 )
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.arbiter.arbiter import Arbiter
 from voxshape.services.arbiter.config import ArbiterConfig
 
@@ -67,7 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     add_options(parser, ArbiterOptions)
     add_options(parser, ArbiterConfig)
-    add_settings_argument(parser, "ArbiterConfig (voxshape/services/arbiter/config.py)", "settle=5")
+    add_settings_argument(parser, ArbiterConfig, "settle=5")
 
 
 def config_from(args: argparse.Namespace, env: Mapping[str, str] = os.environ) -> ArbiterConfig:
@@ -77,9 +78,12 @@ def config_from(args: argparse.Namespace, env: Mapping[str, str] = os.environ) -
 
 def run(args: argparse.Namespace) -> int:
     config = config_from(args)
-    vocabulary = load_vocabulary(read_options(ArbiterOptions, args).vocabulary)
+    options = read_options(ArbiterOptions, args)
+    vocabulary = load_vocabulary(options.vocabulary)
     arbiter = Arbiter(config, vocabulary, started_at=time.time())
-    with Node("arbiter", bus_config("arbiter", args)) as node:
+    bus = bus_config("arbiter", args)
+    write_run_settings(bus, "arbiter", options, config)
+    with Node("arbiter", bus) as node:
         node.subscribe("obs")  # recovered
         node.subscribe("utterance")  # recovered
         node.subscribe("clock")

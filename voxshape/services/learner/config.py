@@ -2,13 +2,9 @@
 
 from __future__ import annotations
 
-import argparse
 import math
 from dataclasses import dataclass, field
 from typing import ClassVar, Literal
-
-from voxshape.runtime.settings import add_settings_argument as add_setting
-from voxshape.runtime.settings import replaced
 
 # Numbers' ranges: (lowest, highest); "(": the lowest itself refused. Others are unbounded.
 RANGES: dict[str, tuple[str, float, float]] = {
@@ -185,12 +181,3 @@ class LearnerConfig:
         """The chance of a random action after `episode` episodes."""
         done = min(1.0, episode / max(1, self.epsilon_episodes))
         return self.epsilon_start + done * (self.epsilon_end - self.epsilon_start)
-
-
-def add_settings_argument(parser: argparse.ArgumentParser) -> None:
-    add_setting(parser, "voxshape/services/learner/config.py", "alpha=0.1")
-
-
-def with_settings(settings: list[str], base: LearnerConfig | None = None) -> LearnerConfig:
-    """`base` (by default LearnerConfig()) with `--set KEY=VALUE` settings applied."""
-    return replaced(base or LearnerConfig(), settings)

@@ -40,10 +40,17 @@ from voxshape.runtime import (
     fields,
 )
 from voxshape.runtime.logs import worth_logging
-from voxshape.runtime.settings import add_options, option, read_options, write_settings
+from voxshape.runtime.settings import (
+    add_options,
+    add_settings_argument,
+    option,
+    read_options,
+    replaced,
+)
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.learner import checkpoint, online
 from voxshape.services.learner.agent import Agent
-from voxshape.services.learner.config import LearnerConfig, add_settings_argument, with_settings
+from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.learner.traces import TraceBook
 from voxshape.world.maps import Map, load_map, task_option
@@ -81,7 +88,7 @@ class LearnerOptions:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     add_options(parser, LearnerOptions)
-    add_settings_argument(parser)
+    add_settings_argument(parser, LearnerConfig, "alpha=0.1 or potential=oracle")
 
 
 def robots_of(given: list[str] | None, environ: Mapping[str, str] = os.environ) -> tuple[str, ...]:
@@ -179,8 +186,8 @@ def run(args: argparse.Namespace) -> int:
     robots = robots_of(list(options.robots) or None)
     bus = bus_config("learner", args)
     paths = {r: checkpoint_path(options.checkpoint, bus.session, r, len(robots)) for r in robots}
-    config = with_settings(args.set)
-    write_settings(paths[robots[0]].parent, "learner", config)  # the run's, on record
+    config = replaced(LearnerConfig(), args.set)
+    write_run_settings(bus, "learner", replace(options, robots=robots), config)
     seeds = {r: None if options.seed is None else options.seed + i for i, r in enumerate(robots)}
     task = load_map(options.task)
     restored = {r: restore(paths[r], config, seeds[r], options.fresh, task) for r in robots}

@@ -48,6 +48,7 @@ from voxshape.runtime import (
 )
 from voxshape.runtime.flows import recovering_subscriber
 from voxshape.runtime.settings import add_options, option, read_options
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.logger.eventlog import EventLogError, EventLogWriter, EventRecord, pack_gap
 from voxshape.services.logger.renderer import start_renderer, stop_renderer
 from voxshape.services.logger.replay import ScanThinning, add_thinning_arguments
@@ -168,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--flush-every must be > 0 seconds and --fsync-every >= 0")
     bus = bus_config("logger", args)
     port = viewer_port(options.serve_port)
+    write_run_settings(bus, "logger", options, thinning)
     run_dir = RunDir.for_session(bus.session)
     settings = _settings(options, bus, port)
     with Node("logger", bus) as node:  # present at once (launchers wait for it), then set up

@@ -33,9 +33,9 @@ from pathlib import Path
 from typing import IO, Any
 
 from voxshape.runtime import ConfigError
+from voxshape.runtime.settings_file import RUNS
 from voxshape.world.maps import Map, MapError, load_map, parse_map
 
-RUNS = Path("runs")
 SESSION_FILE = "session.json"
 EVENTS_FILE = "events.msgpack"
 RECORDING_FILE = "recording.rrd"

@@ -32,6 +32,7 @@ from voxshape.runtime.settings import (
     read_options,
     replaced,
 )
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.sim.stepper import Stepper
 from voxshape.services.sim.task import SimConfig, Simulation
 from voxshape.world.maps import load_map, task_option
@@ -76,9 +77,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     add_options(parser, SimOptions)
     add_options(parser, SimConfig)
-    add_settings_argument(
-        parser, "SimConfig (voxshape/services/sim/task.py)", "laser_noise=0.02 or rewards.goal=50"
-    )
+    add_settings_argument(parser, SimConfig, "laser_noise=0.02 or rewards.goal=50")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--rtf and --action-timeout must be > 0")
     m = load_map(options.task)
     bus = bus_config("sim", args)
+    write_run_settings(bus, "sim", options, config)
     sim = Simulation(m, robots, config, options.seed)
     paced = options.clock == "paced"
     period = config.control_period / options.rtf if paced else LOCKSTEP_POLL_S

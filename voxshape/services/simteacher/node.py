@@ -57,6 +57,7 @@ from voxshape.runtime.settings import (
     read_options,
     replaced,
 )
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.simteacher.display import DisplayTeacher, Spoken
 from voxshape.services.simteacher.synthesis import LEAD_S, VOICE, Voice
 from voxshape.services.simteacher.teacher import (
@@ -109,16 +110,15 @@ class SimTeacherOptions:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_bus_arguments(parser)
     add_options(parser, SimTeacherOptions)
-    add_settings_argument(
-        parser,
-        "TeacherProfile (voxshape/services/simteacher/teacher.py)",
-        "words_per_robot_minute=2",
-    )
+    add_settings_argument(parser, TeacherProfile, "words_per_robot_minute=2")
 
 
-def profile_from(args: argparse.Namespace) -> TeacherProfile:
-    """The --teacher-profile with --noise and the --set settings applied."""
-    options = read_options(SimTeacherOptions, args)
+def profile_from(
+    args: argparse.Namespace, options: SimTeacherOptions | None = None
+) -> TeacherProfile:
+    """The --teacher-profile with --noise and the --set settings applied (`options`: its
+    options, already read from `args`)."""
+    options = options or read_options(SimTeacherOptions, args)
     profile = PROFILES[options.teacher_profile]
     if options.noise is not None:
         profile = replace(profile, noise=options.noise)
@@ -177,22 +177,35 @@ def _join(
     return out
 
 
-def run(args: argparse.Namespace) -> int:
+def options_from(args: argparse.Namespace) -> SimTeacherOptions:
+    """Its options, checked, with the seed drawn when none is given (the one it runs with,
+    on record); ConfigError names one it cannot honour."""
     options = read_options(SimTeacherOptions, args)
-    robot = check_id(options.robot, "robot")
-    teacher_id = check_id(options.teacher, "teacher")
+    check_id(options.robot, "robot")
+    check_id(options.teacher, "teacher")
     if options.traces < 0 or options.max_words_per_robot_s <= 0:
         raise ConfigError("--traces must be >= 0 and --max-words-per-robot-s > 0")
-    profile = profile_from(args)
+    if options.voice != VOICE and not options.audio:
+        raise ConfigError(f"--voice {options.voice}: a voice speaks only with --audio")
+    if options.seed is None:
+        options = replace(options, seed=random.SystemRandom().randrange(2**31))
+    return options
+
+
+def run(args: argparse.Namespace) -> int:
+    options = options_from(args)
+    robot, teacher_id, seed = options.robot, options.teacher, options.seed
+    profile = profile_from(args, options)
     m = load_map(options.task)
-    seed = options.seed if options.seed is not None else random.SystemRandom().randrange(2**31)
     voice = _voice(options.voice) if options.audio else None
     skew = options.clock_skew
 
     def clock() -> float:
         return time.time() + skew
 
-    with Node("simteacher", bus_config("simteacher", args)) as node, ExitStack() as stack:
+    bus = bus_config("simteacher", args)
+    write_run_settings(bus, "simteacher", options, profile)
+    with Node("simteacher", bus) as node, ExitStack() as stack:
         core = SimulatedTeacher(m, load_vocabulary(), profile, seed=seed)
         teacher = DisplayTeacher(
             core, options.traces, options.max_words_per_robot_s, counters=node.counters

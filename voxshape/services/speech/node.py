@@ -12,6 +12,7 @@ notices, speech heard but rejected ("not recognized"), or input this engine cann
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -37,7 +38,8 @@ from voxshape.runtime import (
     fields,
     worth_logging,
 )
-from voxshape.runtime.settings import add_options, option, read_options
+from voxshape.runtime.settings import add_options, flag_of, option, read_options
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.speech.engines import open_recognizer
 from voxshape.services.speech.mock import MockRecognizer, MockSettings, confused, weights_text
 from voxshape.services.speech.pocketsphinx_engine import PocketsphinxSettings
@@ -97,15 +99,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     options = read_options(SpeechOptions, args)
+    tuning = engine_settings(args, options)
     vocabulary = _vocabulary(options)
     bus = bus_config("speech", args)
     limits = read_options(StreamLimits, args)
     if limits.max_streams < 1 or limits.idle_timeout_s <= 0:
         raise ConfigError("--max-streams must be >= 1 and --idle-timeout > 0")
     # the engine first: a missing model is reported before joining the bus
-    mock = options.engine == "mock"
-    engine = MockRecognizer(vocabulary, _mock_settings(args, options)) if mock else None
-    recognizer = None if engine else _audio_engine(args, options, vocabulary)
+    if isinstance(tuning, MockSettings):
+        engine, recognizer = MockRecognizer(vocabulary, tuning), None
+    else:
+        engine, recognizer = None, _audio_engine(options, vocabulary, tuning)
+    write_run_settings(bus, "speech", options, limits, *([tuning] if tuning else []))
     with Node("speech", bus) as node:
         core = _transcriber(node, options, limits, engine, recognizer)
         # The input this engine cannot hear, taken only to tell its senders so.
@@ -137,8 +142,43 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _mock_settings(args: argparse.Namespace, options: SpeechOptions) -> MockSettings:
-    return confused(read_options(MockSettings, args), options.confusion)
+POCKETSPHINX_ENGINES = ("pocketsphinx", "cascade")  # the cascade's first stage is pocketsphinx
+
+
+def engine_settings(
+    args: argparse.Namespace, options: SpeechOptions
+) -> MockSettings | PocketsphinxSettings | None:
+    """The engine's own settings: the mock's, pocketsphinx's (the cascade's too), or None
+    (vosk, whisper). ConfigError names a setting given that this engine cannot honour."""
+    mock = confused(read_options(MockSettings, args), options.confusion)
+    pocketsphinx = read_options(PocketsphinxSettings, args)
+    engine = options.engine
+    refused = None
+    if engine == "mock" and options.model is not None:
+        refused = f"--model {options.model}: the mock engine hears text and takes no model"
+    elif options.dictionary is not None and engine not in POCKETSPHINX_ENGINES:
+        refused = f"--dictionary {options.dictionary}: pocketsphinx's and the cascade's"
+    elif engine != "mock" and (given := _changed(mock)):
+        refused = f"{given}: the mock engine's settings"
+    elif engine not in POCKETSPHINX_ENGINES and (given := _changed(pocketsphinx)):
+        refused = f"{given}: pocketsphinx's and the cascade's settings"
+    if refused is not None:
+        raise ConfigError(f"{refused}, which --engine {engine} does not take")
+    if engine == "mock":
+        return mock
+    return pocketsphinx if engine in POCKETSPHINX_ENGINES else None
+
+
+def _changed(settings: object, defaults: object | None = None) -> str:
+    """The flags of `settings`' fields that differ from `defaults` (by default its class's),
+    the error kinds' weights as --confusion."""
+    defaults = defaults if defaults is not None else type(settings)()
+    differ = [
+        f
+        for f in dataclasses.fields(settings)
+        if getattr(settings, f.name) != getattr(defaults, f.name)
+    ]
+    return ", ".join(sorted({flag_of(f) or "--confusion" for f in differ}))
 
 
 def _vocabulary(options: SpeechOptions) -> Vocabulary:
@@ -211,9 +251,9 @@ def _publisher(node: Node) -> Callable[[list[Recognized]], None]:
 
 
 def _audio_engine(
-    args: argparse.Namespace, options: SpeechOptions, vocabulary: Vocabulary
+    options: SpeechOptions, vocabulary: Vocabulary, tuning: PocketsphinxSettings | None
 ) -> Recognizer:
-    settings = read_options(PocketsphinxSettings, args)
+    settings = tuning or PocketsphinxSettings()
     if (settings.distractors or 0) < 0 or settings.distractor_weight <= 0:
         raise ConfigError("--distractors must be >= 0 and --distractor-weight > 0")
     try:

@@ -39,6 +39,7 @@ from voxshape.runtime import (
     bus_config,
 )
 from voxshape.runtime.settings import add_options, option, read_options
+from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.web.admission import (
     AdmissionError,
     Origins,
@@ -143,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
         digest = access_digest(access) if access is not None else None
     except (AdmissionError, AccessError) as e:
         raise ConfigError(str(e)) from None
+    write_run_settings(bus, "web", options)
     gateway = PageServer(
         bus, view, options.static, options.address, tls, options.max_clients, origins
     )
