@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ast
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -92,6 +93,60 @@ def test_every_package_and_module_is_on_a_floor():
     assert {p.parent.name for p in SERVICES.glob("*/__init__.py")} == SERVICE_NAMES
     assert {p.stem for p in SERVICES.glob("*.py")} == {"__init__"}
     assert {p.stem for p in PACKAGE.glob("*.py")} == TOP_MODULES
+
+
+LAYOUT = ROOT / "docs" / "architecture.md"
+
+
+def layout_entries(text: str) -> dict[str, set[str]]:
+    """docs/architecture.md#layout's map: each folder under voxshape/ (an entry's first word)
+    and the modules its entry names."""
+    block = text.split("## Layout", 1)[1].split("```", 2)[1]
+    entries: dict[str, set[str]] = {}
+    folder = None
+    for line in block.splitlines():
+        if line[:1] not in ("", " "):  # a new entry: its folder first
+            head = line.split()[0]
+            folder = head if head.startswith("voxshape/") else None
+            entries.setdefault(folder or "", set())
+        if folder is not None:
+            entries[folder].update(re.findall(r"(?<![/\w])(\w+)\.py\b", line))
+    entries.pop("", None)
+    return entries
+
+
+def layout_mismatches(text: str, root: Path = ROOT) -> list[str]:
+    """Modules of root/voxshape the map leaves out, and modules it names that are gone."""
+    named = {f"{f}{m}.py" for f, modules in layout_entries(text).items() for m in modules}
+    tree = {
+        p.relative_to(root).as_posix()
+        for p in (root / "voxshape").rglob("*.py")
+        if p.name != "__init__.py"
+    }
+    return [f"not in the layout: {m}" for m in sorted(tree - named)] + [
+        f"in the layout but gone: {m}" for m in sorted(named - tree)
+    ]
+
+
+def test_the_layout_names_every_module_of_the_tree():
+    wrong = layout_mismatches(LAYOUT.read_text("utf-8"))
+    assert not wrong, "\n".join(wrong)
+
+
+@pytest.mark.parametrize(
+    ("planted", "named", "wrong"),
+    [
+        ("world/maps.py", "", "not in the layout: voxshape/world/maps.py"),
+        ("", "voxshape/world/  gone.py", "in the layout but gone: voxshape/world/gone.py"),
+    ],
+)
+def test_a_module_left_out_of_the_layout_or_gone_is_caught(tmp_path, planted, named, wrong):
+    (tmp_path / "voxshape" / "world").mkdir(parents=True)
+    (tmp_path / "voxshape" / "world" / "robot.py").write_text("")
+    if planted:
+        (tmp_path / "voxshape" / planted).write_text("")
+    text = f"## Layout\n\n```\nvoxshape/world/  robot.py (the robot)\n{named}\n```\n"
+    assert layout_mismatches(text, tmp_path) == [wrong]
 
 
 @pytest.mark.parametrize(
