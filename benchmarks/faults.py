@@ -1,4 +1,4 @@
-"""The reliability figures: runs the fault tests (tests/test_faults.py) on a real bus and prints
+"""The reliability figures: runs the fault tests (tests/test_faults*.py) on a real bus and prints
 the figures each printed, one fault per line (`--runs N` repeats them; `--json` for scripts).
 
     .venv/bin/python benchmarks/faults.py [--runs 3] [-k router]
@@ -18,7 +18,8 @@ MARK = "FAULT-FIGURES "
 
 def run_once(select: str | None) -> tuple[int, list[dict]]:
     argv = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "no:cacheprovider"]
-    argv += ["tests/test_faults.py", *(["-k", select] if select else [])]
+    tests = sorted(str(p.relative_to(ROOT)) for p in (ROOT / "tests").glob("test_faults*.py"))
+    argv += [*tests, *(["-k", select] if select else [])]
     result = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=900)
     found = [
         json.loads(line.removeprefix(MARK))

@@ -24,7 +24,7 @@ from voxshape.protocol import (
     teacher_key,
 )
 from voxshape.services.logger.eventlog import EventLogWriter, EventRecord
-from voxshape.world.maps import load_map
+from voxshape.world.maps import Map, load_map
 
 TIMELINES = ("step", "episode", "sim_time", "wall_time")
 # A map that is not task 1: its shortest time is 19 s where task 1's is 10.3 s.
@@ -53,153 +53,154 @@ def scripted_session(
     m = load_map("1")
     script = Script()
     add = script.messages.append
-    step, t0 = 0, 1.7e9
+    step = 0
     for episode in range(episodes):
         x, y, theta = m.start.x, m.start.y, m.start.theta
-        add(
-            (
-                robot_key(session, robot, "episode"),
-                EpisodeEvent(
-                    robot=robot,
-                    episode=episode,
-                    step=step,
-                    kind="start",
-                    episode_steps=0,
-                    sim_time=step * 0.1,
-                    wall_time=t0 + step * 0.1,
-                    env_return=0.0,
-                ),
-            )
-        )
+        add((robot_key(session, robot, "episode"), episode_event(robot, episode, step)))
         if episode > 0:  # the arbiter settles an episode's count during the next one
-            add(
-                (
-                    robot_key(session, robot, "teaching"),
-                    TeachingStats(
-                        robot=robot,
-                        episode=episode - 1,
-                        final=True,
-                        interventions=int(episode - 1 == feedback_episode),
-                        teachers=(),
-                    ),
-                )
+            count = TeachingStats(
+                robot=robot,
+                episode=episode - 1,
+                final=True,
+                interventions=int(episode - 1 == feedback_episode),
+                teachers=(),
             )
+            add((robot_key(session, robot, "teaching"), count))
         total = 0.0
         for k in range(steps + 1):
             last = k == steps
             reward = 0.0 if k == 0 else (100.0 if last and episode % 2 == 0 else -1.0)
             total += reward
             outcome = ("goal" if episode % 2 == 0 else "timeout") if last else "running"
-            a = math.atan2(m.goal_y - y, m.goal_x - x)
-            add(
-                (
-                    robot_key(session, robot, "obs"),
-                    Observation(
-                        robot=robot,
-                        episode=episode,
-                        step=step,
-                        episode_step=k,
-                        sim_time=step * 0.1,
-                        wall_time=t0 + step * 0.1,
-                        x=x,
-                        y=y,
-                        theta=theta,
-                        v=0.3,
-                        omega=0.0,
-                        laser=tuple(2.0 + 0.01 * i for i in range(180)),
-                        sonar=(1.0,) * 8,
-                        reward=reward,
-                        goal_distance=math.hypot(m.goal_x - x, m.goal_y - y),
-                        goal_bearing=math.remainder(a - theta, math.tau),
-                        outcome=outcome,
-                        collided=False,
-                    ),
-                )
-            )
+            seen = observation(m, robot, (episode, step, k), (x, y, theta), reward, outcome)
+            add((robot_key(session, robot, "obs"), seen))
             script.observations += 1
             if episode == feedback_episode and k == steps // 2:
-                said = Utterance(
-                    teacher="ana",
-                    robot=robot,
-                    text="good",
-                    confidence=0.9,
-                    onset=t0,
-                    end=t0 + 0.3,
-                    recognized_at=t0 + 0.4,
-                    engine="mock",
-                    language="en",
-                    alternatives=(),
-                )
-                add((teacher_key(session, "ana", "utterance"), said))
-                script.feedback_credited_step = step - 2
-                script.feedback_arrival_step = step
-                script.feedback_reward = 10.0
-                add(
-                    (
-                        robot_key(session, robot, "feedback"),
-                        CreditedFeedback(
-                            robot=robot,
-                            kind="reward",
-                            reward=10.0,
-                            command=None,
-                            credits=(Credit(step=step - 2, weight=1.0),),
-                            sources=(said.id,),
-                            teachers=("ana",),
-                        ),
-                    )
-                )
+                add_feedback(script, session, robot, step)
             if not last:
-                add(
-                    (
-                        robot_key(session, robot, "action"),
-                        Action(
-                            robot=robot,
-                            episode=episode,
-                            step=step,
-                            discrete=1,
-                            v=0.3,
-                            omega=0.0,
-                            chooser="policy",
-                        ),
-                    )
-                )
-            add(
-                (
-                    robot_key(session, robot, "learning"),
-                    LearningSummary(
-                        robot=robot,
-                        episode=episode,
-                        step=step,
-                        state=k % 3,
-                        states=min(3, k + 1) + episode,
-                        q_values=(0.0, 1.0, -1.0, 0.5, 0.25) if not last else (),
-                        td_error=0.1,
-                        epsilon=0.1,
-                        reward=reward,
-                        episode_return=total,
-                    ),
-                )
-            )
+                add((robot_key(session, robot, "action"), action(robot, episode, step)))
+            learnt = learning(robot, (episode, step, k), last, reward, total)
+            add((robot_key(session, robot, "learning"), learnt))
             x += 0.03 * math.cos(theta)
             y += 0.03 * math.sin(theta)
             step += 1
-        add(
-            (
-                robot_key(session, robot, "episode"),
-                EpisodeEvent(
-                    robot=robot,
-                    episode=episode,
-                    step=step - 1,
-                    kind="goal" if episode % 2 == 0 else "timeout",
-                    episode_steps=steps,
-                    sim_time=(step - 1) * 0.1,
-                    wall_time=t0 + step * 0.1,
-                    env_return=total,
-                ),
-            )
-        )
+        kind = "goal" if episode % 2 == 0 else "timeout"
+        ended = episode_event(robot, episode, step - 1, kind, steps, total)
+        add((robot_key(session, robot, "episode"), ended))
         script.returns[episode] = total
     return script
+
+
+T0 = 1.7e9  # the scripted session's wall time at step 0
+
+
+def episode_event(
+    robot: str, episode: int, step: int, kind: str = "start", steps: int = 0, total: float = 0.0
+) -> EpisodeEvent:
+    """An episode's start (at `step`) or its end (`kind`, after `steps`, returning `total`)."""
+    return EpisodeEvent(
+        robot=robot,
+        episode=episode,
+        step=step,
+        kind=kind,
+        episode_steps=steps,
+        sim_time=step * 0.1,
+        wall_time=T0 + (step + (kind != "start")) * 0.1,
+        env_return=total,
+    )
+
+
+def observation(
+    m: Map,
+    robot: str,
+    when: tuple[int, int, int],
+    pose: tuple[float, float, float],
+    reward: float,
+    outcome: str,
+) -> Observation:
+    """What the robot sees at `when` (episode, step, step of the episode) from `pose`."""
+    (episode, step, k), (x, y, theta) = when, pose
+    a = math.atan2(m.goal_y - y, m.goal_x - x)
+    return Observation(
+        robot=robot,
+        episode=episode,
+        step=step,
+        episode_step=k,
+        sim_time=step * 0.1,
+        wall_time=T0 + step * 0.1,
+        x=x,
+        y=y,
+        theta=theta,
+        v=0.3,
+        omega=0.0,
+        laser=tuple(2.0 + 0.01 * i for i in range(180)),
+        sonar=(1.0,) * 8,
+        reward=reward,
+        goal_distance=math.hypot(m.goal_x - x, m.goal_y - y),
+        goal_bearing=math.remainder(a - theta, math.tau),
+        outcome=outcome,
+        collided=False,
+    )
+
+
+def add_feedback(script: Script, session: str, robot: str, step: int) -> None:
+    """ana's "good" at `step`, credited two steps back."""
+    said = Utterance(
+        teacher="ana",
+        robot=robot,
+        text="good",
+        confidence=0.9,
+        onset=T0,
+        end=T0 + 0.3,
+        recognized_at=T0 + 0.4,
+        engine="mock",
+        language="en",
+        alternatives=(),
+    )
+    script.messages.append((teacher_key(session, "ana", "utterance"), said))
+    script.feedback_credited_step = step - 2
+    script.feedback_arrival_step = step
+    script.feedback_reward = 10.0
+    credited = CreditedFeedback(
+        robot=robot,
+        kind="reward",
+        reward=10.0,
+        command=None,
+        credits=(Credit(step=step - 2, weight=1.0),),
+        sources=(said.id,),
+        teachers=("ana",),
+    )
+    script.messages.append((robot_key(session, robot, "feedback"), credited))
+
+
+def action(robot: str, episode: int, step: int) -> Action:
+    return Action(
+        robot=robot,
+        episode=episode,
+        step=step,
+        discrete=1,
+        v=0.3,
+        omega=0.0,
+        chooser="policy",
+    )
+
+
+def learning(
+    robot: str, when: tuple[int, int, int], last: bool, reward: float, total: float
+) -> LearningSummary:
+    (episode, step, k) = when
+    return LearningSummary(
+        robot=robot,
+        episode=episode,
+        step=step,
+        state=k % 3,
+        states=min(3, k + 1) + episode,
+        q_values=(0.0, 1.0, -1.0, 0.5, 0.25) if not last else (),
+        td_error=0.1,
+        epsilon=0.1,
+        reward=reward,
+        episode_return=total,
+    )
 
 
 def write_script(path, session: str, script: Script, t0: float = 1.7e9) -> list[EventRecord]:

@@ -1,4 +1,4 @@
-"""Support for the stopped-observer fault tests (tests/test_faults.py): a session whose robot
+"""Support for the stopped-observer fault tests (test_faults_stopped.py): a session whose robot
 runs as fast as its learner answers (a lockstep simulator), a teacher typing words, a logger,
 and an observer stopped with SIGSTOP for a while. What the test's own bus node saw (the
 robot's pace, the feedback and when it came, the teacher's actions) and what a logger's event

@@ -1,31 +1,31 @@
 """The speech service's cores without a bus: segmentation on synthetic and recorded signals,
-stream clocks and problems, pocketsphinx on the WAV fixtures, the mock engine, and the errors
-of engines that cannot run."""
+stream clocks and problems, pocketsphinx on the WAV fixtures, and the errors of engines that
+cannot run (the mock engine: test_speech_mock.py; the benchmark's scoring:
+test_speech_scoring.py)."""
 
 from __future__ import annotations
 
-import dataclasses
-import runpy
 import wave
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from benchmarks.speech import scoring
-from voxshape.protocol import AudioChunk, Said, Utterance, load_vocabulary
+from voxshape.protocol import AudioChunk, load_vocabulary
 from voxshape.protocol.messages import SAMPLE_RATE
 from voxshape.runtime.audio import AudioError, pcm_to_samples, read_wav, samples_to_pcm
-from voxshape.services.speech.mock import MockRecognizer, MockSettings
-from voxshape.services.speech.recognizer import EngineError, Recognition
+from voxshape.services.speech.recognizer import EngineError
 from voxshape.services.speech.segmenter import Segmenter, SegmenterConfig
 from voxshape.services.speech.streams import AudioStreams, StreamLimits
-from voxshape.services.speech.transcriber import MockTranscriber
 from voxshape.services.speech.vosk_engine import MODELS_URL, vosk_model_folder
 
 FIXTURES = Path(__file__).parent / "fixtures" / "speech"
+
+
 VOCABULARY = load_vocabulary()
+
+
 rng = np.random.default_rng(7)
 
 
@@ -55,9 +55,6 @@ def segment_all(samples: np.ndarray, chunk: int = 800, config: SegmenterConfig |
 
 def seconds(samples: int) -> float:
     return samples / SAMPLE_RATE
-
-
-# -- segmentation --------------------------------------------------------------------------
 
 
 def test_utterances_in_noise_are_found_with_their_bounds():
@@ -128,9 +125,6 @@ def test_recorded_noisy_speech_is_found_where_it_is():
         assert seconds(segments[0].start) == pytest.approx(clip.speech_start_s, abs=0.08)
         # a weak final consonant ("sto-p") can fall under a noise this loud
         assert seconds(segments[0].end) == pytest.approx(clip.speech_end_s, abs=0.2)
-
-
-# -- streams: clocks and problems ------------------------------------------------------------
 
 
 def chunk(seq: int, samples: np.ndarray, capture_time: float, **fields) -> AudioChunk:
@@ -209,9 +203,6 @@ def test_odd_byte_counts_are_an_audio_error():
         pcm_to_samples(b"\x00\x01\x02")
 
 
-# -- pocketsphinx on the recorded fixtures -----------------------------------------------------
-
-
 def test_fixtures_are_small_16k_mono_and_listed():
     clips = scoring.load_clips(FIXTURES)
     assert len(clips) >= 30
@@ -266,145 +257,6 @@ def test_pocketsphinx_without_a_model_for_another_language_says_what_it_needs():
         PocketsphinxRecognizer(VOCABULARY, "fr")
 
 
-# -- the benchmark: its plan and its summary ------------------------------------------------
-
-# every English voice of espeak-ng here (`espeak-ng --voices=en`, without mbrola's)
-ESPEAK_ENGLISH = [
-    "en-gb", "en-us", "en-gb-scotland", "en-gb-x-gbclan", "en-gb-x-rp", "en-gb-x-gbcwmd",
-    "en-029", "en-us-nyc",
-]  # fmt: skip
-
-
-def test_the_full_plan_holds_out_voices_words_and_conditions():
-    plan = runpy.run_path(str(FIXTURES / "make_fixtures.py"))["full_plan"]()
-    tune = [c for c in plan if c.split == "tune"]
-    held = [c for c in plan if c.split == "held-out"]
-    assert len(tune) + len(held) == len(plan) and len({c.stem for c in plan}) == len(plan)
-    # "good" in every English voice espeak-ng has
-    espeak = [c for c in plan if c.synthesizer == "espeak-ng"]
-    says_good = {c.voice.split("+")[0] for c in espeak if c.text == "good"}
-    assert set(ESPEAK_ENGLISH) <= says_good
-    # held-out speech of the vocabulary, clean: in voices tuning never hears
-    held_voices = {c.voice for c in held if c.kind == "vocabulary" and c.condition == "clean"}
-    assert held_voices and held_voices.isdisjoint({c.voice for c in tune})
-    # settings are chosen on one synthesizer, and held out on the other whole
-    assert {c.synthesizer for c in tune} == {"espeak-ng"}
-    assert {c.synthesizer for c in held if c.condition != "clean"} >= {"festival", "espeak-ng"}
-    kinds = {"vocabulary", "oov", "near", "sentence"}
-    assert {c.kind for c in tune} == {c.kind for c in held} == kinds
-    assert all(c.credits == "" or c.kind == "sentence" for c in plan)
-    # outside words: none of the held-out ones is a tuning one
-    outside = [c for c in plan if c.kind != "vocabulary"]
-    tune_words = {c.text for c in outside if c.split == "tune"}
-    assert tune_words.isdisjoint(c.text for c in outside if c.split == "held-out")
-    assert {c.condition for c in tune} == {"clean", "white 10 dB", "pink 15 dB"}
-    assert {c.condition for c in held} == {
-        "clean", "level -10 dBFS", "level -20 dBFS", "level -30 dBFS", "telephone", "reverb"
-    }  # fmt: skip
-    for language in ("en", "es"):  # every phrase in both splits
-        for split in (tune, held):
-            spoken = {c.text for c in split if c.language == language}
-            assert set(VOCABULARY.phrases(language)) <= spoken
-    assert {c.kind for c in held if c.language == "es"} == {"vocabulary", "oov"}
-
-
-def test_old_manifests_load_as_tuning_clips_with_conditions_from_their_noise():
-    clips = scoring.load_clips(FIXTURES) + scoring.load_clips(FIXTURES / "ko")
-    assert {c.split for c in clips} == {"tune"}
-    assert {c.condition for c in clips} == {
-        "clean", "white 10 dB", "white 15 dB", "pink 10 dB", "pink 15 dB"
-    }  # fmt: skip
-    assert all((c.condition == "clean") == (c.noise == "none") for c in clips)
-
-
-class Says:
-    """A recognizer that hears `text` in every segment."""
-
-    engine, language = "stub", "en"
-
-    def __init__(self, text: str | None) -> None:
-        self.text = text
-
-    def recognize(self, samples):
-        return Recognition(self.text, 1.0) if self.text else None
-
-
-def test_latency_runs_from_the_end_of_speech_and_conditions_get_quiet_around():
-    clip = next(c for c in scoring.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
-    for condition in ("clean", "telephone", "reverb", "level -30 dBFS"):
-        samples, offset = scoring.as_stream(dataclasses.replace(clip, condition=condition))
-        assert offset == scoring.QUIET_S and len(samples) > 2 * scoring.QUIET_S * SAMPLE_RATE
-    outcome = scoring.transcribe_clip(clip, Says("good"))
-    assert outcome.heard == ["good"]
-    # the segmenter waits out its hangover (0.3 s) before it gives the utterance out
-    assert 0.25 <= outcome.latency_s <= 0.5
-    assert scoring.transcribe_clip(clip, Says(None)).latency_s is None
-
-
-def test_the_benchmark_counts_what_passes_the_arbiters_confidence_gate():
-    clip = next(c for c in scoring.load_clips(FIXTURES) if c.path.name == "en-voc-good-en-us.wav")
-
-    class Unsure(Says):
-        def recognize(self, samples):
-            return Recognition(self.text, 0.3)
-
-    outcome = scoring.transcribe_clip(clip, Unsure("good"))
-    assert outcome.heard == [] and outcome.recognized == [("good", 0.3)]
-    summary = scoring.Report("stub", "en", [outcome]).summary(VOCABULARY)
-    assert summary["accuracy"] == 0.0
-    assert summary["calibration"]["tune"] == {
-        "0": {"n": 1, "right": 1, "share": 1.0, "confidence": 0.3}
-    }
-
-
-def test_the_summary_reports_each_split_condition_voice_and_false_accept():
-    def outcome(text, heard, split="tune", condition="clean", voice="en-us", kind="vocabulary",
-                language="en", latency=0.4):  # fmt: skip
-        clip = scoring.Clip(
-            Path("x.wav"), text, language, kind, voice, "none", 0.0, 0.0, 1.0, condition, split
-        )
-        return scoring.Outcome(clip, heard, 0.01, 0.01, 1.0, latency if heard else None)
-
-    outcomes = [
-        outcome("good", ["good"]),
-        outcome("good", ["bad"]),
-        outcome("backwards", ["backward"]),  # same meaning only
-        outcome("good", ["good"], voice="en-gb+m3"),
-        outcome("good", ["good"], split="held-out", voice="en-029", latency=0.6),
-        outcome("left", [], split="held-out", voice="en-029"),
-        outcome("left", ["left"], split="held-out", condition="reverb", latency=0.8),
-        outcome("hello", ["good"], kind="oov"),
-        outcome("goat", [], kind="near"),
-        outcome("shop", [], kind="near", split="held-out"),
-        outcome("bien", ["good"], language="es"),  # Spanish speech, heard with its meaning
-        outcome("terrible", ["terrible"], language="es"),  # also English: not counted
-        outcome("bien", ["left"], language="es", split="held-out"),  # another meaning: outside
-    ]
-    report = scoring.Report("stub", "en", outcomes)
-    s = report.summary(VOCABULARY)
-    assert (s["accuracy"], s["meaning_accuracy"]) == (0.5, 0.75)
-    assert (s["held_out_accuracy"], s["held_out_meaning_accuracy"]) == (0.5, 0.5)
-    assert (s["false_accept_rate"], s["held_out_false_accept_rate"]) == (0.333, 0.5)
-    assert s["false_accepts"]["tune"] == {
-        "near": {"n": 1, "accepted": 0, "rate": 0.0},
-        "other language": {"n": 1, "accepted": 0, "rate": 0.0},
-        "unrelated": {"n": 1, "accepted": 1, "rate": 1.0},
-    }
-    assert s["conditions"]["held-out"]["en"]["reverb"]["accuracy"] == 1.0
-    assert s["voices"]["tune"]["en"]["en-gb+m3"]["n"] == 1
-    assert "reverb" not in s["voices"]["held-out"]["en"]
-    assert s["per_word_accuracy"]["en:good"] == {"tune": 0.667, "held-out": 1.0}
-    assert s["per_word_accuracy"]["en:left"] == {"tune": None, "held-out": 0.5}
-    assert s["latency_p50_s"] == 0.4 and 0.6 < s["latency_p95_s"] < 0.8  # of those heard
-    # the Spanish engine's headline is Spanish
-    spanish = scoring.Report("stub", "es", outcomes).summary(VOCABULARY)
-    assert spanish["accuracy"] == 0.5 and spanish["held_out_accuracy"] == 0.0
-    assert spanish["false_accepts"]["tune"]["other language"]["n"] == 6
-
-
-# -- vosk without a model --------------------------------------------------------------------
-
-
 def test_a_missing_vosk_model_says_where_to_get_one(tmp_path):
     with pytest.raises(EngineError) as info:
         vosk_model_folder(None, "es", env={})
@@ -416,103 +268,3 @@ def test_a_missing_vosk_model_says_where_to_get_one(tmp_path):
         vosk_model_folder(tmp_path / "nowhere", "en", env={})
     with pytest.raises(EngineError, match="holds no vosk model"):
         vosk_model_folder(None, "en", env={"VOSK_MODEL_PATH": str(tmp_path)})
-
-
-# -- the mock engine -------------------------------------------------------------------------
-
-
-def hear_many(settings: MockSettings, n: int, language: str = "en") -> tuple[list, Counter]:
-    mock = MockRecognizer(VOCABULARY, settings)
-    phrases = VOCABULARY.phrases(language)
-    heard = [mock.hear(phrases[i % len(phrases)], language) for i in range(n)]
-    return heard, mock.counters
-
-
-def test_the_mock_is_deterministic_for_a_seed():
-    settings = MockSettings(error_rate=0.3, latency_jitter_s=0.1, seed=42)
-    assert hear_many(settings, 300)[0] == hear_many(settings, 300)[0]
-    other = dataclasses.replace(settings, seed=43)
-    assert hear_many(settings, 300)[0] != hear_many(other, 300)[0]
-
-
-@pytest.mark.parametrize("error_rate", [0.0, 0.2, 0.5])
-def test_the_mock_error_rate_and_confusion_match_the_settings(error_rate):
-    n = 4000
-    settings = MockSettings(error_rate=error_rate, misheard=2, dropped=1, inserted=1, seed=1)
-    heard, counters = hear_many(settings, n, "es")
-    errors = n - counters["mock.correct"]
-    tolerance = 4 * np.sqrt(max(error_rate * (1 - error_rate), 1e-9) / n)  # 4 sigma
-    assert errors / n == pytest.approx(error_rate, abs=tolerance + 1e-9)
-    if error_rate:
-        assert counters["mock.misheard"] / errors == pytest.approx(0.5, abs=0.06)
-        assert counters["mock.dropped"] / errors == pytest.approx(0.25, abs=0.06)
-    # what comes out matches what was counted
-    assert sum(len(h) == 0 for h in heard) == counters["mock.dropped"]
-    assert sum(len(h) == 2 for h in heard) == counters["mock.inserted"]
-    assert all(VOCABULARY.lookup(x.text) for h in heard for x in h)
-
-
-def test_the_mock_rejects_words_outside_the_vocabulary_and_keeps_its_latency():
-    mock = MockRecognizer(VOCABULARY, MockSettings(latency_s=0.4, latency_jitter_s=0.1, seed=3))
-    assert mock.hear("banana", "en") == [] and mock.counters["mock.out_of_vocabulary"] == 1
-    assert mock.hear("good", "es") == []  # not a Spanish phrase
-    heard = [mock.hear("Muy bien!", "es")[0] for _ in range(200)]
-    assert {h.text for h in heard} == {"muy bien"}
-    assert all(0.3 <= h.delay_s <= 0.5 for h in heard)
-    with pytest.raises(ValueError, match="error rate"):
-        MockSettings(error_rate=1.5)
-
-
-def test_mock_results_come_out_when_their_latency_is_due():
-    core = MockTranscriber(MockRecognizer(VOCABULARY, MockSettings(latency_s=0.5, seed=0)))
-    said = Said(teacher="ana", robot="r1", text="left", language="en", onset=10.0, end=10.4)
-    assert core.on_said("ana", said, now=100.0) == []
-    assert core.on_tick(100.4) == []
-    (utterance,) = core.on_tick(100.5)
-    assert (utterance.text, utterance.engine, utterance.onset, utterance.end) == (
-        "left",
-        "mock",
-        10.0,
-        10.4,
-    )
-    assert utterance.recognized_at == 100.5
-    assert core.on_said("bob", said, now=101.0) == []  # said on another teacher's key
-    assert core.counters["said.wrong_teacher"] == 1
-
-
-def test_a_said_text_heard_again_is_heard_the_same():
-    """A restarted speech service hears again what the teacher's kept output recovers, after
-    other words or none: the same utterances (ids, texts), so the arbiter drops the copies
-    instead of crediting a word twice, even when the mock mishears or inserts a word."""
-    settings = MockSettings(latency_s=0.0, error_rate=0.5, misheard=1, dropped=1, inserted=2)
-    said = [  # ids fixed: the mock's draws depend on them alone
-        Said(
-            id=f"said-{t}",
-            teacher="ana",
-            robot="r1",
-            text="good",
-            language="en",
-            onset=t,
-            end=t + 0.4,
-        )
-        for t in range(40)
-    ]
-
-    def heard(messages: list[Said]) -> dict[str, list[tuple[str, str]]]:
-        core = MockTranscriber(MockRecognizer(VOCABULARY, settings))
-        return {
-            s.id: [
-                (u.id, u.text)
-                for u in core.on_said("ana", s, now=100.0) + core.close(100.0)
-                if isinstance(u, Utterance)
-            ]
-            for s in messages
-        }
-
-    before = heard(said)  # the service before its crash
-    after = heard(said[25:])  # after: only the recovered ones
-    assert all(after[s.id] == before[s.id] for s in said[25:])
-    kinds = {len(u) for u in before.values()}
-    assert kinds == {0, 1, 2}  # dropped, heard (or misheard), and a word inserted
-    ids = [i for u in before.values() for i, _ in u]
-    assert len(ids) == len(set(ids))

@@ -132,7 +132,7 @@ def test_the_mock_engine_hears_said_text_over_the_bus(
     assert [u.text for u in utterances] == ["muy bien", "izquierda"]
     for u in utterances:
         assert (u.engine, u.language, u.teacher) == ("mock", "es", "luz")
-        assert 0.3 <= u.recognized_at - u.end < 1.5  # the latency, plus the trip
+        assert u.recognized_at - u.end >= 0.3  # not before the mock's latency
     err = stop(speech)
     assert "mock.correct=2" in err and "mock.out_of_vocabulary=1" in err
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tests.test_arbiter import arbiter, feedback, notices, shown
+from tests.arbiter_support import arbiter, feedback, notices, shown
 from voxshape.protocol import ACTION_NAMES, VocabularyError, load_vocabulary
 from voxshape.protocol.vocabulary import normalize
 from voxshape.services.arbiter.scripted import scripted_utterance
