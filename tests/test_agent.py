@@ -76,7 +76,10 @@ def test_credited_feedback_is_taken_whole_and_names_the_steps_it_dropped():
     assert agent.take(reward) == [1]  # step 1 left the window; step 5 is credited
     assert learner.counters["feedback_credited"] == 1
     assert agent.counters["learner.feedback_partly_dropped"] == 1
-    assert agent.take(command(5)) == [] and list(learner.commands) == [LEFT] * EXACT.command_steps
+    # a turn said about a heading the person saw: turned until command_aim aside of it, for
+    # at most twice command_steps
+    assert agent.take(command(5)) == [] and learner.aim is not None
+    assert list(learner.commands) == [LEFT] * (2 * EXACT.command_steps)
 
 
 def test_online_feedback_is_taken_once_even_when_delivered_again():
