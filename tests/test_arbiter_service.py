@@ -21,7 +21,7 @@ from voxshape.protocol import (
     teacher_key,
     to_wire,
 )
-from voxshape.runtime import Node
+from voxshape.runtime import Node, Output
 from voxshape.runtime.clock import ClockSyncError, sync_clock
 from voxshape.services.arbiter.scripted import scripted_observation, scripted_utterance
 
@@ -67,15 +67,7 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         assert (fb.kind, fb.reward, fb.teachers) == ("reward", 10.0, ("ana",))
         assert notice.kind == "understood" and notice.meaning == "good"
 
-        # Malformed utterances are rejected without harm; unknown words get a notice.
-        key = teacher_key(session_id, "ana", "utterance")
-        bad = to_wire(scripted_utterance("ana", "r1", "good", onset))
-        node.zenoh.put(key, msgpack.packb({**bad, "confidence": 2.0}))
-        node.zenoh.put(key, b"\x00garbage")
-        said.put(scripted_utterance("ana", "r1", "cucumber", onset + 0.1))
-        notice = collect(node, 1, TeacherNotice)[0]
-        assert notice.kind == "not_understood" and "not in the vocabulary" in notice.text
-        said.put(scripted_utterance("ana", "r1", "avanza", onset + 0.2))
+        refused_then_understood(node, session_id, said, onset)
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")
         # credited as "good" is, to the 0.6 s the teacher saw (on the arbiter's estimate of
@@ -96,6 +88,19 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
     assert (
         "arbiter.rejected.not_understood=1" in err and "arbiter.clock_reports=8" in err
     )  # n=8: every probe after the first
+
+
+def refused_then_understood(node: Node, session_id: str, said: Output, onset: float) -> None:
+    """Malformed utterances are rejected without harm; unknown words get a notice; then a
+    command is said."""
+    key = teacher_key(session_id, "ana", "utterance")
+    bad = to_wire(scripted_utterance("ana", "r1", "good", onset))
+    node.zenoh.put(key, msgpack.packb({**bad, "confidence": 2.0}))
+    node.zenoh.put(key, b"\x00garbage")
+    said.put(scripted_utterance("ana", "r1", "cucumber", onset + 0.1))
+    notice = collect(node, 1, TeacherNotice)[0]
+    assert notice.kind == "not_understood" and "not in the vocabulary" in notice.text
+    said.put(scripted_utterance("ana", "r1", "avanza", onset + 0.2))
 
 
 def test_bad_settings_are_a_clear_error():

@@ -217,6 +217,35 @@ def answered(node: Node, within: float) -> bool:
     return False
 
 
+def ask_until_answered(node: Node, session_id: str, teacher: subprocess.Popen) -> None:
+    """The arbiter declares a robot's answers as it first gives one: ask as the learner would
+    (the learner asks by itself only when lost), until someone answers. bob answers too: his
+    window is wall seconds, ana's robot seconds (a few hundredths of a wall second at 20x,
+    which a loaded machine can miss)."""
+    node.input("obs", robot_key(session_id, "r1", "obs"))
+    node.input("answer", robot_key(session_id, "r1", "answer"))
+    ask = node.output("help", robot_key(session_id, "r1", "help"))
+    for _ in range(4):
+        seen = collect(node, 1, Observation, timeout=10.0)[0]
+        where = {"episode": seen.episode, "step": seen.step, "x": seen.x, "y": seen.y}
+        ask.put(HelpRequest(robot="r1", reason="unsure", detail="asked by the test", **where))
+        say(teacher, "left")
+        if answered(node, within=15.0):
+            return
+    pytest.fail("no teacher's answer to the robot's question reached the arbiter")
+
+
+def both_told(node: Node) -> None:
+    """Until bob is told his word was not recognized, and ana (the simulated teacher) told
+    something."""
+    kinds: dict[str, str] = {}
+    deadline = time.monotonic() + 20.0
+    while not (kinds.get("bob") == "not_recognized" and "ana" in kinds):
+        assert time.monotonic() < deadline, kinds
+        (notice,) = collect(node, 1, TeacherNotice, timeout=10.0)
+        kinds[notice.teacher] = notice.kind
+
+
 def test_the_real_services_declare_exactly_their_rows(
     spawn, router, session_id, tmp_path, client_config
 ):
@@ -262,29 +291,9 @@ def test_the_real_services_declare_exactly_their_rows(
         # The arbiter and speech declare their outputs as they first use them: speech its
         # notices when it rejects what bob says.
         collect(node, 1, CreditedFeedback, timeout=60.0)
-        # The arbiter declares a robot's answers as it first gives one: ask as the learner
-        # would (the learner asks by itself only when lost), until someone answers. bob answers
-        # too: his window is wall seconds, ana's robot seconds (a few hundredths of a wall
-        # second at 20x, which a loaded machine can miss).
-        node.input("obs", robot_key(session_id, "r1", "obs"))
-        node.input("answer", robot_key(session_id, "r1", "answer"))
-        ask = node.output("help", robot_key(session_id, "r1", "help"))
-        for _ in range(4):
-            seen = collect(node, 1, Observation, timeout=10.0)[0]
-            where = {"episode": seen.episode, "step": seen.step, "x": seen.x, "y": seen.y}
-            ask.put(HelpRequest(robot="r1", reason="unsure", detail="asked by the test", **where))
-            say(services["teacher"], "left")
-            if answered(node, within=15.0):
-                break
-        else:
-            pytest.fail("no teacher's answer to the robot's question reached the arbiter")
+        ask_until_answered(node, session_id, services["teacher"])
         say(services["teacher"], "cucumber")
-        kinds: dict[str, str] = {}
-        deadline = time.monotonic() + 20.0
-        while not (kinds.get("bob") == "not_recognized" and "ana" in kinds):
-            assert time.monotonic() < deadline, kinds
-            (notice,) = collect(node, 1, TeacherNotice, timeout=10.0)
-            kinds[notice.teacher] = notice.kind
+        both_told(node)
         collect(node, 1, TeachingStats, timeout=10.0)
     for proc in services.values():
         proc.send_signal(signal.SIGINT)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import os
 import re
 import signal
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -16,7 +17,7 @@ from tests.logger_support import no_analytics, rows, scripted_session
 from voxshape.protocol import EpisodeEvent, LearningSummary, Observation, decode, robot_key
 from voxshape.runtime import Input, Node
 from voxshape.services.logger.decoding import Known, decode_record
-from voxshape.services.logger.eventlog import read_events
+from voxshape.services.logger.eventlog import EventLog, read_events
 from voxshape.services.logger.recording import Recorder
 from voxshape.services.logger.replay import close_stream, open_stream, render
 from voxshape.services.logger.run import RunDir, session_map
@@ -72,33 +73,7 @@ def test_a_real_session_is_recorded_and_its_replay_gives_the_same_data(
         for topic in ("obs", "episode", "learning"):
             node.input(topic, robot_key(session_id, "r1", topic))
         time.sleep(0.3)
-        sim = spawn(
-            [
-                VOXSHAPE,
-                "sim",
-                *bus_args(router, session_id, "sim"),
-                "--clock",
-                "lockstep",
-                "--max-steps",
-                "250",
-                "--seed",
-                "0",
-                "--collision",
-                "end",
-            ]
-        )
-        learner = spawn(
-            [
-                VOXSHAPE,
-                "learner",
-                *bus_args(router, session_id, "learner"),
-                "--fresh",
-                "--seed",
-                "0",
-                "--checkpoint",
-                str(tmp_path / "learner.npz"),
-            ]
-        )
+        sim, learner = sim_and_learner(spawn, router, session_id, tmp_path)
         assert sim.wait(90) == 0
         deadline = time.monotonic() + 5
         while time.monotonic() < deadline:  # what is still on its way
@@ -141,13 +116,30 @@ def test_a_real_session_is_recorded_and_its_replay_gives_the_same_data(
     # the live recording drew everything (no thinning), so a replay draws the same data
     stats = (run.recording_stats).read_text()
     assert '"thinned_scans": 0' in stats and '"rejected"' not in stats
+    assert rows(replayed(run, tmp_path / "replay.rrd")) == recording
+
+
+def sim_and_learner(
+    spawn, router: str, session_id: str, tmp_path: Path
+) -> tuple[subprocess.Popen, subprocess.Popen]:
+    """A lockstep simulator of 250 steps and a fresh learner driving it."""
+    sim_args = ("--clock", "lockstep", "--max-steps", "250", "--seed", "0", "--collision", "end")
+    sim = spawn([VOXSHAPE, "sim", *bus_args(router, session_id, "sim"), *sim_args])
+    checkpoint = str(tmp_path / "learner.npz")
+    learner_args = ("--fresh", "--seed", "0", "--checkpoint", checkpoint)
+    learner = spawn([VOXSHAPE, "learner", *bus_args(router, session_id, "learner"), *learner_args])
+    return sim, learner
+
+
+def replayed(run: RunDir, out: Path) -> Path:
+    """The run's event log drawn again into `out`, as `voxshape replay` does."""
     world = session_map(run)
-    stream, _ = open_stream("replay", tmp_path / "replay.rrd", world)
+    stream, _ = open_stream("replay", out, world)
     recorder = Recorder(stream, world)
     recorder.start()
     render(read_events(run.events).records, recorder)
     close_stream(stream)
-    assert rows(tmp_path / "replay.rrd") == recording
+    return out
 
 
 def test_a_killed_logger_leaves_its_event_log_readable_up_to_its_last_flush(
@@ -206,13 +198,17 @@ def test_a_killed_logger_leaves_its_event_log_readable_up_to_its_last_flush(
     observations = sum(r.key.endswith("/obs") for r in log.records)
     assert len(rows(run.recording, "/world/map/poses/**")["/world/map/poses/r1"]) == observations
 
-    # a logger started again in this session cuts off what the killed one left half-written
-    # and appends after it
+    check_started_again(spawn, router, session_id, tmp_path, log)
+
+
+def check_started_again(spawn, router: str, session_id: str, tmp_path: Path, log: EventLog) -> None:
+    """A logger started again in this session cuts off what the killed one left half-written
+    (`log`) and appends after it."""
     again, _, lines = start_logger(spawn, router, session_id, tmp_path)
     if log.incomplete_tail:
         assert any("cut off an incomplete last record" in line for line in lines), lines
     again.send_signal(signal.SIGTERM)
     again.wait(30)
-    resumed = read_events(run.events)
+    resumed = read_events(RunDir(tmp_path / "runs" / session_id).events)
     assert resumed.incomplete_tail == 0 and resumed.records[: len(log.records)] == log.records
     assert len(resumed.records) > len(log.records)  # its own presence, at least

@@ -79,6 +79,26 @@ def in_host(host: str, *argv: str) -> list[str]:
     return ["ip", "netns", "exec", host, *argv]
 
 
+def wait_seen_from_the_teacher(hosts: dict, teacher_bus: tuple, env: dict) -> None:
+    """Until the teacher's host sees the robot's services through the router (90 s at most)."""
+    deadline = time.monotonic() + 90
+    while True:
+        status = subprocess.run(
+            in_host(
+                hosts["teacher"],
+                *(VOXSHAPE, "status", *teacher_bus, "--require", "sim", "learner", "arbiter"),
+            ),
+            capture_output=True,
+            text=True,
+            timeout=60,
+            env=env,
+        )
+        if status.returncode == 0:
+            return
+        assert time.monotonic() < deadline, status.stdout + status.stderr
+        time.sleep(1.0)
+
+
 def test_a_typed_good_crosses_three_hosts_to_the_learner(hosts, spawn, session_id, tmp_path):
     secrets = tmp_path / "secrets"
     make_all(secrets, load_access(find_access_file(ROOT)), hosts=[ROUTER_TO_TEACHER])
@@ -109,22 +129,7 @@ def test_a_typed_good_crosses_three_hosts_to_the_learner(hosts, spawn, session_i
         *("--mode", "client", "--connect", f"tls/{ROUTER_TO_TEACHER}:7448"),
         *("--user", "ana"),
     )
-    deadline = time.monotonic() + 90
-    while True:  # the teacher's host sees the robot's services through the router
-        status = subprocess.run(
-            in_host(
-                hosts["teacher"],
-                *(VOXSHAPE, "status", *teacher_bus, "--require", "sim", "learner", "arbiter"),
-            ),
-            capture_output=True,
-            text=True,
-            timeout=60,
-            env=env,
-        )
-        if status.returncode == 0:
-            break
-        assert time.monotonic() < deadline, status.stdout + status.stderr
-        time.sleep(1.0)
+    wait_seen_from_the_teacher(hosts, teacher_bus, env)
     teach = subprocess.run(
         in_host(
             hosts["teacher"],

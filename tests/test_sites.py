@@ -11,12 +11,11 @@ qualifiers, and each is credited by the arbiter to the steps robot r1 displayed 
 teacher's reaction window of its onset, observed from site A; nothing is lost on the way, and
 only router B's connection crosses the link. Needs root (CI runs as root), as
 tests/test_multihost.py does; every process is ended by its pid and the namespaces deleted.
-Secured sites (one `voxshape certs` kit, router B logging in over TLS) are tested on loopback.
+Secured sites (one `voxshape certs` kit, router B logging in over TLS): test_sites_secured.py.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import shutil
@@ -25,22 +24,15 @@ import time
 import uuid
 import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import replace
 from itertools import pairwise
 from pathlib import Path
 
 import pytest
-import zenoh
 
-from tests.conftest import ROOT, VOXSHAPE, free_port, read_until, wait_for_port
+from tests.conftest import ROOT, VOXSHAPE
 from tests.test_multihost import ip, namespaces_unavailable
-from voxshape.deploy.access import load_access
-from voxshape.deploy.certs import make_all
-from voxshape.deploy.router import secured
 from voxshape.launcher import router_command
-from voxshape.launcher.topology import load_topology, local_variables
-from voxshape.protocol import load_vocabulary, robot_key, teacher_key
-from voxshape.runtime import ConfigError, bus_config
+from voxshape.protocol import load_vocabulary
 from voxshape.runtime.processes import end_process
 
 SITE_A, SITE_B = "10.231.7.1", "10.231.7.2"
@@ -214,7 +206,82 @@ def bus(session: str, node: str) -> list[str]:
 
 def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
     started = time.monotonic()
-    # Router B first: it serves its site at once, and meshes once router A answers.
+    router_b = start_meshed_routers(sites, session_id)
+    teacher = start_both_sites(sites, session_id)
+    shown = sites.logs["teacher"]
+
+    def ready() -> bool:
+        shown.read()
+        events = {e["event"] for e in shown.records}
+        return {"clock", "status"} <= events
+
+    # Synced with the arbiter and seeing the robot: both through the mesh.
+    sites.until(ready, 60, "the teacher at site B syncs its clock and sees robot r1")
+    clock = next(e for e in shown.records if e["event"] == "clock")
+    time.sleep(1.0)  # the robot has been displayed for longer than the reaction window
+    for word in WORDS:
+        teacher.stdin.write(f"{word}\n".encode())
+        teacher.stdin.flush()
+        time.sleep(BETWEEN_WORDS_S)
+    teacher.stdin.close()
+
+    seen_a = sites.logs["listen-a"]
+
+    def all_credited() -> bool:
+        seen_a.read()
+        said = [u for u in of_type(seen_a, "utterance") if u["teacher"] == "ana"]
+        credited = {s for f in of_type(seen_a, "feedback") for s in f["sources"]}
+        return len(said) == len(WORDS) and {u["id"] for u in said} <= credited
+
+    sites.until(all_credited, 30, f"site A credits the {len(WORDS)} words said at site B")
+    sites.until(lambda: teacher.poll() is not None, 30, "the teacher has its answers")
+    shown.read()
+    assert teacher.returncode == 0, sites.report()
+    utterances = [u for u in of_type(seen_a, "utterance") if u["teacher"] == "ana"]
+    assert [u["text"] for u in utterances] == list(WORDS), sites.report()
+    feedback = {f["sources"][0]: f for f in of_type(seen_a, "feedback") if "ana" in f["teachers"]}
+    window = _window(of_type(seen_a, "teaching"))
+    obs = of_type(seen_a, "observation")
+    obs = sorted({o["step"]: o for o in obs}.values(), key=lambda o: o["step"])
+    check_credited_in_window(utterances, feedback, obs, window, clock)
+    watched = check_nothing_lost(sites, utterances, obs)
+
+    links = check_across_the_link(sites, seen_a, router_b)
+
+    link = "no netem" if sites.netem else f"link {' '.join(NETEM)} each way"
+    first = sorted(c["step"] for c in feedback[utterances[0]["id"]]["credits"])
+    latency = sorted(feedback[u["id"]]["sent_at"] - u["sent_at"] for u in utterances)
+    rtt = clock["rtt"]
+    print(
+        f"two sites meshed by their routers, {link}: clock sync round "
+        f"trip through the mesh {rtt * 1000:.2f} ms (offset {clock['offset'] * 1000:+.2f} ms); "
+        f"word typed at B to credit published at A {latency[0] * 1000:.1f}-"
+        f"{latency[-1] * 1000:.1f} ms; {len(WORDS)} of {len(WORDS)} words credited, "
+        f"window {window[0]:.2f}-{window[1]:.2f} s (the first, {WORDS[0]!r}: steps "
+        f"{first[0]}-{first[-1]}); {len(watched)} of {len(watched)} steps "
+        f"reached B; {len(links)} connection(s) across the link, router B's; "
+        f"{time.monotonic() - started:.1f} s"
+    )
+
+
+def check_across_the_link(sites: Sites, seen_a: Log, router_b: subprocess.Popen) -> list[int]:
+    """The teacher's clock offset reached the arbiter, and only router B crosses the link:
+    the processes with a connection across it."""
+    teaching = of_type(seen_a, "teaching")
+    stats = [t for s in teaching for t in s["teachers"] if t["teacher"] == "ana"]
+    assert stats and stats[-1]["clock_offset"] is not None, stats
+    links = _connections_to(sites, "b", SITE_A)
+    assert links and set(links) == {router_b.pid}, (links, router_b.pid)
+    return links
+
+
+def of_type(log: Log, kind: str) -> list[dict]:
+    """The messages of type `kind` a `voxshape listen --json` printed."""
+    return [r["message"] for r in log.records if r["message"]["type"] == kind]
+
+
+def start_meshed_routers(sites: Sites, session_id: str) -> subprocess.Popen:
+    """Router B first: it serves its site at once, and meshes once router A answers."""
     router_b = sites.start(
         "b",
         "router-b",
@@ -238,7 +305,12 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
         30,
         "router B meshes with router A",
     )
-    # Site A: the robot's services, as compose.yaml runs them, clients of router A.
+    return router_b
+
+
+def start_both_sites(sites: Sites, session_id: str) -> subprocess.Popen:
+    """Site A: the robot's services, as compose.yaml runs them, clients of router A. Site B:
+    what robot r1 shows there (to check that nothing is lost), and a teacher (returned)."""
     for name, argv in (
         ("sim", ["sim", "--clock", "paced", "--robot", "r1"]),
         ("learner", ["learner"]),
@@ -246,14 +318,13 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
     ):
         sites.start("a", name, [VOXSHAPE, *argv, *bus(session_id, name)])
     sites.start("a", "listen-a", [VOXSHAPE, "listen", "--json", *bus(session_id, "listen-a")])
-    # Site B: what robot r1 shows there (to check that nothing is lost), and a teacher.
     obs_key = f"voxshape/{session_id}/robot/r1/obs"
     sites.start(
         "b",
         "listen-b",
         [VOXSHAPE, "listen", "--json", "--key", obs_key, *bus(session_id, "listen-b")],
     )
-    teacher = sites.start(
+    return sites.start(
         "b",
         "teacher",
         [
@@ -262,48 +333,18 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
         ],
         stdin=subprocess.PIPE,
     )
-    shown = sites.logs["teacher"]
 
-    def ready() -> bool:
-        shown.read()
-        events = {e["event"] for e in shown.records}
-        return {"clock", "status"} <= events
 
-    # Synced with the arbiter and seeing the robot: both through the mesh.
-    sites.until(ready, 60, "the teacher at site B syncs its clock and sees robot r1")
-    clock = next(e for e in shown.records if e["event"] == "clock")
-    time.sleep(1.0)  # the robot has been displayed for longer than the reaction window
-    for word in WORDS:
-        teacher.stdin.write(f"{word}\n".encode())
-        teacher.stdin.flush()
-        time.sleep(BETWEEN_WORDS_S)
-    teacher.stdin.close()
-
-    seen_a = sites.logs["listen-a"]
-
-    def of_type(kind: str) -> list[dict]:
-        return [r["message"] for r in seen_a.records if r["message"]["type"] == kind]
-
-    def all_credited() -> bool:
-        seen_a.read()
-        said = [u for u in of_type("utterance") if u["teacher"] == "ana"]
-        credited = {s for f in of_type("feedback") for s in f["sources"]}
-        return len(said) == len(WORDS) and {u["id"] for u in said} <= credited
-
-    sites.until(all_credited, 30, f"site A credits the {len(WORDS)} words said at site B")
-    sites.until(lambda: teacher.poll() is not None, 30, "the teacher has its answers")
-    shown.read()
-    assert teacher.returncode == 0, sites.report()
-
-    # Each word, once, credited to the steps shown within the window before its onset.
-    utterances = [u for u in of_type("utterance") if u["teacher"] == "ana"]
-    assert [u["text"] for u in utterances] == list(WORDS), sites.report()
-    feedback = {f["sources"][0]: f for f in of_type("feedback") if "ana" in f["teachers"]}
+def check_credited_in_window(
+    utterances: list[dict],
+    feedback: dict[str, dict],
+    obs: list[dict],
+    window: tuple[float, float],
+    clock: dict,
+) -> None:
+    """Each word, once, credited to the steps shown within the window before its onset."""
     vocabulary = load_vocabulary()
-    window = _window(of_type("teaching"))
-    obs = sorted({o["step"]: o for o in of_type("observation")}.values(), key=lambda o: o["step"])
-    rtt = clock["rtt"]
-    tolerance = max(TOLERANCE_S, rtt / 2 + 0.01)
+    tolerance = max(TOLERANCE_S, clock["rtt"] / 2 + 0.01)
     for u in utterances:
         f = feedback[u["id"]]
         assert f["kind"] == "reward" and f["reward"] == vocabulary.lookup(u["text"]).reward
@@ -321,8 +362,11 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
             allowed,
         )
 
-    # Nothing lost: every word was answered at site B, and the robot's steps that site A
-    # published while site B watched all reached site B.
+
+def check_nothing_lost(sites: Sites, utterances: list[dict], obs: list[dict]) -> set[int]:
+    """Every word was answered at site B, and the robot's steps that site A published while
+    site B watched all reached site B: those steps."""
+    shown = sites.logs["teacher"]
     notices = [e for e in shown.records if e["event"] == "notice"]
     assert sorted(n["utterance"] for n in notices) == sorted(u["id"] for u in utterances)
     assert all(n["kind"] == "understood" for n in notices), notices
@@ -335,26 +379,7 @@ def test_a_word_said_at_one_site_is_credited_at_the_other(sites, session_id):
     assert steps_b, sites.report()
     watched = {s for s in steps_a if min(steps_b) <= s <= max(steps_b)}
     assert watched <= steps_b, f"lost at site B: {sorted(watched - steps_b)[:20]}"
-
-    # The teacher's clock offset reached the arbiter, and only router B crosses the link.
-    stats = [t for s in of_type("teaching") for t in s["teachers"] if t["teacher"] == "ana"]
-    assert stats and stats[-1]["clock_offset"] is not None, stats
-    links = _connections_to(sites, "b", SITE_A)
-    assert links and set(links) == {router_b.pid}, (links, router_b.pid)
-
-    link = "no netem" if sites.netem else f"link {' '.join(NETEM)} each way"
-    first = sorted(c["step"] for c in feedback[utterances[0]["id"]]["credits"])
-    latency = sorted(feedback[u["id"]]["sent_at"] - u["sent_at"] for u in utterances)
-    print(
-        f"two sites meshed by their routers, {link}: clock sync round "
-        f"trip through the mesh {rtt * 1000:.2f} ms (offset {clock['offset'] * 1000:+.2f} ms); "
-        f"word typed at B to credit published at A {latency[0] * 1000:.1f}-"
-        f"{latency[-1] * 1000:.1f} ms; {len(WORDS)} of {len(WORDS)} words credited, "
-        f"window {window[0]:.2f}-{window[1]:.2f} s (the first, {WORDS[0]!r}: steps "
-        f"{first[0]}-{first[-1]}); {len(watched)} of {len(watched)} steps "
-        f"reached B; {len(links)} connection(s) across the link, router B's; "
-        f"{time.monotonic() - started:.1f} s"
-    )
+    return watched
 
 
 def _window(stats: list[dict]) -> tuple[float, float]:
@@ -393,96 +418,3 @@ def _connections_to(sites: Sites, site: str, address: str) -> list[int]:
         for part in line.split("pid=")[1:]:
             pids.append(int(part.split(",")[0]))
     return pids
-
-
-MESH_ACCESS = """
-[users]
-logger = { role = "admin" }
-sim = { role = "simulator", robots = ["r1"] }
-ana = { role = "teacher" }
-siteb = { role = "admin" }   # router B's login at router A
-"""
-
-
-def test_secured_sites_mesh_over_tls_with_one_kit(tmp_path, spawn, session_id):
-    """Both routers secured from one `voxshape certs` kit: router B logs in to router A over
-    TLS as siteb, and each site's access control still holds for its own users."""
-    access = tmp_path / "access.toml"
-    access.write_text(MESH_ACCESS)
-    kit = tmp_path / "secrets"
-    make_all(kit, load_access(access))
-    a_tcp, a_tls, b_tcp = free_port(), free_port(), free_port()
-    router = router_command("--session", session_id, "--secrets", str(kit))
-    listen_a = f"tcp/127.0.0.1:{a_tcp},tls/127.0.0.1:{a_tls}"
-    spawn([*router, "--node", "router-a", "--access", str(access), "--listen", listen_a])
-    wait_for_port(a_tcp)
-    b = spawn(
-        [
-            *(*router, "--node", "router-b", "--access", str(access), "--user", "siteb"),
-            *("--listen", f"tcp/127.0.0.1:{b_tcp}", "--connect", f"tls/127.0.0.1:{a_tls}"),
-        ],
-        text=True,
-        stderr=subprocess.STDOUT,
-    )
-    read_until(b, r"node joined role=router node=router-a", timeout=30)
-
-    def login(user: str, port: int) -> zenoh.Session:
-        own = {"VOXSHAPE_SECRETS": str(kit / "per-user" / user), "VOXSHAPE_USER": user}
-        config = replace(
-            bus_config("test", env=own),
-            session=session_id,
-            mode="client",
-            connect=(f"tcp/127.0.0.1:{port}",),
-        )
-        return zenoh.open(config.zenoh_config())
-
-    at_a: list[str] = []
-    at_b: list[str] = []
-    with login("logger", a_tcp) as logger, login("sim", a_tcp) as sim, login("ana", b_tcp) as ana:
-        everything = f"voxshape/{session_id}/**"
-        logger.declare_subscriber(everything, lambda s: at_a.append(str(s.key_expr)))
-        ana.declare_subscriber(robot_key(session_id, "*", "obs"), lambda s: at_b.append("obs"))
-        time.sleep(1.5)  # the subscriptions reach the other site
-        said = teacher_key(session_id, "ana", "utterance")
-        for _ in range(3):
-            ana.put(said, b"u")
-            ana.put(teacher_key(session_id, "ben", "utterance"), b"not hers")
-            ana.put(robot_key(session_id, "r1", "feedback"), b"not a teacher's")
-            sim.put(robot_key(session_id, "r1", "obs"), b"o")
-            time.sleep(0.1)
-        deadline = time.monotonic() + 10
-        while (at_a.count(said) < 3 or len(at_b) < 3) and time.monotonic() < deadline:
-            time.sleep(0.1)
-        time.sleep(0.5)  # anything that should not arrive has had time to
-    assert at_a.count(said) == 3 and len(at_b) == 3, (at_a, at_b)
-    assert set(at_a) == {said, robot_key(session_id, "r1", "obs")}, at_a  # B's rules held
-
-    # What cannot work is refused at start: plain TCP between sites, no login there, mTLS.
-    users = {"VOXSHAPE_SECRETS": str(kit), "VOXSHAPE_ACCESS": str(access)}
-    for env, error in (
-        ({**users, "VOXSHAPE_CONNECT": "tcp/lab-a.example:7447"}, "tls/ only"),
-        ({**users, "VOXSHAPE_CONNECT": "tls/lab-a.example:7448"}, "give --user"),
-        (
-            {**users, "VOXSHAPE_CONNECT": "tls/a:7448", "VOXSHAPE_USER": "siteb"}
-            | {"VOXSHAPE_MTLS": "true"},
-            "cannot use mutual TLS",
-        ),
-    ):
-        with pytest.raises(ConfigError, match=error):
-            secured(bus_config("router", env=env), argparse.Namespace(), env)
-
-    # compose.yaml's router meshes when given VOXSHAPE_ROUTER_CONNECT (and _USER), else not.
-    def router_env(**variables: str) -> dict[str, str]:
-        services = load_topology(COMPOSE, local_variables(variables))
-        (spec,) = [s for s in services if s.name == "router"]
-        return {**spec.environment, "VOXSHAPE_ACCESS": str(access)}
-
-    assert bus_config("router", env=router_env()).connect == ()
-    env = router_env(
-        VOXSHAPE_ROUTER_CONNECT="tls/lab-a.example:7448",
-        VOXSHAPE_ROUTER_USER="siteb",
-        VOXSHAPE_SECRETS=str(kit),
-    )
-    meshed, note = secured(bus_config("router", env=env), argparse.Namespace(), env)
-    assert (meshed.connect, meshed.user) == (("tls/lab-a.example:7448",), "siteb")
-    assert meshed.password and "logs in to tls/lab-a.example:7448 as siteb" in note

@@ -355,6 +355,29 @@ def answered_then_cleared(pages: list, teacher: str, meaning: str) -> None:
         assert page.inner_text("#question").strip() == ""
 
 
+def shows_the_question(page, question: HelpRequest) -> None:
+    """The question, said aloud to screen readers, and marked on the map where it was asked."""
+    asked(page, question.id)
+    assert "r1 asks: which way? stuck for 10 s" in page.inner_text("#question")
+    assert page.get_attribute("#question", "aria-live") == "assertive"
+    marked(page, [question.id])
+    (mark,) = state(page, "s.marked")
+    assert (mark["x"], mark["y"]) == pytest.approx((question.x, question.y), abs=1e-4)
+
+
+def hints_in_spanish(page) -> None:
+    """The hint names the answers in the words of the page's language (then English again)."""
+    page.click(".lang button[data-lang=es]")
+    left, right, forward = (
+        load_vocabulary().meanings[m].phrases["es"][0] for m in ("left", "right", "forward")
+    )
+    hint = f"say or click {left}, {right} or {forward}"
+    page.wait_for_function(
+        f"document.querySelector('#question').innerText.includes({hint!r})", timeout=WAIT_MS
+    )
+    page.click(".lang button[data-lang=en]")
+
+
 def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
     session, open_page, tmp_path
 ):
@@ -385,27 +408,13 @@ def test_the_robots_question_shows_on_every_page_and_a_click_answers_it(
         )
         help_.put(question)
         for page in pages:
-            asked(page, question.id)
-            assert "r1 asks: which way? stuck for 10 s" in page.inner_text("#question")
-            assert page.get_attribute("#question", "aria-live") == "assertive"
-            marked(page, [question.id])  # and the map marks where it was asked
-            (mark,) = state(page, "s.marked")
-            assert (mark["x"], mark["y"]) == pytest.approx((question.x, question.y), abs=1e-4)
+            shows_the_question(page, question)
         # a chime each (the click on Join lets a page play sound), read aloud where chosen
         chimed = "[s.questions.chimes, s.questions.played, s.questions.spoken]"
         assert state(listener, chimed) == [1, 1, 1]
         assert state(answerer, chimed) == [1, 1, 0]
         screenshot(answerer, "question.png", tmp_path)
-        # the hint names the answers in the words of the page's language
-        answerer.click(".lang button[data-lang=es]")
-        left, right, forward = (
-            load_vocabulary().meanings[m].phrases["es"][0] for m in ("left", "right", "forward")
-        )
-        hint = f"say or click {left}, {right} or {forward}"
-        answerer.wait_for_function(
-            f"document.querySelector('#question').innerText.includes({hint!r})", timeout=WAIT_MS
-        )
-        answerer.click(".lang button[data-lang=en]")
+        hints_in_spanish(answerer)
         answerer.click("[data-meaning=left]")
         feedback = wait_feedback(node, "answerer")
         assert (feedback.kind, feedback.command) == ("command", "left")
