@@ -46,7 +46,8 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
 
         teacher_clock = lambda: time.time() + SKEW  # noqa: E731
         estimate = sync_clock(node, "ana", clock=teacher_clock)
-        assert abs(estimate.offset + SKEW) < 0.005 and estimate.rtt < 0.05, estimate
+        # within what the round trip allows (NTP's bound; the round trip itself is load's)
+        assert abs(estimate.offset + SKEW) <= estimate.rtt / 2 + 0.002, estimate
 
         start = time.time()  # a simulator stepping every PERIOD: step k shown at start + k P
         for k in range(30):

@@ -76,7 +76,7 @@ def test_without_a_cluster_the_error_names_the_address_and_the_fix(tmp_path, cap
     began = time.monotonic()
     code = main(paper_args(tmp_path / "out", "--cluster", f"127.0.0.1:{port}", seeds=1))
     err = capsys.readouterr().err
-    assert code == 2 and time.monotonic() - began < 10  # not Ray's minute of retries
+    assert code == 2 and time.monotonic() - began < 45  # not Ray's minute of retries
     assert f"no Ray cluster at 127.0.0.1:{port}: start one with `ray start --head`" in err
 
 

@@ -169,9 +169,9 @@ def test_a_teacher_with_a_wrong_password_is_told_so_at_once_in_one_line(router, 
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and "refused user 'ana'" in lines[0], result.stderr
     assert "ERROR" not in result.stderr and "zenoh_transport" not in result.stderr
-    # the refusal itself within LOGIN_WAIT_S (1.2 s), past the client's start on this machine
-    # now (1-1.5 s on an idle one, seconds on a loaded one: measured just before)
-    assert took - python_start < 2.0, (took, python_start)
+    # refused at once (LOGIN_WAIT_S, 1.2 s, past the client's start on an idle machine), not
+    # after a timeout's wait (30 s): the figure itself a loaded machine can miss
+    assert took - python_start < 10.0, (took, python_start)
 
 
 # -- access control ---------------------------------------------------------------------------

@@ -268,7 +268,8 @@ def test_the_teacher_syncs_its_clock_and_shows_what_the_arbiter_made_of_its_word
     shown = [json.loads(line) for line in result.stdout.splitlines()]
     assert shown[-1]["message"] == "robot 'r9' never appeared; nothing it was told was taught"
     (clock,) = [e for e in shown if e["event"] == "clock"]
-    assert abs(clock["offset"]) < 0.05 and clock["rtt"] < 0.1, clock  # one host, one clock
+    # one host, one clock: the offset within what the round trip allows
+    assert abs(clock["offset"]) <= clock["rtt"] / 2 + 0.005, clock
     (notice,) = [e for e in shown if e["event"] == "notice"]
     assert (notice["robot"], notice["kind"]) == ("r9", "unknown_robot"), notice
     arbiter.terminate()

@@ -1,6 +1,6 @@
 """The teachers' page against a hostile browser, on a real gateway, router and arbiter: each
 attack is refused or limited, the gateway logs no traceback, and a teacher already on the page
-is still understood within a second after each (docs/web.md#security)."""
+is still understood, not held up, after each (docs/web.md#security)."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from tests.conftest import VOXSHAPE, free_port, wait_for_port, wait_present, web_log_path
 from tests.test_web import Robot, open_page, until
 from tests.web_strangers import (
+    NOT_HELD_UP_S,
     STRANGERS,
     WAITED,
     ana_on_the_page,
@@ -152,7 +153,7 @@ async def attacks(port: int, password: dict[str, str]) -> None:
         await ben.close()
     print("WEB-ATTACK-FIGURES", json.dumps({k: round(v, 3) for k, v in took.items()}))
     closing = took.pop("300 connections closed")
-    assert closing <= 15.0 and max(took.values()) <= 1.0, took  # "good" understood within 1 s
+    assert closing <= 15.0 and max(took.values()) <= NOT_HELD_UP_S, took
     log = web_log(port)
     assert log.count("connections gave way: the budget is spent") == 1, log[-3000:]
     assert log.count("refused connections: too many from one address") == 1, log[-3000:]
@@ -390,7 +391,7 @@ async def guesses_at_once(port: int, password: dict[str, str]) -> None:
             *(guess(a, port, "ben", f"x{k}") for k, a in enumerate(STRANGERS[:30])), meanwhile()
         )
         assert (reasons.count(REFUSED), reasons.count(WAITED)) == (10, 20), reasons
-        assert login_s <= 1.0, login_s
+        assert login_s <= NOT_HELD_UP_S, login_s
         # 8 at once as cy from one address (all its waiting room holds): 3 reach the router.
         reasons = await asyncio.gather(
             *(guess(STRANGERS[40], port, "cy", f"y{k}") for k in range(8))

@@ -1,6 +1,7 @@
 """Strangers and teachers of the page's attack tests (tests/test_web_attacks.py): browsers at
 other loopback addresses (127.0.0.0/8 is all this host's), raw requests, and the checks that a
-teacher already on the page and one logging in are both understood within a second."""
+teacher already on the page and one logging in are both still understood (within a second on
+an idle machine: the figures are printed; a test checks they are not held up)."""
 
 from __future__ import annotations
 
@@ -18,6 +19,9 @@ from voxshape.services.web.server import REFUSED
 # 127.0.0.1; each attack comes from others.
 STRANGERS = [f"127.0.0.{k}" for k in range(2, 80)]
 WAITED = f"{REFUSED} (wait a few seconds)"
+# A teacher held up by an attack waits for its timeouts (10 s and more); under 1 s on an idle
+# machine (WEB-ATTACK-FIGURES), a loaded one may take a few: not a figure a test can judge.
+NOT_HELD_UP_S = 5.0
 
 
 def from_address(address: str) -> aiohttp.ClientSession:
@@ -50,15 +54,15 @@ async def teachers_still_teach(
     http: aiohttp.ClientSession, ana: aiohttp.ClientWebSocketResponse, port: int, login: dict
 ) -> tuple[dict[str, float], dict]:
     """The teacher already on the page (ana) and one logging in now (`login`, through `http`)
-    are both understood within a second (the median of three words each); the seconds, and
-    the welcome."""
+    are both understood, not held up (the median of three words each); the seconds, and the
+    welcome."""
     opened = time.monotonic()
     ws, welcome = await open_page(http, port, login)
     assert welcome["type"] == "welcome", welcome
     took = {"login": time.monotonic() - opened, "fresh": await understood(ws)}
     took["on the page"] = await understood(ana)
     await ws.close()
-    assert took["fresh"] <= 1.0 and took["on the page"] <= 1.0 and took["login"] <= 5.0, took
+    assert max(took.values()) <= NOT_HELD_UP_S, took
     return took, welcome
 
 
