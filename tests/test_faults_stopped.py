@@ -8,6 +8,7 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from statistics import median
 
 import pytest
 
@@ -46,7 +47,9 @@ def check_stopped_observer(name: str, seen: so.Seen, logs: dict[str, Path]) -> N
             for site, h in held.items()
         },
     )
-    assert min(pace["stopped"]) > seen.before() / 4, pace
+    # never a window without a step, and its usual pace on the whole: one slow window is a
+    # loaded machine's, a stall holds every window of the stop
+    assert min(pace["stopped"]) > 0 and median(pace["stopped"]) > seen.before() / 4, pace
     assert len(during) == len(so.DURING), f"credited during the stop: {during}"
     assert so.in_order(seen.teacher_actions)[-len(commands) :] == commands
     for site, h in held.items():
