@@ -48,6 +48,7 @@ class Second:
 
     scored: Scored
     alikes: frozenset[str] = frozenset({"good", "goal", "left"})
+    engine: str = "whisper"
     hints: list[str | None] = field(default_factory=list)
 
     def likeliest(self, samples: np.ndarray, hint: str | None = None) -> Scored:
@@ -60,7 +61,7 @@ class Second:
     def margins(self, scored: Scored, phrase: str) -> Margins:
         return scored.margins(phrase, {p: VOCABULARY.lookup(p).name for p in scored.phrases})
 
-    def spotted(self, scored: Scored) -> Recognition | None:
+    def spotted(self, scored: Scored, accept: float) -> Recognition | None:
         return Recognition(scored.spotted[0], 0.75) if scored.spotted else None
 
 
@@ -87,8 +88,9 @@ def test_a_phrase_that_beats_its_rivals_by_far_is_heard_with_that_confidence():
     clear = Second(scores(free=-8.0, alike=6.0, good=-0.5, bad=-7.0))
     heard = CascadeRecognizer(First(("good", 0.9)), clear).recognize(AUDIO)
     margins = Margins(7.5, 6.0, 6.5, 1.0, 0.9)
-    assert heard == Recognition("good", decision.confidence(margins, decision.WEIGHTS["cascade"]))
-    assert heard.confidence >= decision.ACCEPT
+    fitted = decision.DECISIONS["cascade/whisper"]
+    assert heard == Recognition("good", decision.confidence(margins, fitted.weights))
+    assert heard.confidence >= fitted.accept
 
 
 def test_pocketsphinx_agreeing_counts_and_its_silence_too():

@@ -30,7 +30,7 @@ from voxshape.services.speech.recognizer import Recognition
 
 if TYPE_CHECKING:
     from voxshape.services.speech.pocketsphinx_engine import PocketsphinxRecognizer
-    from voxshape.services.speech.whisper_engine import Scored, WhisperRecognizer
+    from voxshape.services.speech.scorer import PhraseScorer, Scored
 
 T = TypeVar("T")
 FAST, SURE = PRECISION_BY_POSTERIOR[0]  # posterior 0.75 and more: right 96% of the time
@@ -49,13 +49,14 @@ class CascadeRecognizer:
     def __init__(
         self,
         first: PocketsphinxRecognizer,
-        second: WhisperRecognizer | None,
+        second: PhraseScorer | None,
         missing: str = "",
     ) -> None:
         self.language = first.language
         self.first, self.second = first, second
         self.missing = missing  # why there is no second stage, when there is none
-        self.weights = decision.WEIGHTS["cascade"]
+        scorer = second.engine if second is not None else "whisper"
+        self.decision = decision.DECISIONS[f"cascade/{scorer}"]
         self.stats = CascadeStats()
         # what the service says it is ready with
         self.distractor_count = getattr(first, "distractor_count", "-")
@@ -67,25 +68,20 @@ class CascadeRecognizer:
             return self._timed("pocketsphinx", self.first.recognize, samples)
         heard = self._timed("pocketsphinx", self.first.decode, samples)
         hint, posterior = heard if heard is not None else (None, 0.0)
-        if hint is not None and posterior >= FAST and not self.second.has_sound_alikes(hint):
-            return Recognition(hint, SURE)
+        sure = hint is not None and posterior >= FAST and not self.second.has_sound_alikes(hint)
+        if sure and self.decision.fast:
+            return Recognition(hint, SURE)  # type: ignore[arg-type]
         self.stats.to_whisper += 1
         scored = self._timed("whisper", self.second.likeliest, samples, hint)
-        best = max(
-            (
-                Recognition(p, decision.confidence(m, self.weights))
-                for p, m in self.candidates(scored, hint, posterior)
-            ),
-            key=lambda r: r.confidence,
-        )
-        if best.confidence >= decision.ACCEPT:
-            return best
-        return self.second.spotted(scored)
+        chosen = decision.choose(self.candidates(scored, hint, posterior), self.decision)
+        if chosen is not None:
+            return Recognition(*chosen)
+        return self.second.spotted(scored, self.decision.accept)
 
     def candidates(
         self, scored: Scored, hint: str | None, posterior: float
     ) -> list[tuple[str, decision.Margins]]:
-        """Whisper's likeliest phrase and pocketsphinx's, with what each won by."""
+        """The scorer's likeliest phrase and pocketsphinx's, with what each won by."""
         assert self.second is not None
         out = []
         for phrase in sorted({scored.best(), hint} & set(scored.phrases)):

@@ -27,12 +27,6 @@ from dataclasses import astuple, dataclass
 from voxshape.protocol.vocabulary import normalize
 
 MARGIN_CAP = 8.0  # nats: beyond this a margin says no more
-# fitted on the tuning split (`--fit-decision`): weights of the margins, then the intercept
-WEIGHTS = {
-    "cascade": (0.106, 0.186, 0.225, 1.894, 0.452, -1.888),
-    "whisper": (0.205, 0.132, 0.201, 0.0, 0.0, -0.991),
-}
-ACCEPT = 0.7  # the least confidence heard: tuning split, near misses at most 10%
 SPOT_MARGIN = 1.0  # nats over every sound-alike for a phrase spotted in a sentence
 NEGATION_DOUBT = 3.0  # nats: a negation this near the word before a phrase may have been said
 NEGATIONS = frozenset(
@@ -50,10 +44,55 @@ class Margins:
     other_phrase: float
     pocketsphinx_agrees: float = 0.0
     pocketsphinx_posterior: float = 0.0
+    prior: float = MARGIN_CAP  # the sound-alike margin with the decoder's text prior out
+    other_kind: float = MARGIN_CAP  # over the likeliest phrase of the other kind (not a feature)
 
     def features(self) -> tuple[float, ...]:
-        capped = (max(-MARGIN_CAP, min(MARGIN_CAP, m)) for m in astuple(self)[:3])
-        return (*capped, self.pocketsphinx_agrees, self.pocketsphinx_posterior)
+        free, alike, other = (_cap(m) for m in astuple(self)[:3])
+        return (free, alike, other, self.pocketsphinx_agrees, self.pocketsphinx_posterior,
+                _cap(self.prior))  # fmt: skip
+
+
+def _cap(margin: float) -> float:
+    return max(-MARGIN_CAP, min(MARGIN_CAP, margin))
+
+
+def kind_of(kind: str) -> str:
+    """ "command", or "judgement" (a qualifier, or the goal): the two kinds never to confuse."""
+    return "command" if kind == "command" else "judgement"
+
+
+@dataclass(frozen=True)
+class Decision:
+    """One engine's fitted constants (`python -m benchmarks.speech.fit`)."""
+
+    weights: tuple[float, ...]  # of Margins.features(), then the intercept
+    accept: float  # the least confidence heard
+    kind_margin: float = 0.0  # nats over the likeliest phrase of the other kind, at least
+    fast: bool = True  # cascade: pocketsphinx's sure phrase without sound-alikes taken as is
+
+
+# fitted on the tuning split of every tuning family (`python -m benchmarks.speech.fit`):
+# weights of Margins.features(), then the intercept
+DECISIONS = {
+    "cascade/whisper": Decision((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
+    "whisper": Decision((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "cascade/moonshine": Decision((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
+    "moonshine": Decision((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
+}
+ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
+
+
+def choose(candidates: list[tuple[str, Margins]], d: Decision) -> tuple[str, float] | None:
+    """The candidate with the highest confidence, when it reaches `d.accept` and beats every
+    phrase of the other kind (a command for a judgement, or the reverse) by `d.kind_margin`."""
+    if not candidates:
+        return None
+    scored = [(confidence(m, d.weights), p, m) for p, m in candidates]
+    heard, phrase, margins = max(scored, key=lambda c: c[0])
+    if heard >= d.accept and margins.other_kind >= d.kind_margin:
+        return phrase, heard
+    return None
 
 
 def confidence(margins: Margins, weights: tuple[float, ...]) -> float:
