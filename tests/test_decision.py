@@ -77,7 +77,7 @@ def test_a_phrase_is_spotted_in_a_sentence_unless_negated(transcript, spotted):
 
 
 def test_a_judgement_is_never_taken_for_a_command_without_a_wide_margin():
-    d = decision.Decision((0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0), accept=0.7, kind_margin=4.0)
+    d = decision.DecisionRule((0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0), accept=0.7, kind_margin=4.0)
     sure = Margins(6.0, 6.0, 6.0, other_kind=6.0)
     assert decision.choose([("back", sure)], d) == ("back", decision.confidence(sure, d.weights))
     close = Margins(6.0, 6.0, 6.0, other_kind=2.0)  # "bad" was within 2 nats of "back"

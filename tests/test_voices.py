@@ -79,8 +79,8 @@ def test_the_real_recordings_are_unrelated_words_only():
 @pytest.mark.skipif(shutil.which("espeak-ng") is None, reason="needs espeak-ng and sox")
 def test_a_clip_is_made_and_read_back_as_the_benchmark_reads_it(tmp_path):
     clips = [
-        v.Clip("good", "en", "vocabulary", "espeak-ng", "en-us", 100),
-        v.Clip("could", "en", "near", "espeak-ng", "en-us", 100, condition="telephone"),
+        v.PlannedClip("good", "en", "vocabulary", "espeak-ng", "en-us", 100),
+        v.PlannedClip("could", "en", "near", "espeak-ng", "en-us", 100, condition="telephone"),
     ]
     made = synthesize.make(clips, tmp_path, jobs=1)
     assert [c.file for c in made] == [f"{c.stem}.wav" for c in clips]

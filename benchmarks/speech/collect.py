@@ -93,16 +93,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, help="the scorer's model folder")
     parser.add_argument("--split", choices=["tune", "held-out", "all"], default="all")
     parser.add_argument("--limit", type=int, default=0, help="about this many clips")
+    parser.add_argument("--families", help="comma-separated synthesizer families only")
+    parser.add_argument(
+        "--own-pace", action="store_true", help="clean clips at the voice's own pace only"
+    )
     parser.add_argument("--load", type=int, default=0, help="CPU-bound processes beside it")
+    parser.add_argument(
+        "--skip", type=Path, action="append", default=[], help="clips already in these rows"
+    )
     args = parser.parse_args(argv)
     vocabulary = load_vocabulary()
     clips = [
         c
         for c in scoring.load_clips(args.fixtures)
-        if c.language == "en" and args.split in ("all", c.split)
+        if c.language == "en"
+        and args.split in ("all", c.split)
+        and not (args.own_pace and (c.condition != "clean" or c.speed not in (0, 100)))
+        and (not args.families or c.synthesizer in args.families.split(","))
     ]
     if args.limit:
         clips = clips[:: max(1, len(clips) // args.limit)]
+    done = {json.loads(line)["file"] for rows in args.skip for line in rows.open()}
+    clips = [c for c in clips if c.path.name not in done]
     first = PocketsphinxRecognizer(vocabulary, "en")
     cmudict()
     second = open_scorer(args.scorer, vocabulary, "en", args.model)

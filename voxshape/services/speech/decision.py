@@ -63,7 +63,7 @@ def kind_of(kind: str) -> str:
 
 
 @dataclass(frozen=True)
-class Decision:
+class DecisionRule:
     """One engine's fitted constants (`python -m benchmarks.speech.fit`)."""
 
     weights: tuple[float, ...]  # of Margins.features(), then the intercept
@@ -75,15 +75,15 @@ class Decision:
 # fitted on the tuning split of every tuning family (`python -m benchmarks.speech.fit`):
 # weights of Margins.features(), then the intercept
 DECISIONS = {
-    "cascade/whisper": Decision((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
-    "whisper": Decision((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
-    "cascade/moonshine": Decision((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
-    "moonshine": Decision((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "cascade/whisper": DecisionRule((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
+    "whisper": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "cascade/moonshine": DecisionRule((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
+    "moonshine": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
 }
 ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
 
 
-def choose(candidates: list[tuple[str, Margins]], d: Decision) -> tuple[str, float] | None:
+def choose(candidates: list[tuple[str, Margins]], d: DecisionRule) -> tuple[str, float] | None:
     """The candidate with the highest confidence, when it reaches `d.accept` and beats every
     phrase of the other kind (a command for a judgement, or the reverse) by `d.kind_margin`."""
     if not candidates:
