@@ -121,6 +121,7 @@ class MoonshineBackend:
     """A Moonshine model on onnxruntime as scorer.py's Backend."""
 
     eot = EOT
+    stepwise = True  # each decoder run costs about as much whatever its length
 
     def __init__(self, model: Path | None) -> None:
         encoder, decoder, tokenizer = model_files(model)

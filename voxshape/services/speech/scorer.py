@@ -48,6 +48,7 @@ class Backend(Protocol):
 
     eot: int  # the end of text
     ends: list[int]  # the tokens that end a phrase: `eot` and those of `ENDS`
+    stepwise: bool  # each decoder run is dear: fewer of them, batched (Moonshine)
 
     def tokens_of(self, text: str) -> list[int]: ...
 
@@ -217,12 +218,20 @@ class PhraseScorer:
         """The scores of the phrases likeliest to start the utterance (and `hint`, a phrase
         another engine heard), of free speech, and of the phrase spotted in a sentence."""
         encoded = self.backend.encode(samples)
-        tokens, log_p = self._free(encoded)
-        starts = sorted({t[0] for t in self._tokens.values()}, key=lambda t: -log_p[0, t])
+        if self.backend.stepwise:
+            first = self.backend.forced(encoded, [[]])[0]
+        else:
+            tokens, first = self._free(encoded)
+        starts = sorted({t[0] for t in self._tokens.values()}, key=lambda t: -first[0, t])
         shortlist = [p for p, t in self._tokens.items() if t[0] in starts[:SHORTLIST]]
         if hint in self._tokens and hint not in shortlist:
             shortlist.append(hint)
-        rows = self.backend.forced(encoded, [self._tokens[p] for p in shortlist])
+        sequences = [self._tokens[p] for p in shortlist]
+        if self.backend.stepwise:  # the free decoding's second step rides with the phrases
+            *rows, two = self.backend.forced(encoded, [*sequences, [int(first[0].argmax())]])
+            tokens, log_p = self._free(encoded, two)
+        else:
+            rows, log_p = self.backend.forced(encoded, sequences), first
         scores, alike, prior = {}, {}, {}
         for phrase, r in zip(shortlist, rows, strict=True):
             mine = self._tokens[phrase]
@@ -250,10 +259,20 @@ class PhraseScorer:
     def _value(self, row: np.ndarray, token: int) -> float:
         return self._log_p_end(row) if token == END else float(row[token])
 
-    def _free(self, encoded: object) -> tuple[list[int], np.ndarray]:
+    def _free(self, encoded: object, two: np.ndarray | None = None) -> tuple[list[int], np.ndarray]:
         """The free greedy decoding: its tokens and each step's log-probabilities;
-        `SENTENCE_TOKENS` of them when its first ones are words of a sentence."""
-        tokens, log_p = self.backend.greedy(encoded, [], FREE_TOKENS)
+        `SENTENCE_TOKENS` of them when its first ones are words of a sentence. `two`: its
+        first two steps' rows, when known: a first token followed by an end is all of it
+        ("God" then "."), else the decoding goes on from them."""
+        if two is not None:
+            first = int(two[0].argmax())
+            if first == self.backend.eot:
+                return [], two[:1]
+            if int(two[1].argmax()) in self.backend.ends:
+                return [first], two
+            tokens, log_p = self.backend.greedy(encoded, [first], FREE_TOKENS)
+        else:
+            tokens, log_p = self.backend.greedy(encoded, [], FREE_TOKENS)
         said = first_unit(self.backend.text_of(tokens))
         if len(tokens) >= FREE_TOKENS and len(said.split()) >= 2 and not self._begins(said):
             tokens, log_p = self.backend.greedy(encoded, tokens, SENTENCE_TOKENS)

@@ -69,6 +69,8 @@ _MODEL_HELP = (
 class WhisperBackend:
     """A CTranslate2 Whisper model as scorer.py's Backend."""
 
+    stepwise = False  # CTranslate2 decodes greedily in one call
+
     def __init__(self, path: Path, language: str) -> None:
         try:
             import ctranslate2
