@@ -46,7 +46,7 @@ def test_one_edit_counts_each_kind_of_edit():
 
 
 def test_confidence_grows_with_every_margin_weighed_up_and_with_pocketsphinx():
-    weights = (0.1, 0.2, 0.2, 1.9, 0.5, 0.3, -1.9)
+    weights = (0.1, 0.2, 0.2, 1.9, 0.5, 0.3, 1.0, 0.0, -1.9)
     base = Margins(1.0, 1.0, 1.0)
     for better in (Margins(3, 1, 1), Margins(1, 3, 1), Margins(1, 1, 3), Margins(1, 1, 1, 1, 0.9)):
         assert decision.confidence(better, weights) > decision.confidence(base, weights)
@@ -77,7 +77,7 @@ def test_a_phrase_is_spotted_in_a_sentence_unless_negated(transcript, spotted):
 
 
 def test_a_judgement_is_never_taken_for_a_command_without_a_wide_margin():
-    d = decision.DecisionRule((0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0), accept=0.7, kind_margin=4.0)
+    d = decision.DecisionRule((0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.7, kind_margin=4.0)
     sure = Margins(6.0, 6.0, 6.0, other_kind=6.0)
     assert decision.choose([("back", sure)], d) == ("back", decision.confidence(sure, d.weights))
     close = Margins(6.0, 6.0, 6.0, other_kind=2.0)  # "bad" was within 2 nats of "back"

@@ -33,6 +33,7 @@ def row(c: scoring.Clip, best: str, margins: list[float], ps=None, alikes=True) 
         "best": best,
         "candidates": {best: margins},
         "spotted": None,
+        "transcript": "",
         "alikes": {best: alikes},
     }
 

@@ -46,11 +46,13 @@ class Margins:
     pocketsphinx_posterior: float = 0.0
     prior: float = MARGIN_CAP  # the sound-alike margin with the decoder's text prior out
     other_kind: float = MARGIN_CAP  # over the likeliest phrase of the other kind (not a feature)
+    transcribed: float = 0.0  # 1: the scorer's own transcript is the phrase
+    words: float = 1.0  # the phrase's
 
     def features(self) -> tuple[float, ...]:
         free, alike, other = (_cap(m) for m in astuple(self)[:3])
         return (free, alike, other, self.pocketsphinx_agrees, self.pocketsphinx_posterior,
-                _cap(self.prior))  # fmt: skip
+                _cap(self.prior), self.transcribed, self.words)  # fmt: skip
 
 
 def _cap(margin: float) -> float:
@@ -75,10 +77,14 @@ class DecisionRule:
 # fitted on the tuning split of every tuning family (`python -m benchmarks.speech.fit`):
 # weights of Margins.features(), then the intercept
 DECISIONS = {
-    "cascade/whisper": DecisionRule((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
-    "whisper": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
-    "cascade/moonshine": DecisionRule((0.106, 0.186, 0.225, 1.894, 0.452, 0.0, -1.888), 0.7),
-    "moonshine": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "cascade/whisper": DecisionRule(
+        (0.106, 0.186, 0.225, 1.894, 0.452, 0.0, 0.0, 0.0, -1.888), 0.7
+    ),
+    "whisper": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "cascade/moonshine": DecisionRule(
+        (0.106, 0.186, 0.225, 1.894, 0.452, 0.0, 0.0, 0.0, -1.888), 0.7
+    ),
+    "moonshine": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, 0.0, 0.0, -0.991), 0.7),
 }
 ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
 

@@ -100,6 +100,8 @@ class Scored:
             mine - rival,
             prior=prior,
             other_kind=mine - max(other, default=-np.inf),
+            transcribed=float(self.transcript == normalize(phrase)),
+            words=float(len(phrase.split())),
         )
 
 
