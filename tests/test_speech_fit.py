@@ -85,7 +85,13 @@ def test_the_fast_path_and_pocketsphinx_alone_decide_as_the_engines_do():
 def test_a_candidate_model_that_is_not_what_it_should_be_is_refused(monkeypatch, tmp_path):
     parts = tmp_path / "parts"
     parts.mkdir()
-    for name in ("model.bin.part1", "model.bin.part2", "tokenizer.json", "config.json"):
+    for name in (
+        "model.bin.part1",
+        "model.bin.part2",
+        "tokenizer.json",
+        "config.json",
+        "vocabulary.txt",
+    ):
         (parts / name).write_bytes(b"not whisper")
     monkeypatch.setattr(models, "_package", lambda name: parts)
     with pytest.raises(models.ModelError, match=r"model.bin.*SHA-256.*--force-reinstall"):

@@ -10,8 +10,9 @@ without the sound-alike margins and the prior-corrected one; the cascade (pocket
 as features, and its fast path for a sure phrase without sound-alikes). Each is fitted on
 the tuning clips alone: a logistic regression of its margins (a candidate is right when it is
 the clip's phrase, or of the meaning its sentence credits), `accept` the lowest confidence at
-which at most `NEAR_MISSES` of the tuning near misses pass, `kind_margin` the least margin over
-the other kind's likeliest phrase at which no tuning clip is heard as the other kind. The
+which at most `NEAR_MISSES` of the tuning near misses pass (0.08, for at most 0.10 on voices
+never tuned on), `kind_margin` the least margin over the other kind's likeliest phrase, from
+`KIND_FLOOR`, at which no tuning clip is heard as the other kind. The
 engine's own decision (decision.choose) then runs on every segment, and scoring.Report says
 what came of each clip, with latency and real-time factor from each stage's measured time.
 """
@@ -34,7 +35,8 @@ from voxshape.services.speech.cascade import FAST, SURE
 from voxshape.services.speech.decision import DecisionRule, Margins
 from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 
-NEAR_MISSES = 0.05  # the share of tuning near misses the threshold may let through, at most
+NEAR_MISSES = 0.08  # the share of tuning near misses the threshold may let through, at most
+KIND_FLOOR = 2.0  # nats: a phrase of the other kind is e^2 = 7 times less likely, at least
 L2 = 0.01
 FEATURES = (
     "free", "sound_alike", "other_phrase", "ps_agrees", "ps_posterior", "prior", "transcribed",
@@ -182,7 +184,7 @@ def fit_variant(
             accept = round(float(a), 2)
             break
     said = [(c, r) for c, r in tune if c.kind == "vocabulary"]
-    for k in np.arange(0.0, 8.01, 0.25):
+    for k in np.arange(KIND_FLOOR, 8.01, 0.25):
         d = DecisionRule(weights, accept, float(k))
         if not any(other_kind(o, vocabulary) for o in outcomes(said, v, d)):
             return d

@@ -23,6 +23,7 @@ WHISPER_BASE = {
     "model.bin": "d01c3014881c9c6f3133c182f3d2887eb6ca1c789a7538c5c007196857a0a6a9",
     "tokenizer.json": "fb7b63191e9bb045082c79fd742a3106a12c99513ab30df4a0d47fa6cb6fd0ab",
     "config.json": "56a6d8110d311f19c8f0471e562832c7527f146b567275bfca59fcf7c184da9a",
+    "vocabulary.txt": "34ce3fe1c5041027b3f8d42912270993f986dbc4bb34cf27f951e34a1e453913",
 }
 MOONSHINE_TINY = Path(sys.prefix) / "share" / "moonshine-tiny"
 
@@ -60,7 +61,7 @@ def whisper_base(cache: Path | None = None) -> Path:
             with part.open("rb") as f:
                 shutil.copyfileobj(f, out)
     partial.replace(folder / "model.bin")
-    for name in ("tokenizer.json", "config.json"):
+    for name in ("tokenizer.json", "config.json", "vocabulary.txt"):
         shutil.copyfile(one / name, folder / name)
     for name, expected in WHISPER_BASE.items():
         if _sha256(folder / name) != expected:
