@@ -7,7 +7,7 @@ model again: which stages pay.
 
 A variant is which stages decide (`VARIANTS`): pocketsphinx alone; the scorer alone, with or
 without the sound-alike margins and the prior-corrected one; the cascade (pocketsphinx's say
-as features, and its fast path for a sure phrase without sound-alikes). Each is fitted on
+as features). Each is fitted on
 the tuning clips alone: a logistic regression of its margins (a candidate is right when it is
 the clip's phrase, or of the meaning its sentence credits), `accept` the lowest confidence at
 which at most `NEAR_MISSES` of the tuning near misses pass (0.08, for at most 0.10 on voices
@@ -31,7 +31,6 @@ from benchmarks.speech import scoring
 from voxshape.protocol import Vocabulary, load_vocabulary
 from voxshape.protocol.vocabulary import normalize
 from voxshape.services.speech import decision
-from voxshape.services.speech.cascade import FAST, SURE
 from voxshape.services.speech.decision import DecisionRule, Margins
 from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 
@@ -50,7 +49,6 @@ class Variant:
     features: tuple[str, ...]  # of FEATURES
     pocketsphinx: bool = True  # its phrase is a candidate (and its say a feature, if used)
     scorer: bool = True
-    fast: bool = False  # pocketsphinx's sure phrase without sound-alikes taken as it is
 
 
 SCORER = ("free", "other_phrase", "transcribed", "words")  # what any scorer gives
@@ -64,9 +62,8 @@ VARIANTS = [
     Variant("cascade, margins only (the landed features)", ("free", "other_phrase", *ALIKE, *PS)),
     Variant("cascade without sound-alikes", (*SCORER, *PS)),
     Variant("cascade", (*SCORER, *ALIKE, *PS)),
-    Variant("cascade + fast path", (*SCORER, *ALIKE, *PS), fast=True),
     Variant("cascade + prior-corrected", (*SCORER, *ALIKE, *PS, "prior")),
-    Variant("cascade + prior-corrected + fast path", (*SCORER, *ALIKE, *PS, "prior"), fast=True),
+    Variant("cascade + prior-corrected, no raw sound-alike margin", (*SCORER, *PS, "prior")),
 ]
 
 
@@ -110,8 +107,6 @@ def decide(row: dict, v: Variant, d: DecisionRule) -> tuple[tuple[str, float] | 
         if heard is None:
             return None, ps_s
         return (heard[0], next(p for b, p in PRECISION_BY_POSTERIOR if heard[1] >= b)), ps_s
-    if v.fast and heard and heard[1] >= FAST and not row["alikes"].get(heard[0], True):
-        return (heard[0], SURE), ps_s
     took = ps_s + row["scorer_s"]
     chosen = decision.choose(candidates(row, v), d)
     if chosen is None and row["spotted"] and row["spotted"][1] >= decision.SPOT_MARGIN:
@@ -168,9 +163,6 @@ def fit_variant(
     x, y = [], []
     for clip, rows in tune:
         for row in rows:
-            heard = row["pocketsphinx"]
-            if v.fast and heard and heard[1] >= FAST and not row["alikes"].get(heard[0], True):
-                continue
             for phrase, m in candidates(row, v):
                 features = dict(zip(FEATURES, m.features(), strict=True))
                 x.append([features[f] for f in v.features])

@@ -1,20 +1,24 @@
 """The decision: is a phrase what was said, against everything else it could have been?
 
 A phrase competes with three kinds of rival, each measured as a margin in nats (log-odds)
-from Whisper's scores of the utterance:
-- `free`: Whisper's own likeliest utterance that is no phrase ("something else": " Food.");
+from the scorer's (Whisper's or Moonshine's) scores of the utterance:
+- `free`: the scorer's own likeliest utterance that is no phrase ("something else": " Food.");
 - `sound_alike`: the words one phone away from the phrase's ("could" for "good",
-  voxshape/services/speech/sound_alikes.py), at the token where they differ;
+  voxshape/services/speech/sound_alikes.py), where they are one step apart; and `prior`, the
+  same with the decoder's text prior taken out (a lone "Go." is likelier text than "Goal.");
 - `other_phrase`: the likeliest phrase of another meaning ("bad" for "back");
-and pocketsphinx, a second ear, agrees or not (with its lattice posterior).
+with whether the scorer's own transcript is the phrase, how many words it has, and
+pocketsphinx, a second ear, agreeing or not (with its lattice posterior).
 
-The margins are weighed by a logistic model fitted on the benchmark's tuning split
-(`python -m benchmarks.speech --fixtures DIR --fit-decision`, espeak-ng voices only), so its
-output is the probability that the phrase is right: the utterance's confidence. A phrase is
-heard when that is at least `ACCEPT`, chosen on the tuning split as the lowest that lets at
-most 10% of the near misses through (docs/speech.md#accuracy).
+They are weighed by a logistic model fitted on the tuning voices of every tuning family
+(`python -m benchmarks.speech.fit`), so its output is the probability that the phrase is
+right: the utterance's confidence. A phrase is heard when that is at least the rule's
+`accept`, the lowest that lets at most 8% of the tuning near misses through, and when it
+beats the likeliest phrase of the other kind (a command for a judgement, or the reverse) by
+`kind_margin` nats: a judgement is never taken for a command on a close call
+(docs/speech.md#accuracy).
 
-Inside a sentence ("could you go left") a phrase is spotted in Whisper's transcript, unless a
+Inside a sentence ("could you go left") a phrase is spotted in the transcript, unless a
 negation comes just before it ("no good", "not that way" being a phrase of its own), or may
 have: Whisper writes "Now good." for some voices' "no good".
 """
@@ -71,20 +75,24 @@ class DecisionRule:
     weights: tuple[float, ...]  # of Margins.features(), then the intercept
     accept: float  # the least confidence heard
     kind_margin: float = 0.0  # nats over the likeliest phrase of the other kind, at least
-    fast: bool = True  # cascade: pocketsphinx's sure phrase without sound-alikes taken as is
 
 
-# fitted on the tuning split of every tuning family (`python -m benchmarks.speech.fit`):
-# weights of Margins.features(), then the intercept
+# fitted on the tuning voices of every tuning family (`python -m benchmarks.speech.fit`,
+# docs/speech.md#the-decision-a-phrase-against-its-competitors): weights of
+# Margins.features(), then the intercept; the threshold; the margin over the other kind
 DECISIONS = {
     "cascade/whisper": DecisionRule(
-        (0.106, 0.186, 0.225, 1.894, 0.452, 0.0, 0.0, 0.0, -1.888), 0.7
+        (0.109, -0.172, 0.183, 0.672, 0.581, 0.358, 2.25, 1.72, -3.929), 0.53, 2.0
     ),
-    "whisper": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "whisper": DecisionRule(
+        (0.146, -0.23, 0.143, 0.0, 0.0, 0.425, 2.488, 2.328, -3.919), 0.56, 2.0
+    ),
     "cascade/moonshine": DecisionRule(
-        (0.106, 0.186, 0.225, 1.894, 0.452, 0.0, 0.0, 0.0, -1.888), 0.7
+        (0.176, -0.017, 0.302, 1.696, -0.364, 0.171, 0.506, 1.444, -5.16), 0.65, 2.0
     ),
-    "moonshine": DecisionRule((0.205, 0.132, 0.201, 0.0, 0.0, 0.0, 0.0, 0.0, -0.991), 0.7),
+    "moonshine": DecisionRule(
+        (0.234, -0.006, 0.398, 0.0, 0.0, 0.149, 0.061, 1.857, -5.613), 0.62, 2.0
+    ),
 }
 ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
 
