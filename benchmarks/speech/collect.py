@@ -50,12 +50,12 @@ def measure(clip: scoring.Clip, first: PocketsphinxRecognizer, second: object) -
     rows = []
     for segment, at in segments(clip):
         samples = segment.samples  # type: ignore[attr-defined]
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         heard = first.decode(samples)
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         hint = heard[0] if heard else None
         scored = second.likeliest(samples, hint)  # type: ignore[attr-defined]
-        t2 = time.perf_counter()
+        t2, c2 = time.perf_counter(), time.process_time()
         candidates = {
             p: astuple(second.margins(scored, p))  # type: ignore[attr-defined]
             for p in sorted({scored.best(), hint} & set(scored.phrases))
@@ -68,6 +68,7 @@ def measure(clip: scoring.Clip, first: PocketsphinxRecognizer, second: object) -
                 "pocketsphinx": list(heard) if heard else None,
                 "pocketsphinx_s": round(t1 - t0, 4),
                 "scorer_s": round(t2 - t1, 4),
+                "cpu_s": [round(c1 - c0, 4), round(c2 - c1, 4)],  # CPU seconds of each
                 "best": scored.best(),
                 "candidates": candidates,
                 "spotted": list(scored.spotted) if scored.spotted else None,

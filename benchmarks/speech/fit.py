@@ -259,10 +259,21 @@ def main(argv: list[str] | None = None) -> int:
         help="write the variant's run as `python -m benchmarks.speech --tables` reads it",
     )
     parser.add_argument("--name", default="cascade", help="the engine's name in --tables")
+    parser.add_argument(
+        "--speed", action="store_true", help="only the real-time factor and latency of the rows"
+    )
+    parser.add_argument(
+        "--markdown",
+        action="store_true",
+        help="each variant's targets as a table of docs/speech.md",
+    )
     args = parser.parse_args(argv)
     vocabulary = load_vocabulary()
     clips = {c.path.name: c for c in scoring.load_clips(args.fixtures)}
     data = load_rows(args.rows, clips)
+    if args.speed:
+        print(speed(data))
+        return 0
     results, kept = {}, []
     for v in VARIANTS:
         if args.variant and v.name != args.variant:
@@ -277,7 +288,11 @@ def main(argv: list[str] | None = None) -> int:
             "tune": _targets(tune, vocabulary),
             "report": scoring.Report("fit", "en", held + tune).summary(vocabulary),
         }
-        print(headline(v.name, results[v.name]))
+        print(
+            markdown(v.name, results[v.name])
+            if args.markdown
+            else headline(v.name, results[v.name])
+        )
     if args.tables and len(results) == 1:
         report = scoring.Report(args.name, "en", [o for _, outs in kept for o in outs])
         counts = {s: sum(c.split == s for c, _ in data) for s in scoring.SPLITS}
@@ -286,6 +301,65 @@ def main(argv: list[str] | None = None) -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     return 0
+
+
+def speed(data: list) -> str:
+    """The cascade's real-time factor (pocketsphinx and the scorer on every segment) and its
+    latency from the end of the speech, were every segment of a vocabulary clip heard."""
+    took = [(r["pocketsphinx_s"] + r["scorer_s"], r["audio_s"]) for _, rows in data for r in rows]
+    latencies = [
+        r["at"] + r["pocketsphinx_s"] + r["scorer_s"] - (scoring.QUIET_S * (c.noise == "none"))
+        - c.speech_end_s
+        for c, rows in data
+        if c.kind == "vocabulary"
+        for r in rows
+    ]  # fmt: skip
+    rtf = sum(t for t, _ in took) / sum(a for _, a in took)
+    p50, p95 = np.percentile(latencies, [50, 95])
+    cpu = [(sum(r["cpu_s"]), r["audio_s"]) for _, rows in data for r in rows if "cpu_s" in r]
+    per_audio = (
+        f"; CPU {sum(c for c, _ in cpu) / sum(a for _, a in cpu):.3f} s an audio second"
+        if cpu
+        else ""
+    )
+    return (
+        f"{len(took)} segments: real-time factor {rtf:.3f}; latency p50 {p50:.3f} s, "
+        f"p95 {p95:.3f} s ({len(latencies)} segments of vocabulary clips){per_audio}"
+    )
+
+
+TARGETS = "clean 0.92, every phrase 0.80, every condition 0.80, near 0.10, unrelated 0.03"
+
+
+def markdown(name: str, r: dict) -> str:
+    """The issue's targets on the held-out clips, a row per family never tuned on."""
+    rows = [
+        f"\n{name} (threshold {r['decision']['accept']}, {r['decision']['kind_margin']} nats "
+        f"over the other kind); targets: {TARGETS}, judgement <-> command 1 in 200\n",
+        "| held out | clean | worst phrases | worst condition | near misses | unrelated | "
+        "judgement <-> command |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for scope, f in r["held-out"].items():
+        if scope == "recorded":
+            rows.append(
+                f"| real recordings (Allison Smith) | - | - | - | - | {_cell(f['unrelated'])} | - |"
+            )
+            continue
+        worst = ", ".join(f"{t} {s[0]:.2f}" for t, s in list(f["worst words"].items())[:3])
+        conditions = {c: s for c, s in f["conditions"].items() if c != "clean"}
+        low = min(conditions.items(), key=lambda c: c[1][0], default=None)
+        cond = f"{low[0]} {low[1][0]:.2f}" if low else "-"
+        kind = f"{f['other kind']['heard']}/{f['other kind']['n']}"
+        rows.append(
+            f"| {scope} | {_cell(f['clean'])} | {worst} | {cond} | {_cell(f['near'])} | "
+            f"{_cell(f['unrelated'])} | {kind} |"
+        )
+    return "\n".join(rows)
+
+
+def _cell(share: list) -> str:
+    return "-" if share[0] is None else f"{share[0]:.3f} (n={share[1]})"
 
 
 def headline(name: str, r: dict) -> str:
