@@ -86,3 +86,6 @@ def test_a_judgement_is_never_taken_for_a_command_without_a_wide_margin():
     assert decision.choose([("back", unsure)], d) is None
     assert decision.choose([("back", unsure), ("bad", sure)], d)[0] == "bad"  # type: ignore[index]
     assert decision.kind_of("goal") == decision.kind_of("qualifier") != decision.kind_of("command")
+    kinds = {"back": "command", "bad": "judgement"}
+    ears_disagree = [("back", sure), ("bad", Margins(0.0, 0.0, 0.0, 1.0, 0.9))]
+    assert decision.choose(ears_disagree, d, kinds) is None  # pocketsphinx heard "bad"

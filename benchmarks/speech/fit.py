@@ -12,7 +12,8 @@ the tuning clips alone: a logistic regression of its margins (a candidate is rig
 the clip's phrase, or of the meaning its sentence credits), `accept` the lowest confidence at
 which at most `NEAR_MISSES` of the tuning near misses pass (0.08, for at most 0.10 on voices
 never tuned on), `kind_margin` the least margin over the other kind's likeliest phrase, from
-`KIND_FLOOR`, at which no tuning clip is heard as the other kind. The
+`KIND_FLOOR`, at which no tuning clip is heard as the other kind (but those a phrase spotted
+in a sentence brings, which no margin stops). The
 engine's own decision (decision.choose) then runs on every segment, and scoring.Report says
 what came of each clip, with latency and real-time factor from each stage's measured time.
 """
@@ -37,6 +38,10 @@ from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 NEAR_MISSES = 0.08  # the share of tuning near misses the threshold may let through, at most
 KIND_FLOOR = 2.0  # nats: a phrase of the other kind is e^2 = 7 times less likely, at least
 L2 = 0.01
+_VOCABULARY = load_vocabulary()
+KINDS = {  # phrase -> command or judgement, as the engine's scorer has them
+    p: decision.kind_of(m.kind) for p in _VOCABULARY.phrases("en") if (m := _VOCABULARY.lookup(p))
+}
 FEATURES = (
     "free", "sound_alike", "other_phrase", "ps_agrees", "ps_posterior", "prior", "transcribed",
     "words",
@@ -108,7 +113,7 @@ def decide(row: dict, v: Variant, d: DecisionRule) -> tuple[tuple[str, float] | 
             return None, ps_s
         return (heard[0], next(p for b, p in PRECISION_BY_POSTERIOR if heard[1] >= b)), ps_s
     took = ps_s + row["scorer_s"]
-    chosen = decision.choose(candidates(row, v), d)
+    chosen = decision.choose(candidates(row, v), d, KINDS)
     if chosen is None and row["spotted"] and row["spotted"][1] >= decision.SPOT_MARGIN:
         chosen = (row["spotted"][0], d.accept)
     return chosen, took
@@ -176,11 +181,14 @@ def fit_variant(
             accept = round(float(a), 2)
             break
     said = [(c, r) for c, r in tune if c.kind == "vocabulary"]
-    for k in np.arange(KIND_FLOOR, 8.01, 0.25):
-        d = DecisionRule(weights, accept, float(k))
-        if not any(other_kind(o, vocabulary) for o in outcomes(said, v, d)):
-            return d
-    return DecisionRule(weights, accept, decision.MARGIN_CAP)
+
+    def confused(k: float) -> int:  # tuning clips heard as the other kind
+        outs = outcomes(said, v, DecisionRule(weights, accept, k))
+        return sum(bool(other_kind(o, vocabulary)) for o in outs)
+
+    least = confused(decision.MARGIN_CAP)  # a phrase spotted in a sentence escapes the rule
+    k = next(k for k in np.arange(KIND_FLOOR, 8.01, 0.25) if confused(float(k)) <= least)
+    return DecisionRule(weights, accept, float(k))
 
 
 def other_kind(o: scoring.Outcome, vocabulary: Vocabulary) -> list[str]:

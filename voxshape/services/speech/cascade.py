@@ -70,7 +70,8 @@ class CascadeRecognizer:
         hint, posterior = heard if heard is not None else (None, 0.0)
         self.stats.to_whisper += 1
         scored = self._timed("whisper", self.second.likeliest, samples, hint)
-        chosen = decision.choose(self.candidates(scored, hint, posterior), self.decision)
+        candidates = self.candidates(scored, hint, posterior)
+        chosen = decision.choose(candidates, self.decision, self.second.kinds)
         if chosen is not None:
             return Recognition(*chosen)
         return self.second.spotted(scored, self.decision.accept)

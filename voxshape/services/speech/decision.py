@@ -82,11 +82,9 @@ class DecisionRule:
 # Margins.features(), then the intercept; the threshold; the margin over the other kind
 DECISIONS = {
     "cascade/whisper": DecisionRule(
-        (0.109, -0.172, 0.183, 0.672, 0.581, 0.358, 2.25, 1.72, -3.929), 0.53, 2.0
+        (0.17, 0.0, 0.183, 0.368, 1.058, 0.238, 0.194, 1.472, -3.519), 0.65, 2.0
     ),
-    "whisper": DecisionRule(
-        (0.146, -0.23, 0.143, 0.0, 0.0, 0.425, 2.488, 2.328, -3.919), 0.56, 2.0
-    ),
+    "whisper": DecisionRule((0.264, 0.104, 0.206, 0.0, 0.0, 0.0, -0.189, 1.239, -3.287), 0.73, 2.0),
     "cascade/moonshine": DecisionRule(
         (0.176, -0.017, 0.302, 1.696, -0.364, 0.171, 0.506, 1.444, -5.16), 0.65, 2.0
     ),
@@ -97,13 +95,19 @@ DECISIONS = {
 ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
 
 
-def choose(candidates: list[tuple[str, Margins]], d: DecisionRule) -> tuple[str, float] | None:
-    """The candidate with the highest confidence, when it reaches `d.accept` and beats every
-    phrase of the other kind (a command for a judgement, or the reverse) by `d.kind_margin`."""
+def choose(
+    candidates: list[tuple[str, Margins]], d: DecisionRule, kinds: dict[str, str] | None = None
+) -> tuple[str, float] | None:
+    """The candidate with the highest confidence, when it reaches `d.accept`, beats every
+    phrase of the other kind (a command for a judgement, or the reverse) by `d.kind_margin`,
+    and pocketsphinx did not hear a phrase of the other kind (`kinds`: phrase -> kind_of)."""
     if not candidates:
         return None
     scored = [(confidence(m, d.weights), p, m) for p, m in candidates]
     heard, phrase, margins = max(scored, key=lambda c: c[0])
+    kind = (kinds or {}).get(phrase)
+    if any(m.pocketsphinx_agrees and kind != (kinds or {}).get(p) for p, m in candidates):
+        return None  # the two ears disagree on the kind: a close call, refused
     if heard >= d.accept and margins.other_kind >= d.kind_margin:
         return phrase, heard
     return None

@@ -147,7 +147,7 @@ class PhraseScorer:
         self._phrases = written_phrases(vocabulary, language)  # normalized -> as written
         meanings = {w: vocabulary.lookup(w) for w in self._phrases.values()}
         self._meanings = {w: m.name for w, m in meanings.items() if m}
-        self._kinds = {w: decision.kind_of(m.kind) for w, m in meanings.items() if m}
+        self.kinds = {w: decision.kind_of(m.kind) for w, m in meanings.items() if m}
         # as the model writes a phrase said alone: " Go left"
         self._tokens = {w: self._tokens_of(w.capitalize()) for w in self._phrases.values()}
         self._sound_alikes = SoundAlikes(cmudict()) if language == "en" else None
@@ -197,7 +197,7 @@ class PhraseScorer:
         return bool(self._alike_tokens(phrase, self._tokens[phrase]))
 
     def margins(self, scored: Scored, phrase: str) -> Margins:
-        return scored.margins(phrase, self._meanings, self._kinds)
+        return scored.margins(phrase, self._meanings, self.kinds)
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
         """The best phrase when its confidence reaches decision.ACCEPT, else a phrase spotted
