@@ -137,7 +137,7 @@ def cascade() -> CascadeRecognizer:
 
 # Clips whose verdict should be the same on every CPU: CTranslate2's int8 kernels differ by
 # instruction set (AVX2, AVX-512, AVX, generic), and a clip whose confidence is within a few
-# hundredths of decision.ACCEPT may be heard on one and refused on another.
+# hundredths of the rule's threshold may be heard on one and refused on another.
 @needs_whisper
 @pytest.mark.parametrize(
     "name",

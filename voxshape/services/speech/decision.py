@@ -92,7 +92,6 @@ DECISIONS = {
         (0.234, -0.006, 0.398, 0.0, 0.0, 0.149, 0.061, 1.857, -5.613), 0.62, 2.0
     ),
 }
-ACCEPT = DECISIONS["cascade/whisper"].accept  # the default engine's least confidence heard
 
 
 def choose(

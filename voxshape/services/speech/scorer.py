@@ -15,9 +15,9 @@ or Moonshine): the decoder's model is a `Backend`, what is done with it is `Phra
 4. the same margin with the decoder's text prior taken out: minus the same difference under
    quiet (a lone "Go." is likelier text than "Goal." whatever was said), computed once at
    start (`sound_alike_prior`);
-5. decision.py weighs what the best phrase won by into its confidence, heard from
-   `decision.ACCEPT`; in a sentence ("Could you go left?") a phrase is spotted in the
-   transcript.
+5. decision.py weighs what the best phrase won by into its confidence, heard from its
+   rule's threshold (decision.choose); in a sentence ("Could you go left?") a phrase is
+   spotted in the transcript.
 """
 
 from __future__ import annotations
@@ -200,8 +200,8 @@ class PhraseScorer:
         return scored.margins(phrase, self._meanings, self.kinds)
 
     def recognize(self, samples: np.ndarray) -> Recognition | None:
-        """The best phrase when its confidence reaches decision.ACCEPT, else a phrase spotted
-        in a sentence, else None."""
+        """The best phrase when decision.choose hears it by this engine's rule, else a phrase
+        spotted in a sentence, else None."""
         scored = self.likeliest(samples)
         best = scored.best()
         chosen = decision.choose([(best, self.margins(scored, best))], self.decision)
