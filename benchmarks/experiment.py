@@ -30,12 +30,18 @@ from voxshape.lab.experiment.published import TASKS
 from voxshape.lab.experiment.runner import run_all
 from voxshape.services.arbiter.arbiter import Arbiter
 from voxshape.services.learner.sarsa import Learner
+from voxshape.services.learner.words import WordCredit
 from voxshape.services.sim.task import Simulation
 from voxshape.services.simteacher.teacher import SimulatedTeacher
 
 CORES = {  # the methods the run calls of each core (none calls another's)
     "simulator": ((Simulation, "step"), (Simulation, "reset")),
-    "learner": ((Learner, "step"), (Learner, "credit"), (Learner, "command")),
+    "learner": (
+        (Learner, "step"),
+        (Learner, "command"),
+        (WordCredit, "judged"),
+        (WordCredit, "commanded"),
+    ),
     "arbiter": ((Arbiter, "on_observation"), (Arbiter, "on_utterance")),
     "teacher": ((SimulatedTeacher, "watch"),),
 }

@@ -42,18 +42,16 @@ EXACT = LearnerConfig(
     max_hold=1,
     clear_range=None,
     use_sonar=False,
-    representation="pearson",  # a table: Q's row i is state i
+    representation="pearson",  # Q's row i is state i, born as the readings come
     pearson_threshold=0.9,
     near_range=None,
     goal_sectors=0,
-    shaping="additive",  # the paper's Algorithm 1, computed by hand below
-    potential="none",  # no person model: the update as the paper's (test_person.py has it)
+    potential="none",  # no guess: the update as the paper's, computed by hand
     lookahead_weight=0.0,
-    advice_place_tilings=0,  # advice over the keys alone
 )
 
 
-ADVISED = replace(EXACT, shaping="action_bias", goal_sectors=8, representation="keys")
+KEYS = replace(EXACT, goal_sectors=8, representation="keys")
 
 
 def run_episode(learner: Learner, book: TraceBook, command_at: int | None = None) -> None:

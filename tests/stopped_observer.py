@@ -91,9 +91,11 @@ def start_session(spawn, router: str, session_id: str, run: Path) -> dict[str, s
     return {
         "logger": start("logger", "--serve-port", "0", cwd=run),
         "sim": start("sim", "--clock", "lockstep", "--seed", "0"),
-        # it never asks: an answer to its question is advice, not a command carried out
+        # it never asks: an answer to its question is advice, not a command carried out; and
+        # a turn is turned in full: at this pace the heading the teacher saw is seconds of
+        # turning ago, and an aimed turn may already be there
         "learner": start("learner", "--seed", "0", "--checkpoint", str(run / "learner.npz"),
-                         "--set", "ask.per_robot_minute=0"),
+                         "--set", "ask.per_robot_minute=0", "--set", "command_aim=0"),
         "arbiter": start("arbiter", cwd=run),
         "teach": start("teach", "--teacher", "ana", "--robot", "r1", "--json", "--linger", "1",
                        stdin=subprocess.PIPE, cwd=run),

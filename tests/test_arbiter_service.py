@@ -78,7 +78,11 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         said.put(utterance("ana", "r1", "avanza", onset + 0.2))
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")
-        assert command.credits[0].step == 29
+        # credited as "good" is, to the 0.6 s the teacher saw (on the arbiter's estimate of
+        # the simulator's clock, within a step or two), not to the step shown now
+        steps = sorted(c.step for c in command.credits)
+        assert steps == list(range(steps[0], steps[-1] + 1)) and 12 <= len(steps) <= 14, steps
+        assert 12 <= steps[0] <= 16 and steps[-1] <= 28, steps
 
         stats = collect(node, 1, TeachingStats, timeout=5)[0]
         (ana,) = stats.teachers

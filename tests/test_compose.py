@@ -27,7 +27,8 @@ PROFILES = ("simteacher", "viewer")
 
 @pytest.mark.skipif(
     shutil.which("docker-compose") is None,
-    reason="Debian's docker-compose is missing: `make test` installs it (deploy/apt-packages.txt)",
+    reason="Debian's docker-compose is missing: `make test` installs it "
+    "(deploy/apt-packages-test.txt)",
 )
 @pytest.mark.parametrize("profiles", [(), PROFILES], ids=["default", "all-profiles"])
 def test_docker_compose_accepts_the_file(profiles):

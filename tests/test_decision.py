@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from voxshape.protocol import load_vocabulary
-from voxshape.protocol.vocabulary import written_phrases
+from voxshape.protocol.vocabulary import spot, written_phrases
 from voxshape.services.speech import decision
 from voxshape.services.speech.decision import Margins
 from voxshape.services.speech.sound_alikes import SoundAlikes, cmudict, one_edit
@@ -73,7 +73,7 @@ def test_confidence_grows_with_every_margin_weighed_up_and_with_pocketsphinx():
     ],
 )
 def test_a_phrase_is_spotted_in_a_sentence_unless_negated(transcript, spotted):
-    assert decision.spot(transcript, PHRASES) == spotted
+    assert spot(transcript, PHRASES) == spotted
 
 
 def test_a_judgement_is_never_taken_for_a_command_without_a_wide_margin():

@@ -9,13 +9,16 @@ import json
 import os
 import re
 import subprocess
+from dataclasses import replace
 
 import pytest
 
 from tests.conftest import VOXSHAPE, free_port
 from tests.logger_support import LONG_ROOM
 from voxshape.cli import parser
-from voxshape.lab.demo import FINAL_WAIT_S, StallWatch, demo_table, task_title, watch_of
+from voxshape.lab.closing import Alone, WordCount, closing_lines
+from voxshape.lab.demo import demo_table, task_title, watch_of
+from voxshape.lab.progress import FINAL_WAIT_S, StallWatch
 from voxshape.lab.report.counts import count_episodes
 from voxshape.lab.report.summary import RobotSummary
 from voxshape.protocol import EpisodeEvent, TeachingStats
@@ -41,12 +44,15 @@ def test_the_demo_trains_task_1_to_convergence_and_says_where_its_results_are(se
     )
     out = result.stdout + result.stderr
     assert result.returncode == 0, digest(out)
-    converged = re.search(r"converged after (\d+) episodes", out)
-    assert converged, digest(out)
-    print(converged.group(0))
+    learnt = re.search(r"The robot learnt task 1 in (\d+) episodes \(.* wall \w+\)\.", out)
+    assert learnt and re.search(r"\d+ words? (said to it|reached it)", out), digest(out)
+    bought = r"Alone \(the same room and seed, .*\) it learnt it in .*: the words (saved|cost)"
+    assert re.search(bought, out), digest(out)  # what the words bought, or cost
+    print(learnt.group(0))
     (run_dir,) = (tmp_path / "runs").iterdir()
     table = (run_dir / "demo.md").read_text()
-    assert converged.group(0) in table
+    assert learnt.group(0) in table  # the closing lines, kept
+    assert f"converged after {learnt.group(1)} episodes" in table  # as the report counts
     assert json.loads((run_dir / "settings.json").read_text())["learner"]["converge_slack"] == 3
     assert "each within 3x the map's shortest time" in table
     interventions = [int(n) for n in re.findall(r"\| (\d+) \|\s*$", table, re.MULTILINE)]
@@ -108,6 +114,55 @@ def test_it_is_done_at_convergence_and_marks_the_episode():
     assert progress.done and progress.convergence.n_episodes == 5
     lines = progress.due_lines(now=0.0, flush=True)
     assert lines[-1].endswith("<- converged") and len(lines) == 5
+
+
+def test_the_closing_lines_say_episodes_minutes_and_words_plainly():
+    """Two sentences: what it learnt in how many episodes, robot and wall minutes; the words
+    said, heard and understood. Before: "To convergence: 4 episodes, 2 interventions;
+    recorded in all: ...", "1 interventions", no words."""
+    progress = watch(10)
+    progress.started = 0.0
+    for n, steps in enumerate([2000, 400, 150, 160, 170]):
+        progress.on_episode(ended(n, steps), now=60.0 * (n + 1))
+    words = WordCount(said=6, heard={"simteacher": 5}, understood={"simteacher": 1})
+    lines = closing_lines(progress.ending(0, words, now=400.0))
+    assert lines == [
+        "The robot learnt task 1 in 5 episodes (4.8 robot minutes, 5.0 wall minutes).",
+        "6 words said to it: 5 heard, 1 understood.",
+    ]
+    one = WordCount(heard={"ana": 1}, understood={"ana": 1})
+    assert closing_lines(progress.ending(0, one, 400.0))[1] == "1 word reached it, 1 understood."
+
+
+def test_the_closing_lines_say_what_the_words_bought_against_the_robot_alone():
+    progress = watch(10)
+    progress.started = 0.0
+    for n, steps in enumerate([2000, 400, 150, 160, 170]):
+        progress.on_episode(ended(n, steps), now=60.0 * (n + 1))
+    ending = progress.ending(0, WordCount(said=3, heard={"ana": 3}), now=400.0)
+    alone = Alone(learnt=True, episodes=7, robot_minutes=6.0, wall_seconds=2.0)
+    assert closing_lines(replace(ending, alone=alone))[-1] == (
+        "Alone (the same room and seed, nobody speaking, 2 wall seconds in one process) it "
+        "learnt it in 7 episodes and 6.0 robot minutes: the words saved 1.2 robot minutes."
+    )
+    quicker = replace(alone, robot_minutes=4.0)
+    assert closing_lines(replace(ending, alone=quicker))[-1].endswith("cost 0.8 robot minutes.")
+    never = replace(alone, learnt=False, episodes=30)
+    assert "had not learnt it after 30 episodes" in closing_lines(replace(ending, alone=never))[-1]
+
+
+def test_an_interrupted_run_says_nothing_converged():
+    progress = watch(10)
+    for n, steps in enumerate([2000, 400, 150, 160, 170]):
+        progress.on_episode(ended(n, steps), now=1.0)
+    shown = progress.due_lines(now=1.0, flush=True, mark=False)  # Ctrl-C at its end
+    assert "converged" not in " ".join(shown)
+    stopped = watch(10)
+    for n, steps in enumerate([2000, 400]):
+        stopped.on_episode(ended(n, steps), now=1.0)
+    text = " ".join(closing_lines(stopped.ending(130, WordCount(), now=1.0)))
+    assert text.startswith("Stopped after 2 episodes") and "before it learnt task 1" in text
+    assert "converged" not in text and "No word was said to it." in text
 
 
 def test_it_gives_up_at_the_episode_bound_and_ignores_other_robots():

@@ -221,7 +221,7 @@ def test_the_demo_on_a_map_file_converges_and_says_so(tmp_path, session_id):
         encoding="utf-8",
         timeout=240,
     )
-    demo.expect(r"converged after (\d+) episodes")
+    demo.expect(r"The robot learnt map mine.toml \(.*\) in (\d+) episodes")
     demo.expect(pexpect.EOF)
     demo.close()
     assert demo.exitstatus == 0, demo.before[-3000:]

@@ -51,7 +51,7 @@ def start_learner(spawn, router, session_id, path, representation):
     )
 
 
-@pytest.mark.parametrize("representation", ["keys", "tiles"])
+@pytest.mark.parametrize("representation", ["keys", "pearson"])
 def test_learner_drives_the_simulator_learns_from_teachers_and_resumes(
     spawn, router, session_id, client_config, tmp_path, representation
 ):

@@ -10,12 +10,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from tests.learner_support import ADVISED, EXACT, FORWARD, WALL_LEFT, P
+from tests.learner_support import EXACT, FORWARD, WALL_LEFT, P
 from voxshape.protocol import ACTION_NAMES
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.lookahead import reachable
 from voxshape.services.learner.potential import StraightLine
 from voxshape.services.learner.sarsa import Learner
+from voxshape.world.maps import load_map
 
 STRAIGHT = replace(EXACT, potential="straight_line", potential_scale=10.0)
 CLEAR = (8.0,) * 180  # the laser sees nothing within 8 m
@@ -42,7 +43,7 @@ def test_the_potential_shapes_every_update_by_gamma_phi_next_minus_phi():
     c = STRAIGHT
     shaping = c.gamma * c.potential_scale * -2.0 - c.potential_scale * -2.5
     delta = -1.0 + shaping + c.gamma * learner.q(learner.s)[FORWARD] - q_before[FORWARD]
-    assert learner.Q[s.q][0, FORWARD] - q_before[FORWARD] == pytest.approx(c.alpha * delta)
+    assert learner.Q[s, FORWARD] - q_before[FORWARD] == pytest.approx(c.alpha * delta)
 
 
 def test_the_lookahead_stops_each_arc_where_the_laser_shows_something():
@@ -67,35 +68,20 @@ def test_the_policy_heads_where_the_potential_expects_progress_and_not_into_a_wa
     assert learner._expected_progress()[FORWARD] == pytest.approx(0.0)  # no way through
 
 
-def test_a_word_is_credited_to_the_decisions_of_the_stretch_it_judges():
-    config = replace(ADVISED, judged_s=0.3, min_hold=1, max_hold=1)  # a decision a step
-    learner = Learner(config, seed=0)
-    _walk(learner, [(0.1 * i, 0.0) for i in range(8)])
-    before = learner.taught.H.copy()
-    assert learner.credit(step=6, weight=1.0, f=10.0)
-    changed = {int(i) for i in np.flatnonzero((learner.taught.H - before)[:, FORWARD])}
-    judged = {int(i) for v in learner.recent if 4 <= v.first <= 6 for i in v.state.advice}
-    assert changed == judged  # steps 4, 5, 6: the last 0.3 s up to the judged step
-    assert learner.credit_shares[0] == pytest.approx(1 / 3)  # the judged decision's share
-
-
-def test_advice_speaks_for_where_and_which_way_the_robot_was():
-    config = replace(ADVISED, advice_place_tilings=8)
-    learner = Learner(config, seed=0)
-    here = P(WALL_LEFT, x=2.0, y=2.0, theta=0.0)
-    state, _ = learner.features.encode(here)
-    near, _ = learner.features.encode(replace(here, x=2.1))
-    far, _ = learner.features.encode(replace(here, x=6.0))
-    turned, _ = learner.features.encode(replace(here, theta=math.pi))
-    assert near.view == far.view == state.view  # the same key: aliased places
-    shared = len(set(state.advice) & set(near.advice))
-    assert shared > len(set(state.advice) & set(far.advice))
-    assert shared > len(set(state.advice) & set(turned.advice))
+def test_the_learner_builds_every_potential_it_is_given_and_refuses_an_oracle_without_a_map():
+    task = load_map("docs/results/new-maps/uturn.toml")
+    oracle = Learner(replace(STRAIGHT, potential="oracle"), seed=0, task=task)
+    start, goal = (1.0, 1.5), (1.0, 4.6)  # the goal behind the long wall
+    assert oracle.way.phi(goal) > oracle.way.phi((7.4, 2.0)) > oracle.way.phi(start)
+    assert oracle.way.phi(start) < -math.dist(start, goal) - 5  # the way round, not the line
+    assert Learner(replace(STRAIGHT, potential="none"), seed=0).way.guess is None
+    with pytest.raises(ValueError, match="potential=oracle needs the map"):
+        Learner(replace(STRAIGHT, potential="oracle"), seed=0)
 
 
 def test_the_simulator_senses_as_far_as_the_lookahead_looks():
     looking = Learner(LearnerConfig())  # the defaults: the near bits read 0.6 m
     farthest = 0.5 * 1.0 + 0.15 + 0.275  # forward for lookahead_s, the laser's offset, ROOM
-    assert looking.reach == pytest.approx(farthest) and looking.features.reach == 0.6
+    assert looking.reach == pytest.approx(farthest) and looking.states.reach == 0.6
     blind = Learner(LearnerConfig(lookahead_weight=0.0))
-    assert blind.reach == blind.features.reach == 0.6
+    assert blind.reach == blind.states.reach == 0.6

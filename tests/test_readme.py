@@ -12,6 +12,7 @@ import shlex
 import shutil
 import subprocess
 import sys
+import tomllib
 import warnings
 from pathlib import Path
 
@@ -47,6 +48,9 @@ COVERED: dict[str, tuple[str, ...]] = {
     "voxshape up": (
         "tests.test_launcher::test_up_starts_the_compose_services_and_stops_cleanly",
         "tests.test_first_hour::test_the_first_hour_of_a_new_user",
+    ),
+    "voxshape status --connect ...": (
+        "tests.test_session_end::test_sigterm_ends_the_session_and_status_names_it_before",
     ),
     "voxshape up --robots r1,r2 --rtf 5": (
         "tests.test_launcher::test_a_second_up_starts_a_new_run_with_fresh_learners_and_resume_resumes",
@@ -229,6 +233,27 @@ def test_the_make_targets_run_what_the_readme_says():
         result = run(["env", "-u", "TEST_WORKERS", "make", "-n", target], ROOT, timeout=30)
         assert result.returncode == 0, result.stderr
         assert set(lines) <= set(result.stdout.splitlines()), (target, result.stdout)
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="no make")
+def test_make_demo_installs_what_running_needs_and_make_test_the_rest():
+    """`make -n -B` prints what a clean clone's target would install: the demo none of the
+    tests' packages (pytest, Playwright, Ray, a vosk model: pyproject's test and cluster
+    extras; chromium), the tests all of them."""
+    installs = {}
+    for target in ("demo", "test"):
+        result = run(["make", "-n", "-B", target], ROOT, timeout=30)
+        assert result.returncode == 0, result.stderr
+        lines = result.stdout.splitlines()
+        installs[target] = [line for line in lines if "install" in line or "PACKAGES=" in line]
+    assert any("-e '.[whisper]'" in line for line in installs["demo"]), installs["demo"]
+    assert not any(w in " ".join(installs["demo"]) for w in ("test", "cluster", "chromium"))
+    assert any("-e '.[whisper,test,cluster]'" in line for line in installs["test"])
+    assert any("chromium" in line for line in installs["test"]), installs["test"]
+    extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    running = " ".join(extras["dependencies"] + extras["optional-dependencies"]["whisper"])
+    for tested in ("pytest", "playwright", "ray", "vosk-model", "rosbags", "hypothesis"):
+        assert tested not in running
 
 
 def test_ci_runs_make_test():

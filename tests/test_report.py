@@ -5,6 +5,7 @@ pictures whose axes stay readable."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -134,6 +135,12 @@ def test_convergence_is_judged_by_the_map_run_and_counts_to_it_and_in_all():
         "The robot converged after 4 episodes (2.9 robot minutes, at episode 3). To "
         "convergence: 4 episodes, 10 interventions; recorded in all: 5 episodes ended, 10 "
         "interventions, and 1 unfinished episode (3 interventions so far)."
+    )
+    one = replace(counts, interventions=1, unfinished_interventions=1, provisional=1)
+    assert (
+        "10 interventions; recorded in all: 5 episodes ended, 1 intervention, and 1 "
+        in (one.describe())
+        and "(1 intervention so far). 1 of the ended episodes lacks" in one.describe()
     )
 
 

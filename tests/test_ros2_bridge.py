@@ -384,3 +384,18 @@ def test_a_robot_pushing_a_wall_backwards_ends_its_episode_and_stops():
             break
     assert out.velocity == STOP and out.messages[-1].kind == "collision"
     assert k <= 6 and b.counters["bumps.stuck"] == 1
+
+
+def test_a_lidar_mounted_turned_is_read_in_the_robot_s_heading():
+    """A TurtleBot 4's lidar frame is turned 90 degrees from its base (turtlebot4_description):
+    with --scan-yaw its readings fall where they are around the robot, not 90 degrees off."""
+    ranges = np.full(360, 3.0, np.float32)
+    ranges[270] = 1.0  # the scan's own 270 degrees (its right) ...
+    turned = BridgeConfig(rules(), "r1", limits=Limits(max_speed=0.5), scan_yaw=math.pi / 2)
+    b = Bridge(turned, now=0.0)
+    b.on_odom(odom(1.0, 1.0), 0.0)
+    message = msgs.LaserScanMsg(msgs.HeaderMsg(), 0.0, math.tau, math.tau / 360, 0, 0.1, 0.12,
+                                3.5, ranges)  # fmt: skip
+    (_, obs) = b.on_scan(message, 0.0).messages
+    assert obs.laser[90] == pytest.approx(1.0)  # ... is the robot's straight ahead
+    assert min(obs.laser[:80] + obs.laser[100:]) == pytest.approx(3.0)

@@ -13,7 +13,7 @@ import time
 import pytest
 
 from tests.conftest import ROOT, free_port
-from voxshape.lab.demo import ConvergenceWatch
+from voxshape.lab.progress import ConvergenceWatch
 from voxshape.launcher import LoopbackSession, ServiceDied
 from voxshape.launcher.topology import ServiceSpec
 from voxshape.protocol import EpisodeEvent, TeachingStats
@@ -100,7 +100,10 @@ def test_a_ros2_robot_learns_task_1_through_the_bridge_and_converges(tmp_path, s
     assert any(e.interventions for e in progress.episodes), "the teacher was never heard"
     lines = [json.loads(line) for line in log.read_text().splitlines()]
     cmds = [line for line in lines if "cmd" in line]
-    assert len(cmds) > 1000 and all(c["attachment"] == "ok" for c in cmds)
+    # the robot was driven all along (an action a step, and the stops): a learner that
+    # converges in 3 episodes, as task 1's now may, drives it for fewer than 1000 commands
+    steps = sum(e.steps for e in progress.episodes)
+    assert len(cmds) >= steps / 2 and all(c["attachment"] == "ok" for c in cmds), (len(cmds), steps)
     bridge = (tmp_path / "logs" / "ros2.log").read_text().splitlines()
     (last,) = [json.loads(x) for x in bridge if '"stopped the robot"' in x]
     print(f"the bridge's counters: {last}")

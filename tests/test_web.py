@@ -576,7 +576,7 @@ def test_the_demo_with_web_serves_the_page_and_runs_no_simulated_teacher(
         cwd=tmp_path,
     )  # fmt: skip
     lines = read_until(demo, r"teach it in a browser: |error", timeout=120)
-    assert lines[-1].endswith(f"teach it in a browser: http://127.0.0.1:{web_port}/"), lines
+    assert f"teach it in a browser: http://127.0.0.1:{web_port}/ " in lines[-1], lines
     assert any("at 1x real time, taught by you in a browser" in line for line in lines), lines
     assert not any("sim-teacher" in line for line in lines), lines
 

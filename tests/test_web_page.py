@@ -45,7 +45,7 @@ pytestmark = [
     pytest.mark.skipif(
         not CHROMIUM.exists(),
         reason="Debian's chromium is missing (/usr/bin/chromium): `make test` installs it "
-        "(deploy/apt-packages.txt); no browser is ever downloaded",
+        "(deploy/apt-packages-test.txt); no browser is ever downloaded",
     ),
     pytest.mark.timeout(240),
     pytest.mark.xdist_group("web_page"),  # one worker of a parallel run: one session for all

@@ -18,6 +18,7 @@ from typing import NoReturn
 from voxshape.launcher.topology import TopologyError
 from voxshape.protocol import ProtocolError, VocabularyError
 from voxshape.runtime import BusError, ConfigError, configure_logging
+from voxshape.runtime.processes import end_with_parent
 from voxshape.runtime.settings import SettingsError
 from voxshape.services.logger.run import RunError
 from voxshape.world.maps import MapError
@@ -204,6 +205,7 @@ def parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    end_with_parent()  # a service of a launcher's ends with it, however the launcher ends
     named = next((a for a in argv if a in COMMANDS), None)
     args = parser(only=named or "").parse_args(argv)
     configure_logging(args.log_level)

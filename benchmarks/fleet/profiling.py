@@ -194,7 +194,7 @@ def _learner_work(stepper: Any, act: Actor, recorded: Ticks, robots: tuple[str, 
     from voxshape.services.learner.sarsa import Learner
 
     online = {
-        r: OnlineLearner(Learner(LearnerConfig(), i), Bookmark(), None, Counter(), 60.0)
+        r: OnlineLearner(Learner(LearnerConfig(), i), Bookmark(), Counter(), 60.0)
         for i, r in enumerate(robots)
     }
 

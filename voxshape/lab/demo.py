@@ -27,18 +27,22 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import replace
 from pathlib import Path
 
 from voxshape import launcher
+from voxshape.lab.closing import Alone, WordCount, closing_lines
+from voxshape.lab.experiment.inprocess import RunSpec
+from voxshape.lab.experiment.inprocess import run as run_experiment
+from voxshape.lab.progress import FINAL_WAIT_S, ConvergenceWatch, StallWatch
 from voxshape.lab.report import load_run, write_report
 from voxshape.lab.report.counts import INTERVENTIONS_ARE, EpisodeCounts
-from voxshape.lab.report.summary import STEP_SECONDS, RobotSummary
+from voxshape.lab.report.summary import RobotSummary
 from voxshape.launcher.topology import ServiceSpec
-from voxshape.protocol import EpisodeEvent, LearningSummary, TeachingStats
+from voxshape.protocol import EpisodeEvent, LearningSummary, Said, TeachingStats
 from voxshape.runtime import BusError, Input, Tick
 from voxshape.services.learner.config import with_settings
-from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.learner.convergence import convergence_on
 from voxshape.services.logger.run import RUNS, RunDir, RunError
 from voxshape.services.simteacher.teacher import PROFILES
 from voxshape.services.speech.recognizer import DEFAULT_ENGINE
@@ -46,8 +50,6 @@ from voxshape.world.maps import Map, load_map
 
 ROBOT, TEACHER = "r1", "simteacher"
 TASK = "1"  # the default task
-FINAL_WAIT_S = 6.0  # after an episode ends, its final interventions come within the arbiter's
-# settle time (3 s); an episode is shown without them after this
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +63,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="teach it yourself in a browser: serves the web page (its address is printed) "
         "and runs no simulated teacher unless --sim-teacher; the robot runs at real time "
-        "unless --rtf",
+        "unless --rtf. It has no time limit: once the robot has learnt, the page says so and "
+        "the robot goes on, episode after episode, until you end it (Ctrl-C)",
     )
     parser.add_argument(
         "--sim-teacher",
@@ -69,7 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="with --web: the simulated teacher teaches too",
     )
     parser.add_argument(
-        "--max-episodes", type=int, default=60, help="give up if not converged by then"
+        "--max-episodes",
+        type=int,
+        default=60,
+        help="give up if not converged by then (default 60; not with --web, which its person ends)",
     )
     parser.add_argument(
         "--speech",
@@ -101,105 +107,23 @@ def task_title(task: str, m: Map) -> str:
     return f"task {task}" if task in ("1", "2", "3", "4") else f"map {Path(task).name} ({m.name})"
 
 
-@dataclass
-class ShownEpisode:
-    """An ended episode as displayed."""
-
-    number: int
-    outcome: str
-    steps: int
-    seconds: float
-    ended_at: float  # monotonic
-    interventions: int | None = None  # None until final (or given up waiting)
-
-
-@dataclass
-class StallWatch:
-    """Whether the robot makes progress: its steps advancing (pure: steps in, verdicts out).
-    An episode may last minutes at real time; a robot whose steps stop is stuck."""
-
-    timeout: float  # seconds without a new step
-    since: float  # monotonic: when the last new step (or the start) was seen
-    step: int = -1
-
-    def on_step(self, step: int, now: float) -> bool:
-        """True if this step is progress after a stall."""
-        stalled = self.stalled(now)
-        if step != self.step:
-            self.step, self.since = step, now
-            return stalled
-        return False
-
-    def stalled(self, now: float) -> bool:
-        return now - self.since > self.timeout
-
-
-@dataclass
-class ConvergenceWatch:
-    """Episodes of one robot and the arbiter's interventions per episode, to convergence
-    (pure: messages in, lines out), judged by `convergence` (the map run, the learner's
-    settings: `watch_of`)."""
-
-    robot: str
-    max_episodes: int
-    convergence: Convergence
-    episodes: list[ShownEpisode] = field(default_factory=list)
-    interventions: dict[int, tuple[int, bool]] = field(default_factory=dict)  # (count, final)
-    _shown: int = 0
-
-    def on_episode(self, event: EpisodeEvent, now: float) -> None:
-        if event.robot != self.robot or event.kind == "start" or self.done:
-            return
-        seconds = event.episode_steps * STEP_SECONDS
-        self.episodes.append(
-            ShownEpisode(event.episode, event.kind, event.episode_steps, seconds, now)
-        )
-        self.convergence.add(EpisodeResult(event.kind, event.episode_steps, seconds))
-
-    def on_teaching(self, stats: TeachingStats) -> None:
-        if stats.robot == self.robot:
-            self.interventions[stats.episode] = (stats.interventions, stats.final)
-
-    @property
-    def done(self) -> bool:
-        return self.convergence.converged or len(self.episodes) >= self.max_episodes
-
-    def due_lines(self, now: float, flush: bool = False) -> list[str]:
-        """Lines of the ended episodes whose interventions are final (or waited for enough)."""
-        lines = []
-        while self._shown < len(self.episodes):
-            e = self.episodes[self._shown]
-            count, final = self.interventions.get(e.number, (0, False))
-            if not (final or flush or now - e.ended_at >= FINAL_WAIT_S):
-                break
-            e.interventions = count
-            lines.append(self.line(e))
-            self._shown += 1
-        return lines
-
-    def line(self, e: ShownEpisode) -> str:
-        c = self.convergence
-        converged = c.converged and e.number == self.episodes[c.n_episodes - 1].number
-        return (
-            f"episode {e.number:>3}  {e.outcome:<9} {e.steps:>5} steps "
-            f"({e.seconds:6.1f} s of robot time)  interventions {e.interventions:>3}"
-            + ("  <- converged" if converged else "")
-        )
-
-    @property
-    def all_shown(self) -> bool:
-        return self._shown >= len(self.episodes)
-
-
 def watch_of(args: argparse.Namespace) -> ConvergenceWatch:
-    """The first robot's watch, judged by the map of --task and the learner's --set."""
-    convergence = convergence_on(load_map(args.task), with_settings(args.set))
-    return ConvergenceWatch(args.robots[0], args.max_episodes, convergence)
+    """The first robot's watch, judged by the map of --task and the learner's --set; a web
+    demo's lasts until its person ends it."""
+    m = load_map(args.task)
+    convergence = convergence_on(m, with_settings(args.set))
+    lasting = bool(getattr(args, "web", False))
+    title = task_title(args.task, m)
+    return ConvergenceWatch(
+        args.robots[0], args.max_episodes, convergence, title=title, lasting=lasting
+    )
 
 
-def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
-    """demo.md: every episode the event log holds and the counts of the report's summary.md
-    (voxshape/services/logger/report.count_episodes), so the two files agree."""
+def demo_table(
+    robot: RobotSummary, counts: EpisodeCounts, title: str, closing: list[str] = ()
+) -> str:
+    """demo.md: the demo's closing lines, every episode the event log holds and the counts of
+    the report's summary.md (voxshape/lab/report/counts.py), so the two files agree."""
     at = counts.convergence.converged_at
     rows = []
     for i, e in enumerate(robot.ended):
@@ -214,6 +138,7 @@ def demo_table(robot: RobotSummary, counts: EpisodeCounts, title: str) -> str:
         [
             f"# Demo: robot {robot.robot}, {title}, taught by a simulated teacher",
             "",
+            *([" ".join(closing), ""] if closing else []),
             counts.describe(),
             "",
             f"Convergence: {counts.convergence.rule()}; {INTERVENTIONS_ARE}. The same counts, "
@@ -281,6 +206,7 @@ def teacher_spec(
 
 
 def run(args: argparse.Namespace) -> int:
+    launcher.interrupt_on_stop_signals()
     if args.rtf is None:
         args.rtf = float(os.environ.get("VOXSHAPE_RTF") or (1 if args.web else 10))
     if args.max_episodes < 3 or args.rtf <= 0:
@@ -295,19 +221,32 @@ def run(args: argparse.Namespace) -> int:
         session.say(f"error: {problem}")
         return 2
     _introduce(session, session_id, args, mode, simulated)
-    robot = args.robots[0]
-    progress = watch_of(args)
-    session.subscribe("episode", robot)  # from the first one
-    session.subscribe("teaching", robot)
-    session.subscribe("learning", robot)  # its steps
-    t0 = time.monotonic()
-    code = _train_session(session, progress, args)
-    for line in progress.due_lines(time.monotonic(), flush=True):
+    robot, progress, words = args.robots[0], watch_of(args), WordCount()
+    for topic in ("episode", "teaching", "learning"):  # its steps, from the first one
+        session.subscribe(topic, robot)
+    session.subscribe("said", "*")
+    code = _train_session(session, progress, words, args)
+    now = time.monotonic()
+    for line in progress.due_lines(now, flush=True, mark=code == 0):
         session.say(line)
-    minutes = (time.monotonic() - t0) / 60
-    if code == 0:
-        code = _verdict(session, progress, args.max_episodes, minutes)
-    return outputs(session, session_id, progress, args.task) or code
+    ending = progress.ending(code, words, now)
+    if ending.learnt:
+        ending = replace(ending, alone=learnt_alone(args, ending.episodes))
+    closing = closing_lines(ending)
+    for line in closing:
+        session.say(line)
+    written = outputs(session, session_id, progress, args.task, closing)
+    return written or {"learnt": 0, "ended by its person": 0, "interrupted": 130}.get(ending.how, 1)
+
+
+def learnt_alone(args: argparse.Namespace, episodes: int) -> Alone:
+    """The demo's room and seed learnt in one process with nobody speaking, for at most
+    three times the demo's episodes and 30 (a few wall seconds on a small map)."""
+    began = time.monotonic()
+    spec = RunSpec(args.task, "rl", args.seed, max(30, 3 * episodes), learner=tuple(args.set))
+    result = run_experiment(spec)
+    wall = time.monotonic() - began
+    return Alone(result.converged, result.episodes, result.learning_time_s / 60, wall)
 
 
 def _arrange_services(
@@ -355,87 +294,78 @@ def _introduce(
 
 
 def _train_session(
-    session: launcher.LocalSession, progress: ConvergenceWatch, args: argparse.Namespace
+    session: launcher.LocalSession,
+    progress: ConvergenceWatch,
+    words: WordCount,
+    args: argparse.Namespace,
 ) -> int:
     """Starts the session, trains until done and stops it: 0, 1 on an error, 130 on Ctrl-C."""
     code = 0
     try:
         took = session.start()
+        progress.started = time.monotonic()
         session.say(f"session up in {took:.1f} s: {', '.join(s.name for s in session.specs)}")
         if args.web:
-            session.say(f"teach it in a browser: {launcher.web_page(session)}")
-        train(session, progress, args.stall_timeout, interactive=args.web)
+            session.say(
+                f"teach it in a browser: {launcher.web_page(session)} (the demo goes on, "
+                "learnt or not, until you stop it: Ctrl-C)"
+            )
+        train(session, progress, words, args.stall_timeout, interactive=args.web)
     except (launcher.ServiceDied, launcher.LaunchAborted, BusError, TimeoutError) as e:
         session.say(f"error: {e}")
         code = 1
     except KeyboardInterrupt:
-        session.say("interrupted")
+        session.say("interrupted" if not args.web else "stopping, as you asked")
         code = 130
     finally:
         session.stop()
     return code
 
 
-def _verdict(
-    session: launcher.LocalSession, progress: ConvergenceWatch, max_episodes: int, minutes: float
-) -> int:
-    """Says whether the robot converged within `max_episodes`: 0 if it did, else 1."""
-    c = progress.convergence
-    if not c.converged:
-        goals = sum(e.outcome == "goal" for e in progress.episodes)
-        session.say(
-            f"gave up: not converged within {max_episodes} episodes, {goals} of which "
-            f"reached the goal; converged means {c.rule()} (--max-episodes; "
-            "learning is random, another --seed or more episodes may do)"
-        )
-        return 1
-    session.say(
-        f"converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} robot minutes, "
-        f"{minutes:.1f} wall minutes in all)"
-    )
-    return 0
-
-
 def train(
     session: launcher.LocalSession,
     progress: ConvergenceWatch,
+    words: WordCount,
     stall_timeout: float,
     interactive: bool = False,
 ) -> None:
-    """Shows episodes as they end until convergence or the episode bound. A robot whose
-    steps stop for `stall_timeout` seconds ends the demo, or with `interactive` (a person
-    teaching) is reported once per stall, and the session goes on."""
+    """Shows episodes as they end until convergence or the episode bound (a lasting watch:
+    until Ctrl-C). A robot whose steps stop for `stall_timeout` seconds ends the demo, or
+    with `interactive` (a person teaching) is reported once per stall, and it goes on."""
     bus = session.bus
     assert bus is not None
     stall, cpu_then = StallWatch(stall_timeout, time.monotonic()), session.cpu_seconds()
-    warned, done_at = False, None
+    warned, done_at, learnt = False, None, None
     for event in bus.events(tick=0.5):
         now = time.monotonic()
-        if isinstance(event, Input) and isinstance(event.message, LearningSummary):
-            if stall.on_step(event.message.step, now) and warned:
-                session.say(f"{progress.robot} goes on (step {event.message.step})")
+        message = event.message if isinstance(event, Input) else None
+        if isinstance(message, LearningSummary):
+            if stall.on_step(message.step, now) and warned:
+                session.say(f"{progress.robot} goes on (step {message.step})")
                 warned = False
-        elif isinstance(event, Input) and isinstance(event.message, EpisodeEvent):
-            progress.on_episode(event.message, now)
-        elif isinstance(event, Input) and isinstance(event.message, TeachingStats):
-            progress.on_teaching(event.message)
+        elif isinstance(message, EpisodeEvent):
+            progress.on_episode(message, now)
+        elif isinstance(message, TeachingStats):
+            progress.on_teaching(message)
+            words.on_teaching(message)
+        elif isinstance(message, Said):
+            words.on_said(message)
         elif isinstance(event, Tick):
             session.check_children()  # restarts a dead service, or raises ServiceDied
             if not stall.stalled(now):
                 cpu_then = session.cpu_seconds()  # a stall's CPU figures count from here
         for line in progress.due_lines(now):
             session.say(line)
+        if not learnt and (learnt := progress.learnt()) is not None:
+            bus.publish(learnt)  # the pages say so (a lasting demo goes on)
+            if progress.lasting:
+                session.say(_learnt_now(progress))
         if progress.done:
             done_at = done_at or now
             if progress.all_shown or now - done_at > FINAL_WAIT_S:
                 return
         elif stall.stalled(now) and not warned:
-            used = session.cpu_seconds()
-            cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
-            what = (
-                f"{progress.robot} made no step for {stall_timeout:g} s (CPU seconds used "
-                f"meanwhile: {cpu}; the sim near 0: it is blocked, not slow)"
-            )
+            what = _stalled(session, progress.robot, stall_timeout, cpu_then)
             if interactive:
                 session.say(f"warning: {what}; the session goes on")
                 warned = True
@@ -443,6 +373,27 @@ def train(
             session.print_stacks()
             raise TimeoutError(f"{what}: is the robot stuck? (each service's threads above)")
     raise KeyboardInterrupt
+
+
+def _learnt_now(progress: ConvergenceWatch) -> str:
+    """What a lasting demo says when its robot has learnt: that it goes on."""
+    c = progress.convergence
+    return (
+        f"{progress.robot} has learnt it: {c.n_episodes} episodes ({c.learning_time / 60:.1f} "
+        "robot minutes). It goes on, episode after episode: keep teaching it, or Ctrl-C to end"
+    )
+
+
+def _stalled(
+    session: launcher.LocalSession, robot: str, timeout: float, cpu_then: dict[str, float]
+) -> str:
+    """What a stalled robot is said to be, with each service's CPU seconds since."""
+    used = session.cpu_seconds()
+    cpu = ", ".join(f"{n} {used[n] - cpu_then.get(n, 0.0):.1f}" for n in used)
+    return (
+        f"{robot} made no step for {timeout:g} s (CPU seconds used meanwhile: {cpu}; the sim "
+        "near 0: it is blocked, not slow)"
+    )
 
 
 def voxshape_command() -> str:
@@ -456,9 +407,14 @@ def voxshape_command() -> str:
 
 
 def outputs(
-    session: launcher.LocalSession, session_id: str, progress: ConvergenceWatch, task: str
+    session: launcher.LocalSession,
+    session_id: str,
+    progress: ConvergenceWatch,
+    task: str,
+    closing: list[str],
 ) -> int:
-    """Writes the report and the episode table; says where everything is."""
+    """Writes the report and demo.md (the closing lines, then the episode table); says where
+    everything is."""
     run_dir = Path("runs") / session_id
     try:
         run = RunDir.existing(run_dir)
@@ -469,11 +425,10 @@ def outputs(
         return 1
     robot = loaded.summary.robot(progress.robot)
     counts = loaded.counts()[progress.robot]
-    session.say(counts.describe())
     table = run_dir / "demo.md"
-    table.write_text(demo_table(robot, counts, task_title(task, loaded.map)), "utf-8")
+    table.write_text(demo_table(robot, counts, task_title(task, loaded.map), closing), "utf-8")
     recording = run_dir / "recording.rrd"
-    session.say(f"written under {run_dir}/:")
+    session.say(f"written under {run_dir}/ (demo.md: every episode and its words):")
     for path in [recording, table, *written]:
         session.say(f"  {path}{'' if path.exists() else '  (missing!)'}")
     session.say(f"look at it: {voxshape_command()} view {run_dir}   (or open {written[-1]})")

@@ -8,6 +8,7 @@ through it, and the benchmarks, experiments and test harnesses through `Loopback
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -20,11 +21,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO
 
+from voxshape.launcher.record import SessionRecord
 from voxshape.launcher.topology import ServiceSpec, TopologyError
 from voxshape.runtime import BusError, Node, Presence, Tick, bus_config
-from voxshape.runtime.processes import end_process
+from voxshape.runtime.node import STOP_SIGNALS
+from voxshape.runtime.processes import end_process, ending_with_me
 
 STOP_GRACE_S = 10.0
+HURRY_GRACE_S = 3.0  # after a second Ctrl-C: every service asked at once, killed after this
 BUS_CLOSE_S = 2.0  # the launcher's own leaving of the bus may take this long, then it goes on
 SLOW_STOP_S = 2.0  # a service slower than this to stop is named (most take 0.1-0.5 s)
 INHERITED_SETTINGS = {"VOXSHAPE_LOG_LEVEL"}  # the shell's, though compose.yaml does not set it
@@ -49,6 +53,14 @@ class ServiceDied(RuntimeError):
 
 class LaunchAborted(RuntimeError):
     """Stopped by a signal while starting, or a service did not announce itself in time."""
+
+
+def interrupt_on_stop_signals() -> None:
+    """SIGTERM and SIGHUP (a terminal closed) stop a launcher as Ctrl-C does, wherever it is:
+    inside a node's loop as its flag, elsewhere as KeyboardInterrupt (for a command's main
+    thread, never a test's process)."""
+    for s in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(s, signal.default_int_handler)
 
 
 def resolve_command(command: Iterable[str]) -> list[str]:
@@ -101,6 +113,9 @@ class LocalSession:
         self._stop_requested = False
         self._inputs: list[tuple[str, str]] = []  # the launcher node's (topic, of), on joining
         self.run_lock: IO[str] | None = None  # runs/<session>/ held while it runs (up.py)
+        # runs/<session>/launcher.json: the launcher's and each service's pid while it runs
+        self.record: SessionRecord | None = None
+        self._hurry = 0  # signals received while stopping
 
     @property
     def session_id(self) -> str:
@@ -160,6 +175,7 @@ class LocalSession:
             if not k.startswith("VOXSHAPE_") or k in INHERITED_SETTINGS
         }
         env = {**inherited, **self.environment, **spec.environment, "PYTHONUNBUFFERED": "1"}
+        ending_with_me(env)  # it ends with this launcher, however this one ends
         log = None if self.logs is None else open(self.logs / f"{spec.name}.log", "a")  # noqa: SIM115
         try:
             proc = subprocess.Popen(
@@ -175,18 +191,23 @@ class LocalSession:
             if log is not None:
                 log.close()  # the child holds its own
         self.procs[spec.name] = proc
+        if self.record is not None:
+            self.record.write({name: p.pid for name, p in self.procs.items()})
         if log is None:
             threading.Thread(target=self._relay, args=(spec.name, proc.stdout), daemon=True).start()
         self.say(f"started {spec.name} (pid {proc.pid}): {' '.join(spec.command)}")
 
     def _relay(self, name: str, stream: IO[bytes]) -> None:
+        """Prints a service's lines; drains them unprinted once the terminal is gone (a
+        service must never block on its output)."""
         for raw in iter(stream.readline, b""):
             line = raw.decode(errors="replace").rstrip()
-            with self._print_lock:
+            with self._print_lock, contextlib.suppress(OSError):
                 print(f"{name:<{self._width}} | {line}", flush=True)
 
     def say(self, text: str) -> None:
-        with self._print_lock:
+        """A line of the launcher's: printed (nowhere, when the terminal is gone) or logged."""
+        with self._print_lock, contextlib.suppress(OSError):
             if self.logs is None:
                 print(f"{'up':<{self._width}} | {text}", flush=True)
             else:
@@ -338,28 +359,74 @@ class LocalSession:
     def stop(self) -> dict[str, int | None]:
         """SIGTERM in reverse start order, SIGKILL after the grace period; exit codes. The
         launcher leaves the bus first, while its router still runs (closing a session whose
-        router is gone can wait on zenoh)."""
-        if self.bus is not None:
-            self._leave_bus(self.bus)
-            self.bus = None
-        for name in reversed(list(self.procs)):
-            proc = self.procs[name]
-            if proc.poll() is None:
-                asked = time.monotonic()
-                proc.send_signal(signal.SIGTERM)
-                try:
-                    proc.wait(STOP_GRACE_S)
-                except subprocess.TimeoutExpired:
-                    self.say(f"{name} ignored SIGTERM for {STOP_GRACE_S:g} s: killing it")
-                    proc.kill()
-                    proc.wait()
-                if (took := time.monotonic() - asked) > SLOW_STOP_S:
-                    self.say(f"{name} took {took:.1f} s to stop")
+        router is gone can wait on zenoh). A signal meanwhile (a second Ctrl-C) hurries it:
+        every service left is asked at once and killed HURRY_GRACE_S later, a third kills."""
+        restore = self._hurry_on_signals()
+        try:
+            if self.bus is not None:
+                self._leave_bus(self.bus)
+                self.bus = None
+            for name in reversed(list(self.procs)):
+                if self._hurry:
+                    break
+                self._stop_one(name, self.procs[name])
+            if self._hurry:
+                self._stop_all_at_once()
+        finally:
+            restore()
         if self.run_lock is not None:  # the run folder is free for the next session
             self.run_lock.close()
             self.run_lock = None
+        if self.record is not None:
+            self.record.remove()
         # one awaiting its restart died during the session, not at its end
         return {
             name: None if name in self._restart_due else proc.returncode
             for name, proc in self.procs.items()
         }
+
+    def _stop_one(self, name: str, proc: subprocess.Popen) -> None:
+        """SIGTERM, SIGKILL after STOP_GRACE_S (or when hurried meanwhile)."""
+        if proc.poll() is not None:
+            return
+        asked = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        while proc.poll() is None and not self._hurry:
+            if time.monotonic() - asked > STOP_GRACE_S:
+                self.say(f"{name} ignored SIGTERM for {STOP_GRACE_S:g} s: killing it")
+                proc.kill()
+                proc.wait()
+            time.sleep(0.02)
+        if (took := time.monotonic() - asked) > SLOW_STOP_S:
+            self.say(f"{name} took {took:.1f} s to stop")
+
+    def _stop_all_at_once(self) -> None:
+        """Every service still running asked at once, killed after HURRY_GRACE_S (or a third
+        signal)."""
+        left = {n: p for n, p in self.procs.items() if p.poll() is None}
+        self.say(f"stopping {', '.join(left) or 'nothing'} at once (again: killed at once)")
+        for proc in left.values():
+            proc.send_signal(signal.SIGTERM)
+        deadline = time.monotonic() + HURRY_GRACE_S
+        while any(p.poll() is None for p in left.values()):
+            if time.monotonic() > deadline or self._hurry > 1:
+                for name, proc in left.items():
+                    if proc.poll() is None:
+                        self.say(f"killing {name} (pid {proc.pid})")
+                        proc.kill()
+                        proc.wait()
+            time.sleep(0.02)
+
+    def _hurry_on_signals(self) -> Callable[[], object]:
+        """While stopping, a stop signal hurries the stop instead of ending the launcher
+        with its services left (main thread only: signals are handled there)."""
+        if threading.current_thread() is not threading.main_thread():
+            return lambda: None
+        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
+
+        def hurry(_signum: int, _frame: object) -> None:
+            self._hurry += 1
+
+        for s in STOP_SIGNALS:
+            signal.signal(s, hurry)
+        return lambda: [signal.signal(s, h) for s, h in previous.items()]

@@ -18,8 +18,11 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from voxshape.launcher.record import RECORD_FILE, SessionRecord
 from voxshape.protocol import Key, dataflow, load_vocabulary, parse_key, to_wire
+from voxshape.protocol.keys import presence_in_every_session
 from voxshape.runtime import Input, Node, add_bus_arguments, bus_config
+from voxshape.services.logger.run import RUNS
 
 
 def add_status_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,24 +38,29 @@ def add_status_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def status(args: argparse.Namespace) -> int:
-    config = bus_config("status", args)
+    config = bus_config("status", args, fail_fast=True)
     if args.mode is None and config.mode == "peer":
         config = replace(config, mode="client")  # a one-shot look needs no listener
     with Node("status", config, quiet=True) as node:
-        replies = node.zenoh.liveliness().get(node.presences, timeout=2.0)
         present = []
-        for reply in replies:
-            if reply.ok is not None:
-                key: Key = parse_key(str(reply.ok.key_expr))
-                if key.name != node.id:
-                    present.append({"role": key.owner, "node": key.name})
+        for key in _present_keys(node, node.presences):
+            parsed: Key = parse_key(key)
+            if parsed.name != node.id:
+                present.append({"role": parsed.owner, "node": parsed.name})
+        others = other_sessions(node)
     present.sort(key=lambda p: (p["role"], p["node"]))
     missing = sorted(set(args.require) - {p["node"] for p in present})
     unfed = unfed_inputs(present)
     if args.json:
         print(
             json.dumps(
-                {"session": config.session, "present": present, "missing": missing, "unfed": unfed}
+                {
+                    "session": config.session,
+                    "present": present,
+                    "missing": missing,
+                    "unfed": unfed,
+                    "other_sessions": others,
+                }
             )
         )
     else:
@@ -63,7 +71,39 @@ def status(args: argparse.Namespace) -> int:
             print(f"  missing      {name}")
         for line in unfed:
             print(f"  note         {line}")
+        for other in others:
+            print(
+                f"also on this router: session {other['session']!r}, "
+                f"{len(other['nodes'])} node(s): {', '.join(other['nodes'])}"
+            )
+            pids = ", ".join(f"{name} {pid}" for name, pid in other["pids"].items())
+            print(f"  its pids     {pids or '(its launcher record is not in runs/ here)'}")
+            if other["end"]:
+                print(f"  end it with  {other['end']}")
+            print(f"  look at it   voxshape status --session {other['session']}")
     return 1 if missing else 0
+
+
+def _present_keys(node: Node, key: str) -> list[str]:
+    """The liveliness tokens present under `key`."""
+    replies = node.zenoh.liveliness().get(key, timeout=2.0)
+    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
+
+
+def other_sessions(node: Node, runs: Path = RUNS) -> list[dict]:
+    """The other sessions present on the router `node` is connected to, each with its nodes
+    and, when its launcher's record is in `runs` here, its pids and the command that ends it."""
+    nodes: dict[str, list[str]] = {}
+    for key in map(parse_key, _present_keys(node, presence_in_every_session())):
+        if key.session != node.session_id:
+            nodes.setdefault(key.session, []).append(key.name)
+    found = []
+    for session, names in sorted(nodes.items()):
+        record = SessionRecord.read(runs / session / RECORD_FILE)
+        alive = record.alive() if record is not None else {}
+        end = record.ending() if record is not None and alive else ""
+        found.append({"session": session, "nodes": sorted(names), "pids": alive, "end": end})
+    return found
 
 
 def unfed_inputs(present: list[dict[str, str]]) -> list[str]:
@@ -134,7 +174,7 @@ def jsonable(value: object) -> object:
 def listen(args: argparse.Namespace) -> int:
     received = 0
     deadline = time.monotonic() + args.duration if args.duration else None
-    with Node("listen", bus_config("listen", args)) as node:
+    with Node("listen", bus_config("listen", args, fail_fast=True)) as node:
         node.input("all", args.key or node.everything)
         node.log.info("listening", extra={"voxshape_fields": {"key": args.key or "session"}})
         for event in node.events(tick=0.2):

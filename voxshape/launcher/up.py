@@ -20,11 +20,13 @@ from dataclasses import replace
 from pathlib import Path
 from typing import IO
 
+from voxshape.launcher.record import RECORD_FILE, SessionRecord, holder_of
 from voxshape.launcher.session import (
     INHERITED_SETTINGS,
     LaunchAborted,
     LocalSession,
     ServiceDied,
+    interrupt_on_stop_signals,
 )
 from voxshape.launcher.topology import (
     ServiceSpec,
@@ -205,14 +207,28 @@ def local_session(
     )
     taken = busy_endpoints(session.variable("router", "VOXSHAPE_LISTEN") or "")
     if taken:
-        raise ConfigError(
-            f"{', '.join(taken)} is in use: is a session running already? (`voxshape status` "
-            "says who is there; --port chooses another, and --session NAME a name and a "
-            "runs/NAME/ of this one's own)"
-        )
+        raise ConfigError(port_taken(taken))
     said, session.run_lock = prepare_run(RUNS / session.session_id, args.resume, args.command)
+    session.record = SessionRecord(
+        RUNS / session.session_id / RECORD_FILE, session.session_id, session.router
+    )
     session.say(said)
     return session
+
+
+def port_taken(taken: list[str]) -> str:
+    """Why a session cannot start on `taken` endpoints: whose session holds them, if a run
+    record here says so, and what to do."""
+    holder = next(filter(None, (holder_of(RUNS, endpoint) for endpoint in taken)), None)
+    whose = (
+        f"it is {holder.describe()}"
+        if holder is not None
+        else "is a session running already? (`voxshape status --connect ENDPOINT` names it)"
+    )
+    return (
+        f"{', '.join(taken)} is in use: {whose}. --port chooses another, and --session NAME a "
+        "name and a runs/NAME/ of this one's own"
+    )
 
 
 def with_learner_settings(specs: list[ServiceSpec], settings: list[str]) -> list[ServiceSpec]:
@@ -281,6 +297,7 @@ def _resumed(path: Path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    interrupt_on_stop_signals()
     session = local_session(args)
     names = ", ".join(s.name for s in session.specs)
     session.say(f"starting {len(session.specs)} service(s) from compose: {names}")

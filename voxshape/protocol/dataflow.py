@@ -83,6 +83,7 @@ DELIVERY: dict[tuple[FlowScope, str], Delivery] = {
     ("robot", "help"): Delivery(RARE_KEPT, "all"),
     ("robot", "answer"): Delivery(RARE_KEPT, "all"),
     ("robot", "limits"): Delivery(1, "all"),
+    ("robot", "learnt"): Delivery(RARE_KEPT, "all"),
     ("teacher", "audio"): Delivery(AUDIO_KEPT, "recent"),
     ("teacher", "utterance"): Delivery(UTTERANCES_KEPT, "all"),
     ("teacher", "said"): Delivery(UTTERANCES_KEPT, "all"),
@@ -220,10 +221,17 @@ DATAFLOW: dict[str, NodeRole] = {
         "observer",
         "the teachers' web page (voxshape web): shows every robot to the browsers; each "
         "browser's teacher is a teacher node of its own",
-        subscribes=_flows("robot", ANY, "obs", "episode", "feedback", "teaching", "help", "answer"),
+        subscribes=_flows(
+            "robot", ANY, "obs", "episode", "feedback", "teaching", "help", "answer", "learnt"
+        ),
     ),
     "logger": NodeRole("admin", "records every message of the session", everything=True),
-    "launcher": NodeRole("admin", "voxshape up and the demo: watch the session", everything=True),
+    "launcher": NodeRole(
+        "admin",
+        "voxshape up and the demo: watch the session; the demo says when a robot has learnt",
+        publishes=_flows("robot", ANY, "learnt"),
+        everything=True,
+    ),
     "listen": NodeRole("admin", "voxshape listen: prints every message", everything=True),
     "bench": NodeRole(
         "admin", "benchmarks: play the other roles on a session of their own", everything=True

@@ -17,6 +17,7 @@ from voxshape.protocol.messages import (
     HelpAnswer,
     HelpRequest,
     LearningSummary,
+    Learnt,
     Message,
     Observation,
     Placed,
@@ -254,4 +255,9 @@ def _help_examples(
         ),
         # A real robot waiting between episodes (voxshape ros2 --reset wait): it is back.
         (teacher_key(session, teacher, "placed"), Placed(teacher=teacher, robot=robot)),
+        # The demo says the robot has learnt its task (and it goes on).
+        (
+            robot_key(session, robot, "learnt"),
+            Learnt(robot=robot, episode=4, episodes=5, robot_seconds=52.5, task="task 1"),
+        ),
     ]

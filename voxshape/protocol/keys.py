@@ -9,6 +9,7 @@ voxshape/<session>/robot/<robot>/teaching         TeachingStats (interventions, 
 voxshape/<session>/robot/<robot>/help             HelpRequest (the robot asks which way)
 voxshape/<session>/robot/<robot>/answer           HelpAnswer (who answered, with what)
 voxshape/<session>/robot/<robot>/limits           RobotLimits (how fast it may be driven)
+voxshape/<session>/robot/<robot>/learnt           Learnt (it has learnt its task: the demo says)
 voxshape/<session>/teacher/<teacher>/audio        AudioChunk
 voxshape/<session>/teacher/<teacher>/utterance    Utterance
 voxshape/<session>/teacher/<teacher>/said         Said (a teacher's text, for the mock engine)
@@ -41,6 +42,7 @@ from voxshape.protocol.messages import (
     HelpAnswer,
     HelpRequest,
     LearningSummary,
+    Learnt,
     Message,
     Observation,
     Placed,
@@ -64,6 +66,7 @@ ROBOT_TOPICS: dict[str, type[Message]] = {
     "help": HelpRequest,
     "answer": HelpAnswer,
     "limits": RobotLimits,
+    "learnt": Learnt,
 }
 TEACHER_TOPICS: dict[str, type[Message]] = {
     "audio": AudioChunk,
@@ -130,6 +133,11 @@ def presence_key(session: str, role: str = "*", node: str = "*") -> str:
     role = role if role == "*" else check_id(role, "role")
     node = node if node == "*" else check_id(node, "node")
     return f"{ROOT}/{check_id(session, 'session')}/presence/{role}/{node}"
+
+
+def presence_in_every_session() -> str:
+    """Every node's presence token in every session (of a router several sessions share)."""
+    return f"{ROOT}/*/presence/*/*"
 
 
 def router_access_key(session: str) -> str:

@@ -418,6 +418,21 @@ class TeachingStats(Message):
     teachers: Annotated[tuple[TeacherStats, ...], Size(max=64)]
 
 
+@dataclass(frozen=True, kw_only=True)
+class Learnt(Message):
+    """A robot has learnt its task, by the convergence rule (the demo -> teachers' pages):
+    the episode it converged in, how many episodes and robot seconds it took. It goes on, an
+    episode after another: a teacher may keep teaching it, or start another room."""
+
+    TYPE: ClassVar[str] = "learnt"
+
+    robot: Id
+    episode: Count  # the episode it converged in
+    episodes: Count  # how many it took, that one included
+    robot_seconds: SimTime  # their robot time
+    task: Text  # what it learnt, e.g. "task 1", "map office.toml (Office)"
+
+
 MESSAGE_TYPES: dict[str, type[Message]] = {
     cls.TYPE: cls
     for cls in (
@@ -437,5 +452,6 @@ MESSAGE_TYPES: dict[str, type[Message]] = {
         HelpAnswer,
         Placed,
         RobotLimits,
+        Learnt,
     )
 }

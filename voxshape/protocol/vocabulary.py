@@ -40,6 +40,39 @@ def normalize(text: str) -> str:
     return " ".join(re.sub(r"[^\w]+", " ", bare).split())
 
 
+# A word that, just before a phrase (within two words), turns it around: "no good".
+NEGATIONS = frozenset(
+    {"no", "not", "never", "nothing", "without", "dont", "doesnt", "didnt", "isnt", "wasnt"}
+    | {"arent", "werent", "cant", "wont"}
+)
+
+
+def spot(
+    text: str, phrases: dict[str, str], meanings: dict[str, str] | None = None
+) -> tuple[str | None, bool]:
+    """The one rule for a phrase inside a sentence, typed or spoken: the longest phrase (as
+    written) inside a text of several words, and whether a negation comes just before it:
+    (phrase, negated); (None, False) when there is none ("not that way" is a phrase of its
+    own), or when, by `meanings` (phrase as written -> its meaning's name), another phrase
+    there means something else ("left right"). `phrases`: normalized -> as written."""
+    words = normalize(text).split()
+    if len(words) < 2:
+        return None, False
+    found: list[tuple[str, bool]] = []
+    taken: set[int] = set()
+    for key in sorted(phrases, key=lambda p: -len(p.split())):
+        n = len(key.split())
+        for i in range(len(words) - n + 1):
+            span = set(range(i, i + n))
+            if " ".join(words[i : i + n]) == key and not span & taken:
+                taken |= span
+                found.append((phrases[key], bool(NEGATIONS & set(words[max(0, i - 2) : i]))))
+    if not found:
+        return None, False
+    said = {meanings.get(phrase, phrase) for phrase, _ in found} if meanings else set()
+    return (None, False) if len(said) > 1 else found[0]
+
+
 def written_phrases(vocabulary: Vocabulary, language: str) -> dict[str, str]:
     """Normalized phrase -> the phrase as written, for one language."""
     return {normalize(p): p for p in vocabulary.phrases(language)}
@@ -53,6 +86,19 @@ class Vocabulary:
     def lookup(self, text: str) -> Meaning | None:
         """The meaning of a whole utterance, or None if it is not in the vocabulary."""
         return self._index.get(normalize(text))
+
+    def find(self, text: str) -> tuple[Meaning | None, str | None, bool]:
+        """What an utterance says, typed or spoken alike: the whole of it, else the phrase
+        inside it (`spot`, over every language): (meaning, phrase, negated). A negated
+        phrase has no meaning ("no good": nothing)."""
+        whole = self.lookup(text)
+        if whole is not None:
+            return whole, text, False
+        written = {key: key for key in self._index}
+        names = {key: meaning.name for key, meaning in self._index.items()}
+        phrase, negated = spot(text, written, names)
+        meaning = None if phrase is None or negated else self._index[phrase]
+        return meaning, phrase, negated
 
     @property
     def languages(self) -> tuple[str, ...]:

@@ -114,6 +114,11 @@ class BusConfig:
     )
     # zenoh settings a role adds, as (path, JSON5), e.g. the router's access control.
     extra: tuple[tuple[str, str], ...] = ()
+    # the command's flag of `connect`, for what a user is told (`voxshape ros2`'s is --bus)
+    connect_flag: str = "--connect"
+    # a router port of this host that refuses is said at once, not waited for (a person's
+    # tools, when no connect timeout was given: one given is a wish to wait)
+    fail_fast: bool = False
 
     @classmethod
     def for_role(cls, role: str) -> BusConfig:
@@ -245,6 +250,7 @@ def add_bus_arguments(
     VOXSHAPE_* variables. `renamed` gives `mode` and `connect` other flags, for a command
     whose own flags take those names (`voxshape ros2 --connect ROBOT --mode ros2dds --bus ...`)."""
     add_options(parser, BusConfig, "bus (flags override VOXSHAPE_* variables)", renamed)
+    parser.set_defaults(bus_connect_flag=(renamed or {}).get("connect", "--connect"))
 
 
 def bus_config(
@@ -252,10 +258,18 @@ def bus_config(
     args: argparse.Namespace | None = None,
     env: Mapping[str, str] = os.environ,
     ask: Callable[[str], str] | None = None,
+    fail_fast: bool = False,
 ) -> BusConfig:
     """Role defaults, then VOXSHAPE_* variables, then flags; validated. A user given without
-    a password is asked for it with `ask` (a prompt), if given."""
+    a password is asked for it with `ask` (a prompt), if given. `fail_fast`: a refusing router
+    port of this host ends the wait at once, unless a connect timeout was given."""
     config = read_options(BusConfig, args, env, base=BusConfig.for_role(role))
+    if flag := getattr(args, "bus_connect_flag", None):
+        config = replace(config, connect_flag=flag)
+    waits = getattr(args, "connect_timeout", None) is not None or env.get(
+        "VOXSHAPE_CONNECT_TIMEOUT"
+    )
+    config = replace(config, fail_fast=fail_fast and not waits)
     if config.password is None and config.password_file is not None:
         given = getattr(args, "password_file", None) is not None
         what = "--password-file" if given else "VOXSHAPE_PASSWORD_FILE"

@@ -19,7 +19,7 @@ the router comes in on a recovering input (an advanced subscriber that fetches w
 and on joining the last S seconds), as the role's flows say; the messages' ids tell a copy
 from a new one. The node holds a liveliness token at
 `voxshape/<session>/presence/<role>/<node>` while it lives, and `events()` ends on
-SIGINT/SIGTERM, after which leaving the `with` block closes everything cleanly.
+SIGINT/SIGTERM/SIGHUP, after which leaving the `with` block closes everything cleanly.
 
 The typed events, Output and the kept/recovering declarations are in flows.py; opening the
 zenoh session, and BusError, in session.py; all are importable from here too.
@@ -59,7 +59,9 @@ from voxshape.runtime.logs import fields, worth_logging
 from voxshape.runtime.session import BusError as BusError  # importable from here too
 from voxshape.runtime.session import open_zenoh
 
-SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM within this
+SIGNAL_CHECK_S = 0.1  # events() notices SIGINT/SIGTERM/SIGHUP within this
+# each stops a node cleanly: Ctrl-C, a stop (a launcher's, or its death), a terminal closed
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 _STOP = object()
 
 
@@ -85,7 +87,7 @@ class Node:
         # then sleeps until an action comes, and none comes (tests/test_bus.py).
         self._queue: queue.Queue = queue.Queue()
         self._stopping = threading.Event()
-        self._signalled = False  # set by SIGINT/SIGTERM: a plain flag, no lock to take
+        self._signalled = False  # set by a stop signal: a plain flag, no lock to take
         self._declared: list = []
         self._published: dict[str, Output] = {}  # by key: publish()'s outputs
         self._recovering: dict[str, tuple[str, Callable[[zenoh.Sample], None], float]] = {}
@@ -262,7 +264,7 @@ class Node:
     # -- the loop -----------------------------------------------------------------------
     def events(self, tick: float | None = None, stats_every: float = 30.0) -> Iterator[Event]:
         """Inputs and presence changes as they arrive, a Tick every `tick` seconds, until stop()
-        or SIGINT/SIGTERM."""
+        or SIGINT/SIGTERM/SIGHUP."""
         restore = self._handle_signals()
         now = time.monotonic()
         next_tick = now + tick if tick else float("inf")
@@ -325,7 +327,7 @@ class Node:
     def _handle_signals(self) -> Callable[[], object]:
         if threading.current_thread() is not threading.main_thread():
             return lambda: None
-        previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
 
         def on_signal(signum: int, _frame: object) -> None:
             # Only a flag: a handler that took the queue's lock could deadlock with the main

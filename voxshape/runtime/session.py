@@ -21,6 +21,13 @@ def open_zenoh(config: BusConfig) -> zenoh.Session:
     """Opens a zenoh session, translating zenoh's errors into what a user should do. A user
     whose router answers is either let in within milliseconds or refused: refused, it is told
     so at once, not after the whole connect timeout."""
+    if config.fail_fast and config.mode != "router" and _refused_at_once(config.connect):
+        raise BusError(
+            f"nothing listens at {', '.join(config.connect)} (refused at once). Is the "
+            "session's router running? Locally, `voxshape up` starts one; for another "
+            f"session's, check {config.connect_flag}/VOXSHAPE_CONNECT (--connect-timeout "
+            "waits for one that is starting)."
+        )
     answering = config.mode != "router" and _router_answers(config.connect)
     if config.user is not None and answering:
         quick = replace(config, connect_timeout=min(config.connect_timeout, LOGIN_WAIT_S))
@@ -60,7 +67,7 @@ def _bus_error(config: BusConfig, text: str, answering: bool = False) -> BusErro
         return BusError(
             f"cannot reach {', '.join(config.connect)} within {config.connect_timeout:g} s. "
             "Is the session's router running? Locally, `voxshape up` starts one; remotely, "
-            "check --connect/VOXSHAPE_CONNECT and the credentials."
+            f"check {config.connect_flag}/VOXSHAPE_CONNECT and the credentials."
         )
     if "listen" in text.lower() or "address" in text.lower():
         return BusError(
@@ -79,3 +86,23 @@ def _router_answers(endpoints: tuple[str, ...], timeout: float = 0.5) -> bool:
         except OSError:
             continue
     return False
+
+
+LOOPBACK = ("127.", "::1", "localhost")
+
+
+def _refused_at_once(endpoints: tuple[str, ...]) -> bool:
+    """Whether every endpoint is a port of this host that refuses connections now: nothing
+    listens there, and no wait will change that (a remote one may be slow, or come back)."""
+    addresses = [tcp_address(e) for e in endpoints]
+    if not addresses or any(a is None or not a[0].startswith(LOOPBACK) for a in addresses):
+        return False
+    for address in addresses:
+        try:
+            with socket.create_connection(address, timeout=0.5):  # type: ignore[arg-type]
+                return False
+        except ConnectionRefusedError:
+            continue
+        except OSError:
+            return False
+    return True

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import difflib
 import json
 import os
 import types
@@ -268,9 +269,7 @@ def _replaced(
             changes[outer] = _replaced(nested, [(setting, inner, raw)], flag, {})
             continue
         if key not in fields:
-            raise SettingsError(
-                f"{flag} {setting!r}: use KEY=VALUE with KEY one of {', '.join(sorted(fields))}"
-            )
+            raise SettingsError(f"{flag} {setting!r}: {unknown_key(key, sorted(fields))}")
         own = flagged.get(key) or flag_of(fields[key])
         if own is not None:
             raise SettingsError(f"{flag} {setting!r}: {key} has a flag of its own: {own}")
@@ -279,6 +278,17 @@ def _replaced(
         return dataclasses.replace(config, **changes)
     except ValueError as e:
         raise SettingsError(f"{flag}: {e}") from None
+
+
+def unknown_key(key: str, known: list[str]) -> str:
+    """What to say of a KEY that is none of `known`: the close ones first ("lookahead":
+    did you mean lookahead_s?), then them all."""
+    if not key:
+        return f"use KEY=VALUE with KEY one of {', '.join(known)}"
+    close = difflib.get_close_matches(key, known, n=3, cutoff=0.6)
+    close += [k for k in known if k.startswith(key) and k not in close][: 3 - len(close)]
+    meant = f"did you mean {' or '.join(close)}? " if close else ""
+    return f"no setting {key!r}; {meant}KEY is one of {', '.join(known)}"
 
 
 def _value(config: object, field: dataclasses.Field, setting: str, raw: str, flag: str) -> Any:

@@ -412,4 +412,6 @@ def add_task_argument(parser: argparse.ArgumentParser, why: str) -> None:
     how = option_of(task)
     assert how is not None and how.env is not None
     default = os.environ.get(how.env) or task.default
-    parser.add_argument("--task", default=default, help=f"{how.help} ({how.env})")
+    parser.add_argument(
+        "--task", default=default, help=f"{how.help} ({how.env}; default {task.default})"
+    )

@@ -12,6 +12,7 @@ from pathlib import Path
 from voxshape.lab.experiment import distributed
 from voxshape.lab.experiment.cluster import ClusterError
 from voxshape.lab.experiment.inprocess import PAPER_SETTINGS, SETTINGS, RunSpec
+from voxshape.lab.experiment.intervals import FEW_SEEDS, few_seeds_note
 from voxshape.lab.experiment.paper import PoolError, experiment, pool
 from voxshape.lab.experiment.published import TASKS
 from voxshape.lab.experiment.runner import ResumeError, RunsFailed
@@ -59,26 +60,35 @@ def _values(text: str) -> list[float]:
 
 
 def _add_seeds(parser: argparse.ArgumentParser, seeds: int) -> None:
-    parser.add_argument("--seeds", type=int, default=seeds, help="runs per task and setting")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=seeds,
+        help=f"runs per task and setting (default {seeds}; below {FEW_SEEDS} the intervals "
+        "say little, and the report says so)",
+    )
     parser.add_argument(
         "--first-seed",
         type=int,
         default=0,
-        help="seeds run: this one and the next --seeds - 1 (e.g. 10: seeds held out from "
-        "choosing the defaults, which were tuned on seeds 0-9)",
+        help="seeds run: this one and the next --seeds - 1 (default 0; e.g. 10: seeds held "
+        "out from choosing the defaults, which were tuned on seeds 0-9)",
     )
 
 
 def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
     _add_seeds(parser, seeds)
-    parser.add_argument("--max-episodes", type=int, default=150, help="then a run is censored")
+    parser.add_argument(
+        "--max-episodes", type=int, default=150, help="then a run is censored (default 150)"
+    )
     parser.add_argument(
         "--tasks",
         type=_tasks,
         default=list(TASKS),
-        help="comma-separated task numbers and map files, e.g. 1,2,my-office.toml",
+        help="comma-separated task numbers and map files, e.g. 1,2,my-office.toml (default "
+        f"{','.join(TASKS)})",
     )
-    parser.add_argument("--out", type=Path, default=Path(out))
+    _add_out(parser, out)
     parser.add_argument("--workers", type=int, default=None, help="processes (default: cores)")
     parser.add_argument(
         "--cluster",
@@ -101,7 +111,7 @@ def _add_common(parser: argparse.ArgumentParser, seeds: int, out: str) -> None:
         "--teacher-profile",
         choices=tuple(PROFILES),
         default="person",
-        help="the simulated teacher: "
+        help="the simulated teacher (default person): "
         + "; ".join(f"{name} ({profile.describe()})" for name, profile in PROFILES.items())
         + " (tireless: the teacher of earlier experiments)",
     )
@@ -136,7 +146,7 @@ def _add_paper(sub: argparse._SubParsersAction) -> None:
         "--settings",
         type=lambda s: _names(s, tuple(SETTINGS), "setting"),
         default=list(PAPER_SETTINGS),
-        help=f"comma-separated from {', '.join(SETTINGS)}",
+        help=f"comma-separated from {', '.join(SETTINGS)} (default {','.join(PAPER_SETTINGS)})",
     )
 
 
@@ -176,7 +186,7 @@ def _add_pool(sub: argparse._SubParsersAction) -> None:
         "experiment (episode limit, --set, --teacher) run on other seeds",
     )
     pooling.add_argument("dirs", type=Path, nargs="+", metavar="DIR", help="`paper` outputs")
-    pooling.add_argument("--out", type=Path, default=Path("runs/experiment-pool"))
+    _add_out(pooling, "runs/experiment-pool")
 
 
 def _add_distributed(sub: argparse._SubParsersAction) -> None:
@@ -187,11 +197,22 @@ def _add_distributed(sub: argparse._SubParsersAction) -> None:
         description="runs --task in --setting for each seed both ways and compares the "
         "episodes; writes distributed.json and distributed.md to --out",
     )
-    distributed.add_argument("--task", choices=TASKS, default="1")
-    distributed.add_argument("--setting", choices=tuple(SETTINGS), default="rl")
+    distributed.add_argument("--task", choices=TASKS, default="1", help="default 1")
+    distributed.add_argument("--setting", choices=tuple(SETTINGS), default="rl", help="default rl")
     _add_seeds(distributed, 3)
-    distributed.add_argument("--max-episodes", type=int, default=150, help="then censored")
-    distributed.add_argument("--out", type=Path, default=Path("runs/experiment-distributed"))
+    distributed.add_argument(
+        "--max-episodes", type=int, default=150, help="then censored (default 150)"
+    )
+    _add_out(distributed, "runs/experiment-distributed")
+
+
+def _add_out(parser: argparse.ArgumentParser, out: str) -> None:
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(out),
+        help=f"where its results go (default {out}; results already there are kept aside)",
+    )
 
 
 def command_line() -> str:
@@ -227,6 +248,12 @@ def run(args: argparse.Namespace) -> int:
         except SettingsError as e:
             print(f"voxshape experiment: {e}", file=sys.stderr)
             return 2
+    if few_seeds_note(args.seeds):
+        print(
+            f"voxshape experiment: note: {args.seeds} seed(s) per task and setting: the "
+            f"intervals will say little (--seeds {FEW_SEEDS} or more for meaningful ones)",
+            file=sys.stderr,
+        )
     keep_earlier_results(args)
     if args.experiment == "distributed":
         return run_distributed(args)

@@ -22,9 +22,10 @@ import heapq
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 
+import numpy as np
+
 from voxshape.lab.experiment.bouts import BumpBouts
 from voxshape.lab.experiment.dictation import Dictation, dictate
-from voxshape.lab.experiment.oracle import OraclePotential
 from voxshape.protocol import CreditedFeedback, TeacherNotice, Utterance
 from voxshape.protocol.vocabulary import load_vocabulary
 from voxshape.runtime.settings import replaced
@@ -34,11 +35,13 @@ from voxshape.services.learner.agent import Agent
 from voxshape.services.learner.asking import Asker, Question
 from voxshape.services.learner.config import LearnerConfig, with_settings
 from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
+from voxshape.services.learner.potential import Place
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.sim.stepper import observation
 from voxshape.services.sim.task import Reading, SimConfig, Simulation
 from voxshape.services.simteacher.dictating import DictationProfile
 from voxshape.services.simteacher.teacher import Look, SimulatedTeacher, Speech, TeacherProfile
+from voxshape.world.geodesic import way_ahead
 from voxshape.world.maps import Map, load_map
 
 START = 1_700_000_000.0  # the session clock at the first step (seconds)
@@ -63,11 +66,12 @@ NOISE = 0.28
 SETTINGS: dict[str, Setting] = {
     "rl": Setting(feedback=False, traces=0, noise=0.0),
     "rl+f": Setting(feedback=True, traces=0, noise=NOISE),
-    "rl+t": Setting(feedback=False, traces=3, noise=NOISE),  # traces alone, no words after
-    "rl+t+f": Setting(feedback=True, traces=3, noise=NOISE),
-    "rl+t+f-perfect": Setting(feedback=True, traces=3, noise=0.0),
+    "rl+f-perfect": Setting(feedback=True, traces=0, noise=0.0),
+    "rl+t": Setting(feedback=False, traces=1, noise=NOISE),  # traces alone, no words after
+    "rl+t+f": Setting(feedback=True, traces=1, noise=NOISE),
+    "rl+t+f-perfect": Setting(feedback=True, traces=1, noise=0.0),
     "rl+f+ask": Setting(feedback=True, traces=0, noise=NOISE, ask=True),
-    "rl+t+f+ask": Setting(feedback=True, traces=3, noise=NOISE, ask=True),
+    "rl+t+f+ask": Setting(feedback=True, traces=1, noise=NOISE, ask=True),
 }
 PAPER_SETTINGS = ("rl", "rl+f", "rl+t", "rl+t+f", "rl+t+f-perfect")  # the paper's, and T alone
 
@@ -106,9 +110,13 @@ class RunResult:
     outcomes: list[str] = field(default_factory=list)  # of every episode run
     bump_bout_s: float = 0.0  # robot seconds in bump bouts of 10 s or more until convergence
     bump_bouts_s: list[float] = field(default_factory=list)  # ... in each episode run
-    credit_on_judged: float = 0.0  # share of the words' credit on the decisions judged
-    states: int = 0  # the learner's states (features) at the end
+    states: int = 0  # the learner's states at the end
     timeout_s: float = 0.0  # of the map's episodes (0: not recorded)
+    # Of the greedy decisions until convergence, the share the person's input changed against
+    # what the robot would have done without it; of those, the share that led along the true
+    # shortest way (nearer the goal by the map's geodesic distance) rather than against it.
+    changed_by_person: float = 0.0
+    changed_toward_way: float | None = None
     spec: dict = field(default_factory=dict)  # how it was run: the RunSpec, teacher included
 
     @property
@@ -153,9 +161,7 @@ def run(
     try:
         for episode in range(spec.max_episodes):
             if book and episode == 0:
-                book.replay(session.learner)
-            elif book:
-                book.replay_if_due(session.learner)
+                book.show(session.learner)
             result = session.episode()
             if on_episode is not None:
                 on_episode(result, session.learner)
@@ -178,9 +184,9 @@ class _Session:
             noise=setting.noise if spec.noise is None else spec.noise,
             delay=profile.delay if spec.delay is None else spec.delay,
         )
-        self.learner = Learner(config, seed=spec.seed)
-        if config.potential == "oracle":
-            self.learner.potential = OraclePotential(m)
+        self.learner = Learner(config, seed=spec.seed, task=m)
+        self.toward = [0, 0]  # changed decisions that led along the way, and all of them
+        self.learner.on_changed = self._judge_change
         self.teacher = (
             SimulatedTeacher(m, vocabulary, profile, seed=spec.seed) if setting.feedback else None
         )
@@ -230,6 +236,16 @@ class _Session:
         self.outcomes.append(reading.outcome)
         return EpisodeResult(reading.outcome, reading.episode_step, seconds, interventions)
 
+    def _judge_change(self, here: Place, chosen: Place, unchanged: Place) -> None:
+        """A decision the person's input changed: does where it leads point along the map's
+        true shortest way (towards the point a metre down it) better than where the robot
+        would have gone without it?"""
+        aim = way_ahead(self.sim.map, *here, 1.0)
+        if aim is None:
+            return
+        self.toward[1] += 1
+        self.toward[0] += alignment(here, chosen, aim) > alignment(here, unchanged, aim)
+
     def _ask(self, reading: Reading, question: Question) -> None:
         """The robot asks which way (the arbiter hears it); the teacher may answer."""
         self.arbiter.on_help(question.request(ROBOT, reading.pose.x, reading.pose.y), self.now)
@@ -263,14 +279,13 @@ class _Session:
     ) -> RunResult:
         learner, arbiter = self.learner, self.arbiter
         window = arbiter.delay_window(TEACHER)
-        shares = learner.credit_shares
-        on_judged = float(shares[0])
         counters = {f"arbiter.{k}": v for k, v in arbiter.counters.items()}
         counters.update({f"learner.{k}": v for k, v in learner.counters.items()})
         if self.asker is not None:
             counters["learner.questions"] = sum(self.asker.reasons.values())
             counters.update({f"learner.asked.{k}": v for k, v in self.asker.reasons.items()})
             counters["teacher.answers"] = self.answers
+        greedy, changed = learner.counters["decisions_judged"], self.toward[1]
         return RunResult(
             task=spec.task,
             setting=spec.setting,
@@ -288,10 +303,11 @@ class _Session:
             counters=counters,
             outcomes=self.outcomes,
             bump_bout_s=round(sum(self.bump_bouts[: progress.n_episodes]), 1),
-            credit_on_judged=round(on_judged / total, 3) if (total := shares[1]) else 0.0,
             bump_bouts_s=self.bump_bouts,
-            states=len(learner.features),
+            states=len(learner.states),
             timeout_s=self.sim.map.timeout,
+            changed_by_person=round(changed / greedy, 4) if greedy else 0.0,
+            changed_toward_way=round(self.toward[0] / changed, 3) if changed else None,
             spec=asdict(spec),
         )
 
@@ -308,6 +324,13 @@ def initial_traces(spec: RunSpec, m: Map | None = None) -> Dictation | None:
     profile = DictationProfile(noise=noise, confusion=spec.profile.confusion)
     m = m or load_map(spec.task)
     return dictate(m, traces, seed=10_000 + spec.seed, config=config, profile=profile)
+
+
+def alignment(here: Place, there: Place, aim: Place) -> float:
+    """The cosine between the move from here to there and the direction from here to aim."""
+    move, way = np.subtract(there, here), np.subtract(aim, here)
+    norms = float(np.hypot(*move) * np.hypot(*way))
+    return float(move @ way) / norms if norms > 1e-9 else -1.0
 
 
 def look(reading: Reading, now: float) -> Look:

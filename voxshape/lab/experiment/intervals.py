@@ -17,6 +17,23 @@ T95 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.
        2.060, 2.056, 2.052, 2.048, 2.045, 2.042)  # fmt: skip
 
 
+FEW_SEEDS = 5  # below this many seeds a cell's interval is too wide to decide anything
+
+
+def few_seeds_note(seeds: int) -> str | None:
+    """What to say of an experiment of `seeds` seeds per cell, when they are too few for its
+    intervals to mean much; None when they are enough."""
+    if seeds >= FEW_SEEDS:
+        return None
+    t = f"Student's t of {T95[seeds - 2]:g}" if seeds >= 2 else "no spread at all from one seed"
+    return (
+        f"**Too few seeds to say much**: {seeds} seed(s) per task and setting ({t}), so the "
+        "intervals here are wider than most of the differences they would decide, and a "
+        f"mean can move by its own size with one more seed. Run --seeds {FEW_SEEDS} or more "
+        "(the stored results use 10) before reading a difference off these tables."
+    )
+
+
 def mean_ci(values: Iterable[float]) -> tuple[float, float]:
     """The mean and the half-width of its 95% confidence interval (Student's t; 0 for n=1)."""
     values = list(values)

@@ -21,6 +21,7 @@ class SettingStyle:
 SETTING_STYLES = {
     "rl": SettingStyle("RL", "s"),
     "rl+f": SettingStyle("RL + F", "D"),
+    "rl+f-perfect": SettingStyle("RL + F (PF)", "d"),
     "rl+t": SettingStyle("RL + T", "<"),
     "rl+t+f": SettingStyle("RL + T + F", "^"),
     "rl+t+f-perfect": SettingStyle("RL + T + F (PF)", "v"),

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from voxshape.lab.experiment.inprocess import SETTINGS
+from voxshape.lab.experiment.intervals import few_seeds_note
 from voxshape.lab.experiment.legend import label, teacher_line
 from voxshape.lab.experiment.published import (
     PAPER_EPISODES,
@@ -162,6 +163,7 @@ def _introduction(summary: dict, command: str, wall_seconds: float) -> list[str]
         "converge within the episode limit counts with its time so far, so its cell's mean "
         f"is a lower bound, marked ≥ ({len(censored)} of {len(runs)} runs censored{named}).",
         "",
+        *([note, ""] if (note := few_seeds_note(summary["seeds"])) else []),
     ]
 
 
@@ -315,24 +317,26 @@ def _teacher_words(summary: dict, scope: _Scope) -> list[str]:
 
 
 def _time_lost(summary: dict, scope: _Scope) -> list[str]:
-    """Where the robot's learning time went: bump bouts, timeouts, and where the words'
-    credit landed."""
+    """Where the robot's learning time went (bump bouts, timeouts) and which way the
+    person's input pushed it."""
     lines = [
         "",
         "Where the robot's time went until convergence, per setting: the share in bump bouts "
-        "of 10 s or more (a robot pinned to a wall), the share in episodes that timed out, and "
-        "the share of the judging words' credit that landed on the decision each word was "
-        "credited to by the arbiter.",
+        "of 10 s or more (a robot pinned to a wall) and in episodes that timed out; and which "
+        "way the person pushed: the share of the robot's decisions (greedy or commanded) that "
+        "the person's input changed against what it would have done alone, and of those the "
+        "share that led along the map's true shortest way.",
         "",
-        "| setting | bump bouts | timeouts | credit on the judged decision |",
-        "|---|---|---|---|",
+        "| setting | bump bouts | timeouts | changed by the person | of those, toward the way |",
+        "|---|---|---|---|---|",
     ]
-    judged = summary["credit_on_judged"]
+    changed, toward = summary.get("changed_by_person", {}), summary.get("changed_toward_way", {})
     for s in scope.settings:
-        on = f"{judged[s]:.2f}" if s in judged else "-"
+        by = f"{changed[s]:.3f}" if s in changed else "-"
+        way = f"{toward[s]:.2f}" if toward.get(s) is not None else "-"
         lines.append(
             f"| {label(s)} | {summary['bump_bout_share'][s]:.3f} | "
-            f"{summary['timeout_share'][s]:.2f} | {on} |"
+            f"{summary['timeout_share'][s]:.2f} | {by} | {way} |"
         )
     return lines
 

@@ -54,11 +54,10 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
         },
         "timeout_share": {s: timeout_share(of[s]) for s in settings},
         "bump_bout_share": {s: bump_bout_share(of[s]) for s in settings},
-        "credit_on_judged": {
-            s: statistics.fmean(r.credit_on_judged for r in of[s])
-            for s in settings
-            if SETTINGS[s].feedback
+        "changed_by_person": {
+            s: statistics.fmean(r.changed_by_person for r in of[s]) for s in taught
         },
+        "changed_toward_way": {s: toward_way(of[s]) for s in taught},
         "questions": {
             s: {
                 key: statistics.fmean(r.counters.get(counter, 0) for r in of[s])
@@ -72,6 +71,13 @@ def summarize(results: list[RunResult], seeds: int) -> dict:
         },
         "runs": [r.to_json() for r in results],
     }
+
+
+def toward_way(runs: list[RunResult]) -> float | None:
+    """The mean over the runs (that had any) of the share of the decisions the person changed
+    that led along the true way; None if the person changed none."""
+    shares = [r.changed_toward_way for r in runs if r.changed_toward_way is not None]
+    return statistics.fmean(shares) if shares else None
 
 
 def speedup_bound(cells: dict, tasks: list[str], setting: str) -> str:

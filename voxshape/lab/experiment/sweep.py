@@ -22,7 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from voxshape.lab.experiment.inprocess import SETTINGS, RunResult, RunSpec
-from voxshape.lab.experiment.intervals import speedup_interval, task_means
+from voxshape.lab.experiment.intervals import few_seeds_note, speedup_interval, task_means
 from voxshape.lab.experiment.legend import SETTING_STYLES
 from voxshape.lab.experiment.runner import run_all, start_log
 from voxshape.services.simteacher.teacher import PERSON, PROFILES, TIRELESS, TeacherProfile
@@ -248,12 +248,19 @@ def sweep(
             indent=1,
         )
     )
+    (out / "sweep.md").write_text(table(rows) + "\n" + _notes(rows, len(seeds)))
+    figure(rows, out / "sweep.png")
+    return rows
+
+
+def _notes(rows: list[dict], seeds: int) -> str:
+    """What sweep.md says below its table: RL's censored runs, too few seeds."""
     note = (
         "\nRL did not always converge within the episode limit: its mean is a lower bound, and "
         "so is every speedup.\n"
         if rows[0]["converged_fraction"] < 1
         else ""
     )
-    (out / "sweep.md").write_text(table(rows) + "\n" + note)
-    figure(rows, out / "sweep.png")
-    return rows
+    if few := few_seeds_note(seeds):
+        note += f"\n{few}\n"
+    return note

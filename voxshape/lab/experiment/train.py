@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
         def on_episode(episode: EpisodeResult, learner: Learner) -> None:
             bar.update(1)
             bar.set_postfix(
-                outcome=episode.outcome, steps=episode.steps, states=len(learner.features)
+                outcome=episode.outcome, steps=episode.steps, states=len(learner.states)
             )
 
         result = run_spec(spec, on_episode=on_episode)

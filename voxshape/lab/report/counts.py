@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from voxshape.lab.closing import plural
 from voxshape.lab.report.summary import RobotSummary
 from voxshape.services.learner.config import LearnerConfig
 from voxshape.services.learner.convergence import Convergence, EpisodeResult, convergence_on
@@ -37,21 +38,25 @@ class EpisodeCounts:
             head = (
                 f"The robot converged after {c.n_episodes} episodes ({c.learning_time / 60:.1f} "
                 f"robot minutes, at episode {self.converged_at}). To convergence: "
-                f"{c.n_episodes} episodes, {c.interventions} interventions"
+                f"{plural(c.n_episodes, 'episode')}, {plural(c.interventions, 'intervention')}"
             )
         else:
             head = f"The robot did not converge within the {self.ended} episodes recorded"
-        tail = f"recorded in all: {self.ended} episodes ended, {self.interventions} interventions"
+        tail = (
+            f"recorded in all: {plural(self.ended, 'episode')} ended, "
+            f"{plural(self.interventions, 'intervention')}"
+        )
         if self.unfinished:
             tail += (
-                f", and {self.unfinished} unfinished episode{'s' if self.unfinished > 1 else ''} "
-                f"({self.unfinished_interventions} interventions so far)"
+                f", and {plural(self.unfinished, 'unfinished episode')} "
+                f"({plural(self.unfinished_interventions, 'intervention')} so far)"
             )
         text = f"{head}; {tail}."
         if self.provisional:
+            lack = "lacks" if self.provisional == 1 else "lack"
             text += (
-                f" {self.provisional} of the ended episodes lack the arbiter's final count: the "
-                "session stopped before it settled."
+                f" {self.provisional} of the ended episodes {lack} the arbiter's final count: "
+                "the session stopped before it settled."
             )
         return text
 

@@ -180,7 +180,9 @@ class Arbiter:
             out, episode = self._answer(utterance, meaning.action or "stop", question)
             said = f"command {meaning.action}, the answer to {robot_id}'s question"
         elif understood.is_command:
-            out, episode = self._command(utterance, meaning.action or "stop", robot)
+            out, episode = self._command(
+                utterance, meaning.action or "stop", teacher, robot, received_at, scale
+            )
             said = f"command {meaning.action}"
         else:
             reward = meaning.reward or 0.0
@@ -304,12 +306,24 @@ class Arbiter:
         return state
 
     def _command(
-        self, utterance: Utterance, action: str, robot: KnownRobot
+        self,
+        utterance: Utterance,
+        action: str,
+        teacher: KnownTeacher,
+        robot: KnownRobot,
+        now: float,
+        scale: float,
     ) -> tuple[list[Message], int]:
-        """A command, credited to the current step (the learner applies h)."""
+        """A command: the learner carries it out at once, and it is credited to the steps
+        the teacher saw when deciding it, as a judgement is (the current step if none)."""
+        self.counters["commands"] += 1
+        onset = self._onset_on_sim_clock(utterance, robot, now)
+        window = teacher.delay.window()
+        spread = robot.timeline.spread(onset - window.hi * scale, onset - window.lo * scale)
+        if spread is not None:
+            return [command_feedback(utterance, action, spread.credits)], spread.episode
         latest = robot.timeline.latest_running_step()
         step, episode = latest or (robot.timeline.latest_step, robot.timeline.latest_episode)
-        self.counters["commands"] += 1
         return [command_feedback(utterance, action, step)], episode
 
     def _question_answered(

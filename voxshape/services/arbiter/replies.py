@@ -33,18 +33,24 @@ def feedback_id(robot: str, kind: str, sources: tuple[str, ...]) -> str:
 
 
 def command_feedback(
-    utterance: Utterance, action: str, step: int, question: str | None = None
+    utterance: Utterance,
+    action: str,
+    step: int | tuple[tuple[int, float], ...],
+    question: str | None = None,
 ) -> CreditedFeedback:
-    """A command (the learner applies h), credited to `step` alone, answering the HelpRequest
-    `question` if given; its id is the one of a command from that utterance, so it is sent
-    once whether it answers a question or not."""
+    """A command (the learner carries it out now), credited to `step` alone or to the steps
+    the teacher saw when deciding it (credits), answering the HelpRequest `question` if
+    given; its id is the one of a command from that utterance, so it is sent once whether it
+    answers a question or not."""
+    steps = ((step, 1.0),) if isinstance(step, int) else step
+    credits = tuple(Credit(step=s, weight=w) for s, w in steps)
     return CreditedFeedback(
         id=feedback_id(utterance.robot, "command", (utterance.id,)),
         robot=utterance.robot,
         kind="command",
         reward=None,
         command=action,  # type: ignore[arg-type]
-        credits=(Credit(step=step, weight=1.0),),
+        credits=credits,
         sources=(utterance.id,),
         teachers=(utterance.teacher,),
         question=question,

@@ -44,6 +44,10 @@ class ActionSet:
             for barred in (None, *range(N_ACTIONS))
         }
 
+    def allowed_but(self, barred: int | None) -> np.ndarray:
+        """The indices of the actions the policy may choose, but the barred one."""
+        return self._allowed[barred]
+
     def one_hot(self, index: int, chooser: str = "policy") -> Decision:
         weights = np.zeros(N_ACTIONS)
         weights[index] = 1.0

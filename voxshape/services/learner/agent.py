@@ -5,10 +5,13 @@ one way a word reaches the learner:
 
     taken before (its id)        skipped, counted: a kept output delivers it again after a
                                  restart, and the checkpoint holds its effect
-    a command answering a        Learner.answer: advised in the state asked in, steering the
-    question (its id)            robot if it is still there; the asker closes the question
-    another command              Learner.command: the next actions, and h's bonus
-    a reward                     Learner.credit for each credited step, by its weight
+    a command answering a        a vote about the way from where the question was asked
+    question (its id)            (words.py), and the robot steered by it if it is still
+                                 in the state it asked in; the asker closes the question
+    another command              the robot steered by it (Learner.command), and a vote about
+                                 the way from the poses the person saw (words.py)
+    a judgement                  a vote about the motion judged at each credited step, by its
+                                 weight (words.py)
 """
 
 from __future__ import annotations
@@ -49,20 +52,23 @@ class Agent:
         if not self.bookmark.first_time(feedback.id):
             self.counters["learner.feedback_taken_before"] += 1
             return []
-        learner = self.learner
+        learner, words = self.learner, self.learner.words
         if feedback.kind == "command" and feedback.question is not None:
-            if self.asker is not None:
-                self.asker.answered(feedback.question)
+            asked_in = self.asker.answered(feedback.question) if self.asker else None
             step = feedback.credits[0].step
-            dropped = [] if learner.answer(step, feedback.command) else [step]
+            dropped = [] if words.answered(step, feedback.command) else [step]
+            if asked_in is not None and asked_in == learner.s:  # still where it asked
+                learner.command(feedback.command)
         elif feedback.kind == "command":
-            learner.command(feedback.command)
-            dropped = []
+            seen = [(c.step, c.weight) for c in feedback.credits]
+            looked = words.pose_at(max(seen, key=lambda credit: credit[1])[0])
+            learner.command(feedback.command, None if looked is None else looked[2])
+            dropped = words.commanded(feedback.command, seen)
         else:
             dropped = [
                 c.step
                 for c in feedback.credits
-                if not learner.credit(c.step, c.weight, feedback.reward)
+                if not words.judged(c.step, c.weight, feedback.reward)
             ]
         if dropped:
             self.counters["learner.feedback_partly_dropped"] += 1

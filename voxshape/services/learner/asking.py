@@ -58,7 +58,7 @@ class Asker:
         self.config = learner.config.ask
         self.timeout_s = timeout_s
         self.budget = TokenBucket(self.config.per_robot_minute / 60, 1.0, now=0.0)
-        # The open question, when it was asked and the view (key) it was asked in.
+        # The open question, when it was asked and the state (key) it was asked in.
         self.open: tuple[Question, float, int] | None = None
         self._asked_views: set[int] = set()  # asked there, no answer tried yet
         self._best = (-math.inf, 0.0)  # (best max_a Q this episode, when)
@@ -83,23 +83,28 @@ class Asker:
             self._bumps = [b for b in self._bumps if t - b < self.config.stuck_s] + [t]
         if self.open is not None and t - self.open[1] > QUESTION_OPEN_S:
             self.open = None  # nobody answered: the budget says when to ask again
-        reason = self._reason(t, episode_t, q.max() - q.min(), self.learner.advice(s).any())
-        if reason is None or self.open is not None or s.view in self._asked_views:
+        spoken = self.learner.way.spoken_at((p.x, p.y))
+        reason = self._reason(t, episode_t, q.max() - q.min(), spoken)
+        if reason is None or self.open is not None or s in self._asked_views:
             return None
         if self.config.per_robot_minute <= 0 or not self.budget.take(t):
             return None
         question = Question(p.step, episode, reason, self._detail(reason, t, episode_t))
-        self.open = (question, t, s.view)
-        self._asked_views.add(s.view)
+        self.open = (question, t, s)
+        self._asked_views.add(s)
         self.reasons[reason] += 1
         return question
 
-    def answered(self, question_id: str) -> None:
-        """An answer to the question `question_id` came: if it is the open one, it is closed
-        and the robot may ask again in the view it asked in (an answer is tried there)."""
-        if self.open is not None and self.open[0].id == question_id:
-            self._asked_views.discard(self.open[2])
-            self.open = None
+    def answered(self, question_id: str) -> int | None:
+        """An answer to the question `question_id` came: if it is the open one, it is closed,
+        the robot may ask again in the state it asked in (an answer is tried there), and that
+        state is returned (else None)."""
+        if self.open is None or self.open[0].id != question_id:
+            return None
+        asked_in = self.open[2]
+        self._asked_views.discard(asked_in)
+        self.open = None
+        return asked_in
 
     def _reason(self, t: float, episode_t: float, spread: float, advised: bool) -> Reason | None:
         c = self.config

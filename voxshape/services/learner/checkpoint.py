@@ -5,11 +5,11 @@ current one becomes `<name>.prev.npz`, and the temporary file is renamed into pl
 at any moment leaves a complete checkpoint behind. On load, a corrupt file is reported and
 the previous one used, so at most one checkpoint interval of learning is lost.
 
-With the tables go the learner's progress on the bus (`Bookmark`): the last step it learnt
-from, the ids of the credited feedback it took (so feedback that a kept output delivers again
-after a restart is taken once: exactly the feedback whose effect the tables hold is skipped),
-and the recent visits late feedback is credited to. Checkpoints without them (older ones) load
-with none.
+With the tables (Q and the words' votes and stalls on the way) go the learner's progress on
+the bus (`Bookmark`): the last step it learnt from and the ids of the credited feedback it
+took (so feedback that a kept output delivers again after a restart is taken once: exactly
+the feedback whose effect the tables hold is skipped). The poses a late word is credited to
+are not kept: a word about a step before a restart is dropped, counted.
 """
 
 from __future__ import annotations
@@ -28,19 +28,14 @@ import numpy as np
 
 from voxshape.services.learner.actions import N_ACTIONS
 from voxshape.services.learner.config import LearnerConfig
-from voxshape.services.learner.features import State
-from voxshape.services.learner.sarsa import Learner, Visit
+from voxshape.services.learner.sarsa import Learner
+from voxshape.world.maps import Map
 
-VERSION = 5  # 5: no Phi over keys (Phi is over the place), advice over the place too
+VERSION = 6  # 6: words are votes about the way (no H, no recent visits), states are keys
 # Settings that decide what a state or an action is: a table learnt with others is useless.
 REPRESENTATION = (
     "representation",
-    "tilings",
-    "tile_width",
-    "heading_tiles",
-    "key_tilings",
     "pearson_threshold",
-    "advice_generalization",
     "laser_sectors",
     "use_sonar",
     "goal_features",
@@ -50,11 +45,9 @@ REPRESENTATION = (
     "near_range",
     "near_sectors",
     "goal_sectors",
-    "advice_place_tilings",
+    "way_tile_m",
 )
-PARTS = ("q", "advice", "view")  # a state's features, for Q and H, and its key
-# The recent visits: their steps, episode and action weights, and their state's features.
-ARRAYS = ("Q", "H", "meta", "visits", "visit_weights", *(f"visit_{p}" for p in PARTS))
+ARRAYS = ("Q", "meta", "vote_tiles", "votes", "stall_tiles", "stalls")
 MAX_TAKEN = 4096  # feedback ids remembered: more than a kept feedback output holds
 log = logging.getLogger("voxshape.services.learner")
 
@@ -90,37 +83,22 @@ def previous(path: Path) -> Path:
 
 def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    config = dataclasses.asdict(learner.config)
     progress = progress or Bookmark()
+    states = learner.states
     meta = {
         "version": VERSION,
         "episode": learner.episode,
         "counters": dict(learner.counters),
-        "config": config,
+        "config": dataclasses.asdict(learner.config),
         "rng": learner.rng.bit_generator.state,
         "step": progress.step,
         "feedback_taken": list(progress.taken),
-        "features": learner.features.coordinates(),
+        "keys": [list(k) for k in states.key_of],
+        "prototypes": [p.tolist() for p in states.prototypes],
     }
-    visits = list(learner.recent)
     tmp = path.with_name(path.name + ".tmp")
     with tmp.open("wb") as f:
-        np.savez(
-            f,
-            Q=learner.Q,
-            H=learner.taught.H,
-            meta=np.array(json.dumps(meta)),
-            visits=np.array([(v.first, v.last, v.episode) for v in visits], dtype=np.int64).reshape(
-                len(visits), 3
-            ),
-            visit_weights=np.array([v.weights for v in visits]).reshape(len(visits), N_ACTIONS),
-            **{
-                f"visit_{part}": np.array(
-                    [getattr(v.state, part) for v in visits] or np.zeros((0, 0)), dtype=np.int64
-                )
-                for part in PARTS
-            },
-        )
+        np.savez(f, Q=learner.Q, meta=np.array(json.dumps(meta)), **learner.way.tables())
         f.flush()
         os.fsync(f.fileno())
     if path.exists():
@@ -128,12 +106,16 @@ def save(learner: Learner, path: Path, progress: Bookmark | None = None) -> None
     os.replace(tmp, path)
 
 
-def load(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner:
+def load(
+    path: Path, config: LearnerConfig, seed: int | None = None, task: Map | None = None
+) -> Learner:
     """The learner saved at `path`; raises CheckpointError saying what is wrong."""
-    return _load(path, config, seed)[0]
+    return _load(path, config, seed, task)[0]
 
 
-def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner, Bookmark]:
+def _load(
+    path: Path, config: LearnerConfig, seed: int | None, task: Map | None
+) -> tuple[Learner, Bookmark]:
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"]))
@@ -147,38 +129,27 @@ def _load(path: Path, config: LearnerConfig, seed: int | None) -> tuple[Learner,
         raise CheckpointError(f"{path}: no such checkpoint") from None
     except (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError) as e:
         raise CheckpointError(f"{path}: corrupt checkpoint ({type(e).__name__}: {e})") from None
-    saved = meta["config"]
-    ours = _as_saved(config)
+    saved, ours = meta["config"], _as_saved(config)
     changed = [k for k in REPRESENTATION if ours[k] != saved.get(k)]
     if changed:
         raise CheckpointError(
             f"{path}: learnt with other state settings ({', '.join(changed)})"
             "; use the same settings or start afresh with another file"
         )
-    learner = Learner(config, seed)
-    learner.features.restore(meta["features"])
-    q, h = arrays["Q"], arrays["H"]
-    sizes_ok = (len(q), len(h)) == learner.features.sizes and h.shape[1:] == (N_ACTIONS,)
-    if not sizes_ok or q.shape[1:] != (N_ACTIONS,):
+    learner = Learner(config, seed, task)
+    learner.states.restore(meta["prototypes"], meta["keys"])
+    q = arrays["Q"]
+    if q.shape != (len(learner.states), N_ACTIONS):
         raise CheckpointError(
-            f"{path}: inconsistent tables {q.shape}, {h.shape} for "
-            f"{learner.features.sizes} features; start afresh with another file"
+            f"{path}: inconsistent table {q.shape} for {len(learner.states)} states; "
+            "start afresh with another file"
         )
     learner.Q, learner.e = q.copy(), np.zeros_like(q)
-    learner.taught.H = h.copy()
+    learner.way.restore(arrays)
     learner.episode = int(meta["episode"])
     learner.counters.update(meta["counters"])
     if seed is None:
         learner.rng.bit_generator.state = meta["rng"]
-    learner.recent.extend(
-        Visit(int(first), int(last), int(episode), State(x, advice, int(view)), w.copy())
-        for (first, last, episode), w, x, advice, view in zip(
-            arrays["visits"],
-            arrays["visit_weights"],
-            *(arrays[f"visit_{part}"] for part in PARTS),
-            strict=True,
-        )
-    )
     return learner, Bookmark.of(meta.get("step"), meta.get("feedback_taken", []))
 
 
@@ -193,21 +164,23 @@ def peek(path: Path) -> tuple[int, int] | None:
         return None
 
 
-def load_latest(path: Path, config: LearnerConfig, seed: int | None = None) -> Learner | None:
+def load_latest(
+    path: Path, config: LearnerConfig, seed: int | None = None, task: Map | None = None
+) -> Learner | None:
     """The checkpoint at `path`, else the previous one if `path` is corrupt, else None if
     there is none; a corrupt checkpoint with no good previous one raises CheckpointError."""
-    resumed = resume(path, config, seed)
+    resumed = resume(path, config, seed, task)
     return resumed[0] if resumed else None
 
 
 def resume(
-    path: Path, config: LearnerConfig, seed: int | None = None
+    path: Path, config: LearnerConfig, seed: int | None = None, task: Map | None = None
 ) -> tuple[Learner, Bookmark] | None:
     """`load_latest` with the progress saved beside the tables."""
     if not path.exists() and not previous(path).exists():
         return None
     try:
-        return _load(path, config, seed)
+        return _load(path, config, seed, task)
     except CheckpointError as error:
         if not previous(path).exists():
             raise
@@ -215,7 +188,7 @@ def resume(
             "checkpoint unusable, using the previous one",
             extra={"voxshape_fields": {"error": str(error), "previous": str(previous(path))}},
         )
-        return _load(previous(path), config, seed)
+        return _load(previous(path), config, seed, task)
 
 
 def _as_saved(config: LearnerConfig) -> dict:

@@ -10,8 +10,34 @@ from typing import ClassVar, Literal
 from voxshape.runtime.settings import add_settings_argument as add_setting
 from voxshape.runtime.settings import replaced
 
-# The fields of a state's key (states.py).
-KEY_FIELDS = ("prototype", "near", "bearing", "distance", "sector")
+# Numbers' ranges: (lowest, highest); "(": the lowest itself refused. Others are unbounded.
+RANGES: dict[str, tuple[str, float, float]] = {
+    "alpha": ("(", 0.0, 1.0),  # a learning rate
+    "gamma": ("(", 0.0, 1.0),
+    "lam": ("[", 0.0, 1.0),
+    "epsilon_start": ("[", 0.0, 1.0),
+    "epsilon_end": ("[", 0.0, 1.0),
+    "lookahead_fade": ("[", 0.0, 1.0),
+    "word_fade": ("[", 0.0, 1.0),
+    "lookahead_s": ("(", 0.0, math.inf),  # a duration
+    "judged_s": ("(", 0.0, math.inf),
+    "feedback_window_s": ("(", 0.0, math.inf),
+    "way_tile_m": ("(", 0.0, math.inf),  # a length
+    "temperature": ("(", 0.0, math.inf),
+    "converge_slack": ("(", 0.0, math.inf),
+    "lookahead_weight": ("[", 0.0, math.inf),
+    "guess_weight": ("[", 0.0, math.inf),
+    "potential_scale": ("[", 0.0, math.inf),
+    "stall_s": ("[", 0.0, math.inf),
+    "min_judged_move": ("[", 0.0, math.inf),
+    "dead_zone": ("[", 0.0, 180.0),  # degrees
+    "command_turn": ("[", 0.0, 180.0),
+    "command_aim": ("[", 0.0, 180.0),
+    "min_hold": ("[", 1, math.inf),  # steps
+    "max_hold": ("[", 1, math.inf),
+    "command_steps": ("[", 1, math.inf),
+    "converge_episodes": ("[", 1, math.inf),
+}
 
 
 @dataclass(frozen=True)
@@ -26,7 +52,7 @@ class AskConfig:
     stuck_s: float = 10.0  # robot seconds without progress (or bumping) before asking
     bumps: int = 3  # this many bumps within stuck_s is stuck too
     late_share: float = 0.5  # of the episode's timeout
-    flat: float = 1e-6  # Q(s) spread below this, and no advice: unsure
+    flat: float = 1e-6  # Q(s) spread below this, and no word spoken there: unsure
     # Once it has reached the goal, it asks only in episodes this many times longer than its
     # fastest (0: wherever).
     beyond_fastest: float = 2.0
@@ -41,14 +67,10 @@ class LearnerConfig:
     """The learner's settings; docs/learner.md explains them and docs/decisions.md records
     the measurements behind the defaults."""
 
-    # -- state representation (features.py) ----------------------------------------------
-    # "tiles": tile coding of the pose plus the key below; "keys": a table over the key
-    # (near bits and goal bins); "pearson": the paper's, keys with Pearson prototypes.
-    representation: Literal["tiles", "keys", "pearson"] = "keys"
-    tilings: int = 8  # offset grids over (x, y, heading)
-    tile_width: float = 1.0  # metres of a tile's side
-    heading_tiles: int = 8  # headings per turn in a tiling
-    key_tilings: int = 32  # the key's weight in a tiled state, as this many tilings of it
+    # -- state representation (states.py) -------------------------------------------------
+    # "keys": a table over the key (near bits and goal bins); "pearson": the paper's, keys
+    # with Pearson prototypes of the sensor readings.
+    representation: Literal["keys", "pearson"] = "keys"
     # Pearson prototypes (after Millan et al. 2002): a reading whose best correlation with
     # the prototypes is below the threshold is a new prototype.
     laser_sectors: int = 12  # the 180 beams summarised as the nearest range per sector
@@ -64,8 +86,7 @@ class LearnerConfig:
     # (metres): Pearson's correlation ignores scale. None: off.
     near_range: float | None = 0.6
     near_sectors: int = 3
-    # A new state starts with its nearest state's Q (a Pearson prototype's), a new tile with
-    # the value its state has from its other features.
+    # A new state starts with its nearest state's Q (a Pearson prototype's).
     init_from_neighbour: bool = True
     # Readings with nothing nearer than this (metres) share one "clear" prototype. None: off.
     clear_range: float | None = 1.0
@@ -102,64 +123,58 @@ class LearnerConfig:
     epsilon_end: float = 0.01
     epsilon_episodes: int = 60
 
-    # -- dynamic reward shaping (R = R_RL + R_U) ---------------------------------------------
-    # "additive": the paper's r <- g(r, f), the teacher's rewards in Q. "action_bias"
-    # (TAMER+RL): they go to a table H and the policy ranks Q + bias_weight * H.
-    shaping: Literal["additive", "action_bias"] = "action_bias"
-    feedback_bound: float = 100.0  # g(r, f) = r + clip(f, -bound, bound)
-    command_reward: float = 10.0  # h(r, a) = r + command_reward for a teacher's action
-    command_steps: int = 5  # a teacher command overrides the policy this many steps
-    feedback_window: int = 100  # decisions kept for late feedback; older credit is dropped
-    bias_weight: float = 10.0  # beta, the weight of H in the policy (action_bias)
-    # ... of which the words' H weighs bias_decay^episode, the traces' T always 1 (advice.py)
-    bias_decay: float = 0.97
-    # With "keys": fields of the key the advice generalizes over, one coarse tiling per
-    # field ignoring it; the policy's H(s) is the mean of the state's own and its tiles'.
-    advice_generalization: tuple[str, ...] = ("distance", "sector")
-    # With "keys": H also reads this many tilings of the pose (x, y, heading; tile_width,
-    # heading_tiles), so advice speaks for where and which way the robot was (0: off).
-    advice_place_tilings: int = 8
-
-    # The potential Phi over the place (potential.py); every update's reward gains
-    # F = gamma^k Phi(s') - Phi(s) (potential-based shaping, which keeps the optimum), and the
-    # policy looks ahead along it. "straight_line": minus the straight line to the goal;
-    # "oracle": minus the map's true shortest path (experiments only: the ceiling of a
-    # potential over places); "none": neither.
+    # -- the way to the goal: the robot's guess and a person's words (way.py, words.py) ------
+    # The guess: a potential Phi over the place. Every update's reward gains its rise along
+    # the believed way (F = gamma^k Phi(s') - Phi(s) where nobody spoke: potential-based
+    # shaping, which keeps the optimum), and the policy looks ahead along it.
+    # "straight_line": minus the straight line to the goal; "oracle": minus the map's true
+    # shortest way (needs the map: the ceiling of a guess over places); "none": no guess.
     potential: Literal["straight_line", "oracle", "none"] = "straight_line"
-    potential_scale: float = 40.0  # reward per metre of Phi
-    # The policy also ranks each action by the progress Phi expects of it: beta_Phi times
-    # potential_scale times Phi(where a leads within lookahead_s, as far as the laser shows
-    # it free) - Phi(here), fading with bias_decay as the words' advice does (0: off).
+    potential_scale: float = 40.0  # reward per metre of progress
+    # The policy also ranks each action by the progress along the believed way it makes
+    # within lookahead_s (as far as the laser shows it free), times lookahead_weight and
+    # potential_scale, fading by lookahead_fade each episode (0: off).
     lookahead_weight: float = 3.0
     lookahead_s: float = 1.0
-    # A judging word's credit is spread over the decisions of the stretch it judges: the
-    # judged_s of robot time up to the step the arbiter credits (the person's last look).
+    lookahead_fade: float = 0.97
+    # A person's words are votes about the way (words.py): the guess weighs guess_weight
+    # votes, less where it has kept the robot stalled (stall_s seconds of stall halve it);
+    # votes are tile-coded over way_tile_m metres and, with the stalls, fade by word_fade
+    # each episode; where they turn the way less than dead_zone degrees from the guess, the
+    # guess stands.
+    guess_weight: float = 3.0
+    way_tile_m: float = 2.0
+    stall_s: float = 10.0
+    word_fade: float = 0.9
+    dead_zone: float = 30.0
+    # A judgement votes on the motion of the judged_s up to the step the arbiter credits, if
+    # the robot moved at least min_judged_move metres and bumped into nothing (stuck or
+    # bumping is bad whatever the way); a "left" or "right" votes for the heading
+    # command_turn degrees aside of the robot's when the person decided it.
     judged_s: float = 1.0
+    min_judged_move: float = 0.15
+    command_turn: float = 90.0
+    command_aim: float = 20.0  # degrees from the heading the person saw that a turn turns to
+    command_steps: int = 5  # a teacher command overrides the policy this many steps
+    feedback_window_s: float = 60.0  # robot seconds of poses kept: older credit is dropped
 
     # -- convergence (see convergence.py) ---------------------------------------------------
     converge_episodes: int = 3  # K consecutive goal episodes ...
     converge_margin: float = 0.25  # ... the slowest within (1 + margin) x the fastest ...
     converge_slack: float = 2.5  # ... and within this many times the map's shortest time
 
-    # -- initial traces ---------------------------------------------------------------------
-    # Replay the teacher's traces again every this many episodes; 0: once, before learning
-    # (replayed again, their advice adds up where the key aliases places: decisions.md).
-    replay_every: int = 0
-
     # -- asking (asking.py): on where the learner runs with a live teacher --------------------
     ask: AskConfig = field(default_factory=AskConfig)
 
     def __post_init__(self) -> None:
-        if self.representation not in ("tiles", "keys", "pearson"):
-            raise ValueError(f"representation {self.representation!r}: one of tiles, keys, pearson")
-        if self.tilings < 1 or self.tile_width <= 0 or self.heading_tiles < 1:
-            raise ValueError("need tilings >= 1, tile_width > 0 metres, heading_tiles >= 1")
-        unknown = set(self.advice_generalization) - set(KEY_FIELDS)
+        for name, (bracket, low, high) in RANGES.items():
+            value = getattr(self, name)
+            if not (low < value <= high or (bracket == "[" and value == low)):
+                end = "]" if high < math.inf else ")"
+                raise ValueError(f"{name} {value:g} is outside {bracket}{low:g}, {high:g}{end}")
+        unknown = set(self.policy_actions) - set(self.velocities)
         if unknown:
-            raise ValueError(
-                f"advice_generalization {sorted(unknown)}: name fields of the state, of "
-                f"{', '.join(KEY_FIELDS)}"
-            )
+            raise ValueError(f"policy_actions {sorted(unknown)}: not in velocities")
 
     @property
     def top_speed(self) -> float:

@@ -46,7 +46,7 @@ from voxshape.services.learner.config import LearnerConfig, add_settings_argumen
 from voxshape.services.learner.online import OnlineLearner
 from voxshape.services.learner.sarsa import Learner
 from voxshape.services.learner.traces import TraceBook
-from voxshape.world.maps import load_map, task_option
+from voxshape.world.maps import Map, load_map, task_option
 
 MAX_PENDING = 100_000  # messages looked through for feedback when stopping
 ROBOT_FIELD = "{robot}"  # in --checkpoint: the robot's id
@@ -73,7 +73,9 @@ class LearnerOptions:
     fresh: bool = option(False, "ignore existing checkpoints")
     traces: Path | None = option(None, "initial traces to learn from first", parse=Path)
     seed: int | None = option(None, "random seed (the n-th robot's learner: seed + n)")
-    task: str = task_option("for its episodes' timeout (when the robot asks for help)")
+    task: str = task_option(
+        "for its episodes' timeout (when the robot asks for help), and potential=oracle's map"
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -161,14 +163,14 @@ class Driven:
 
 
 def restore(
-    path: Path, config: LearnerConfig, seed: int | None, fresh: bool
+    path: Path, config: LearnerConfig, seed: int | None, fresh: bool, task: Map
 ) -> tuple[Learner, checkpoint.Bookmark]:
     """The learner saved at `path` and its bookmark, or a new one."""
     try:
-        resumed = None if fresh else checkpoint.resume(path, config, seed)
+        resumed = None if fresh else checkpoint.resume(path, config, seed, task)
     except checkpoint.CheckpointError as e:
         raise ConfigError(f"{e}. To start over, run with --fresh (it overwrites it).") from None
-    return resumed or (Learner(config, seed), checkpoint.Bookmark())
+    return resumed or (Learner(config, seed, task), checkpoint.Bookmark())
 
 
 def run(args: argparse.Namespace) -> int:
@@ -179,9 +181,10 @@ def run(args: argparse.Namespace) -> int:
     config = with_settings(args.set)
     write_settings(paths[robots[0]].parent, "learner", config)  # the run's, on record
     seeds = {r: None if options.seed is None else options.seed + i for i, r in enumerate(robots)}
-    restored = {r: restore(paths[r], config, seeds[r], options.fresh) for r in robots}
+    task = load_map(options.task)
+    restored = {r: restore(paths[r], config, seeds[r], options.fresh, task) for r in robots}
     with Node("learner", bus) as node:
-        timeout_s = load_map(options.task).timeout
+        timeout_s = task.timeout
         driven = {
             r: drive(node, r, paths[r], *restored[r], options.traces, timeout_s) for r in robots
         }
@@ -246,7 +249,7 @@ def drive(
         extra=fields(
             robot=robot,
             checkpoint=path,
-            states=len(learner.features),
+            states=len(learner.states),
             episodes=learner.episode,
             resumed_at_step=bookmark.step if bookmark.step is not None else "-",
             feedback_taken=len(bookmark.taken),
@@ -255,15 +258,14 @@ def drive(
     initial = TraceBook.load(traces) if traces else None
     if initial and not initial.poses:
         node.log.warning(
-            "initial traces saved without the robot's position: replayed at (0, 0), so "
-            "they teach the wrong places; record them again (poses are saved now), or run "
-            "with --set representation=keys",
+            "initial traces saved without the robot's position show no way: record them "
+            "again (positions are saved now), or run without --traces",
             extra=fields(traces=traces),
         )
     if initial:
-        replayed = initial.replay(learner)
-        node.log.info("learnt from initial traces", extra=fields(robot=robot, steps=replayed))
-    online = OnlineLearner(learner, bookmark, initial, node.counters, timeout_s)
+        shown = initial.show(learner)
+        node.log.info("shown the way by initial traces", extra=fields(robot=robot, traces=shown))
+    online = OnlineLearner(learner, bookmark, node.counters, timeout_s)
     node.subscribe("obs", robot)
     node.subscribe("feedback", robot)
     node.subscribe("limits", robot)

@@ -1,7 +1,8 @@
 """The agent of one robot on a live session, without the bus: observations in, actions,
 learning summaries and questions out as messages, credited feedback taken exactly once
 (`Agent.take`: a copy delivered again after a restart is skipped by id), the episodes a
-teacher steered recorded, initial traces replayed when due. `node.py` puts it on the bus."""
+teacher steered recorded (to be shown to a later learner as its initial traces). `node.py`
+puts it on the bus."""
 
 from __future__ import annotations
 
@@ -20,12 +21,10 @@ class OnlineLearner(Agent):
         self,
         learner: Learner,
         bookmark: Bookmark,
-        initial: TraceBook | None,
         counters: Counter[str],
         timeout_s: float,
     ) -> None:
         super().__init__(learner, Asker(learner, timeout_s), bookmark, counters)
-        self.initial = initial
         self.book = TraceBook()  # episodes a teacher steered, saved as initial traces
 
     def observe(
@@ -39,8 +38,6 @@ class OnlineLearner(Agent):
         decision, question = self.step(obs, obs.episode)
         self.bookmark.step = obs.step
         self.book.record(obs, decision)
-        if decision is None and self.initial:
-            self.initial.replay_if_due(learner)
         action = None
         if decision is not None:
             action = Action(
@@ -65,8 +62,8 @@ class OnlineLearner(Agent):
             robot=obs.robot,
             episode=obs.episode,
             step=obs.step,
-            state=int(s.q[0]) if s is not None else 0,
-            states=len(learner.features),
+            state=s if s is not None else 0,
+            states=len(learner.states),
             q_values=tuple(float(q) for q in learner.q(s)) if s is not None else (),
             td_error=learner.td_error,
             epsilon=learner.config.epsilon(learner.episode),

@@ -1,132 +1,113 @@
-"""SARSA(lambda) with dynamic rewards: the paper's Algorithm 1, with eligibility traces.
+"""SARSA(lambda) with dynamic rewards: the paper's Algorithm 1, with eligibility traces, and a
+robot that believes it knows the way (way.py) until a person's words say otherwise.
 
 One control step (`Learner.step`), with s the previous state and a the action taken in it:
 
-    observe r, s'              r = R_RL, the simulator's reward for the step; if the teacher
-                               selected a, r <- h(r, a) = r + command_reward (bounded)
-    hold a?                    while s' looks as s (the same key) and nothing was bumped,
-                               and for a's first min_hold steps, a goes on:
-                               r accumulates as G = sum gamma^i r_i over its k steps, and
-                               the update below uses G and gamma^k (SARSA over the states'
-                               changes), `_holds`
-    choose a' from s'          the teacher's command if one is pending, else the policy
-                               derived from Q (epsilon-greedy, or the blend; plus beta H and
-                               the lookahead along the potential Phi), never the turn
-                               that undoes the policy's own turn a, `_select`
-    update                     delta = G + F + gamma^k Q(s', a') - Q(s, a), with the
-                               shaping F = gamma^k Phi(s') - Phi(s)   (0 for Q(s', a') and
-                               Phi(s') when s' is terminal; a timeout is a truncation: it
-                               bootstraps)
-                               e(s, a) <- 1 (replacing) or e(s, a) + 1 (accumulating)
+    observe r, s'              r = R_RL, the simulator's reward for the step
+    hold a?                    while s' is s (the same key) and nothing was bumped, and for
+                               a's first min_hold steps, a goes on: r accumulates as
+                               G = sum gamma^i r_i over its k steps, and the update below
+                               uses G and gamma^k (SARSA over the states' changes), `_holds`
+    choose a' from s'          the teacher's command if one is pending ("if the user selects
+                               action a in s"), else epsilon-greedy (or the blend) over Q plus
+                               the lookahead: each action's progress along the believed way,
+                               never the turn that undoes the policy's own turn, `_select`
+    update                     delta = G + F + gamma^k Q(s', a') - Q(s, a), with the shaping
+                               F = gamma^k Phi(s') - Phi(s) + the progress along the words'
+                               correction of the way (0 where nobody spoke; Q(s', a') and
+                               Phi(s') are 0 at a terminal s'; a timeout truncates: it
+                               bootstraps); e(s, a) <- 1 (replacing) or e(s, a) + 1;
                                Q <- Q + alpha delta e;  e <- gamma^k lambda e,  `_update`
     s <- s', a <- a'
 
+"If the user provides feedback f on state s', r <- g(r, f)": here a person's words do not
+enter r as numbers. Each is evidence about the way (words.py): it turns the believed way
+where it contradicts the robot's guess, and the way enters every update through F and every
+choice through the lookahead. A word that agrees with the guess changes nothing.
+
 With the blend, a is a mix of the discrete actions with weights w: Q(s, a) is w . Q(s, .)
 and each action's trace grows by its weight, so each is credited in proportion to its share.
-
-"If the user provides feedback f on state s', r <- g(r, f)": spoken feedback arrives late,
-so the arbiter credits it to past steps with weights, and `credit` applies g's bounded f
-after the fact (late credit, which approximates on-time feedback: see its docstring).
-
-Q and H are linear over the state's binary features (features.py): Q(s, .) is the mean of the
-rows of Q of s's active features, and e has a row per feature, so the update reads as the
-table's (a table is one feature per state) and moves every state sharing a feature. Phi, the
-potential, is over the robot's place (potential.py).
-
-Where g's f and h's bonus go is the shaping rule the learner is given (shaping.py): into r
-and Q (shaping="additive", the paper's), or, by default, into a table H of their own that the
-policy adds to Q (TAMER+RL's action biasing). H(s) is the mean of the rows of H of the state's
-advice features, so what was said in a state also speaks for the states sharing one.
 """
 
 from __future__ import annotations
 
+import math
 from collections import Counter, deque
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Sequence
 from typing import Protocol
 
 import numpy as np
 
 from voxshape.protocol import ACTION_NAMES
 from voxshape.services.learner.actions import N_ACTIONS, ActionSet, Decision
-from voxshape.services.learner.advice import Advice
 from voxshape.services.learner.config import LearnerConfig
-from voxshape.services.learner.features import PosePercept, State, representation
 from voxshape.services.learner.lookahead import reach, reachable
-from voxshape.services.learner.potential import Place, Potential, StraightLine
-from voxshape.services.learner.shaping import SHAPINGS
+from voxshape.services.learner.potential import Place, StraightLine, potential_for
+from voxshape.services.learner.states import Percept, StateSpace
+from voxshape.services.learner.way import Way
+from voxshape.services.learner.words import WordCredit
+from voxshape.world.maps import Map
 from voxshape.world.robot import CONTROL_PERIOD_S
 
 
-class LearnerPercept(PosePercept, Protocol):
+class LearnerPercept(Percept, Protocol):
+    x: float  # metres, world frame (odometry)
+    y: float
     reward: float  # R_RL of the step that led here
     outcome: str  # "running" unless the episode ended here
     step: int  # the observation's step id (feedback is credited to these)
     collided: bool  # the step that led here bumped into something
 
 
-@dataclass
-class Visit:
-    """A decision of the recent past (steps first..last), kept for late feedback."""
-
-    first: int
-    last: int
-    episode: int
-    state: State
-    weights: np.ndarray
+# Sees each decision a person's input changed: where the robot is, where the chosen action
+# leads, and where the action it would have chosen without the person leads.
+ChangeWatcher = Callable[[Place, Place, Place], None]
 
 
 class Learner:
-    def __init__(self, config: LearnerConfig | None = None, seed: int | None = None) -> None:
+    def __init__(
+        self, config: LearnerConfig | None = None, seed: int | None = None, task: Map | None = None
+    ) -> None:
         self.config = c = config or LearnerConfig()
-        self.features = representation(c)
+        self.states = StateSpace(c)
         self.actions = ActionSet(c)
-        self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per feature
-        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces, a row per feature of Q
-        self.taught = Advice(c)  # H and T, the teacher's action bias
-        self.shaping = SHAPINGS[c.shaping](c, self.taught)  # where g's f and h's bonus go
+        self.Q = np.zeros((0, N_ACTIONS))  # action values, a row per state
+        self.e = np.zeros((0, N_ACTIONS))  # eligibility traces
+        self.counters: Counter[str] = Counter()
+        self.way = Way(potential_for(c.potential, task), c)  # the guess, and the words'
+        self.words = WordCredit(c, self.way, self.counters)
         self.rng = np.random.default_rng(seed)
         self.episode = 0  # episodes finished
-        self.s: State | None = None  # the previous state ...
+        self.s: int | None = None  # the previous state ...
         self.a: Decision | None = None  # ... and the action taken in it
-        self.recent: deque[Visit] = deque(maxlen=c.feedback_window)
-        # Phi over places: the straight line, or one given (the experiments' oracle)
-        self.potential: Potential | None = (
-            StraightLine() if c.potential == "straight_line" else None
-        )
         self.place: Place | None = None  # where s was
         self.pose: tuple[float, float, float] | None = None  # where the robot is now
         self.laser: Sequence[float] = ()  # and what its laser sees
         self.commands: deque[int] = deque()  # teacher's actions still to take
-        self.command_chooser = "teacher"
-        self.counters: Counter[str] = Counter()
-        # The credit of judging words: on the decision each credited step fell in, and in all
-        self.credit_shares = np.zeros(2)
+        self.aim: tuple[float, float] | None = None  # a commanded turn's heading, and its sign
+        self.on_changed: ChangeWatcher | None = None
         self.td_error = 0.0
         self.G, self.discount, self.held = 0.0, 1.0, 0  # the action in progress
         self.episode_return = 0.0
 
     # -- Algorithm 1 ----------------------------------------------------------------------
-    def step(
-        self, p: LearnerPercept, forced: Decision | None = None, replay: bool = False
-    ) -> Decision | None:
+    def step(self, p: LearnerPercept, forced: Decision | None = None) -> Decision | None:
         """Learns from the step that led to `p` and returns the action to take next (None
-        when the episode ended). `forced` imposes a'; `replay`: the step is a teacher's
-        trace replayed, not the robot's own (its commands earn h's bonus only additively)."""
+        when the episode ended). `forced` imposes a'."""
         s_next = self._state_of(p)  # observe s'
         place = (float(p.x), float(p.y))
-        self.pose = (*place, float(p.theta))
-        self.laser = p.laser
-        if isinstance(self.potential, StraightLine) and self.potential.goal is None:
-            self.potential.goal = goal_of(p)
+        self.pose, self.laser = (*place, float(p.theta)), p.laser
+        guess = self.way.guess
+        if isinstance(guess, StraightLine) and guess.goal is None:
+            guess.goal = goal_of(p)
+        self.way.watch(place, CONTROL_PERIOD_S, new_episode=self.s is None)
+        self.words.saw(int(p.step), self.pose, bool(p.collided), self.episode)
         ended = p.outcome != "running"
         if self.s is None:  # the first step of an episode: nothing to learn yet
             self.episode_return = 0.0
         else:
-            self._accumulate(p.reward, replay)  # r, and h's bonus, into the return G
+            self._accumulate(p.reward)  # r into the return G
             if self._holds(s_next, ended or p.collided, forced):
-                self.recent[-1].last = p.step
                 return self.a
         terminal = ended and p.outcome != "timeout"  # a timeout truncates: s' has a future
         # choose a' (on a timeout too: the update bootstraps from Q(s', a'), then a' is dropped)
@@ -137,46 +118,43 @@ class Learner:
         if ended:
             self._end_episode()
             return None
-        self.recent.append(Visit(p.step, p.step, self.episode, s_next, a_next.weights))
         self.s, self.a, self.place = s_next, a_next, place
         self.counters["decisions"] += 1
         return a_next
 
-    def _update(self, s_next: State, place: Place, a_next: Decision | None) -> None:
+    def _update(self, s_next: int, place: Place, a_next: Decision | None) -> None:
         """The SARSA(lambda) update for (s, a), held k steps for a return G (discount is
-        gamma^k), shaped by F = gamma^k Phi(s') - Phi(s); a_next is None when s' is
-        terminal."""
-        c, x = self.config, self.s.q  # x: the features of s
-        q_next = 0.0 if a_next is None else a_next.weights @ self.q(s_next)
+        gamma^k), shaped by F = gamma^k Phi(s') - Phi(s) plus the words' correction of the
+        way's progress; a_next is None when s' is terminal."""
+        c, s, a = self.config, self.s, self.a
+        q_next = 0.0 if a_next is None else a_next.weights @ self.Q[s_next]
         phi_next = 0.0 if a_next is None else self.phi(place)
-        shaping = self.discount * phi_next - self.phi(self.place)
-        delta = self.G + shaping + self.discount * q_next - self.a.weights @ self.q(self.s)
+        words = self.way.progress(self.place, place) - self.way.progress(self.place, place, False)
+        F = self.discount * phi_next - self.phi(self.place) + c.potential_scale * words
+        delta = self.G + F + self.discount * q_next - a.weights @ self.Q[s]
         if c.traces == "replacing":  # e(s, a) <- 1, by each action's weight in a
-            self.e[x] = np.maximum(self.e[x], self.a.weights)
+            self.e[s] = np.maximum(self.e[s], a.weights)
         else:  # e(s, a) <- e(s, a) + 1
-            self.e[x] += self.a.weights
+            self.e[s] += a.weights
         self.Q += c.alpha * delta * self.e
         self.e *= self.discount * c.lam  # gamma^k lambda after an action held k steps
         self.td_error = float(delta)
 
-    def _accumulate(self, r: float, replay: bool) -> None:
-        """Adds the step's reward r (with h's bonus if the teacher chose a) to the return G
-        of the action in progress, discounted by gamma per step it has been held."""
-        if self.a.chooser == "teacher":
-            r = self._h(r, self.s, self.a, replay)
+    def _accumulate(self, r: float) -> None:
+        """Adds the step's reward r to the return G of the action in progress, discounted by
+        gamma per step it has been held."""
         self.G += self.discount * r
         self.episode_return += r
         self.discount *= self.config.gamma
         self.held += 1
 
-    def _holds(self, s_next: State, ended: bool, forced: Decision | None) -> bool:
-        """Action holding: the policy's action goes on while what the robot sees (the state's
-        key) stays the same, and for its first min_hold steps, at most max_hold steps; a
-        teacher's action, a forced one, a pending command, a bump or the episode's end make a
-        decision at once."""
+    def _holds(self, s_next: int, ended: bool, forced: Decision | None) -> bool:
+        """Action holding: the policy's action goes on while the state (its key) stays the
+        same, and for its first min_hold steps, at most max_hold steps; a teacher's action, a
+        forced one, a pending command, a bump or the episode's end make a decision at once."""
         c = self.config
         return (
-            (s_next.view == self.s.view or self.held < c.min_hold)
+            (s_next == self.s or self.held < c.min_hold)
             and not ended
             and forced is None
             and not self.commands
@@ -184,154 +162,113 @@ class Learner:
             and self.held < c.max_hold
         )
 
-    def _select(self, s: State) -> Decision:
-        """a' from s': a pending command, else epsilon-greedy (or the blend) over Q (plus
-        beta H with the action bias: the shaping rule's ranking), never the turn that undoes
-        the policy's own turn."""
-        if self.commands:
-            return self.actions.one_hot(self.commands.popleft(), self.command_chooser)
-        q = self.shaping.ranked(self.q(s), s, self.episode) + self._expected_progress()
+    def _select(self, s: int) -> Decision:
+        """a' from s': a pending command, else epsilon-greedy (or the blend) over Q plus the
+        lookahead along the believed way, never the turn that undoes the policy's own turn."""
         barred = None
         if self.a is not None and self.a.chooser == "policy":
             barred = self.actions.undoing.get(self.a.discrete)
-        return self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        alone = self._greedy(self.Q[s] + self._expected_progress(words=False), barred)
+        if self.commands and self._aimed():
+            self.commands.clear()  # turned as far as the person asked
+        if self.commands:
+            decision = self.actions.one_hot(self.commands.popleft(), "teacher")
+            self._count_change(decision.discrete, alone)
+            return decision
+        q = self.Q[s] + self._expected_progress()
+        decision = self.actions.choose(q, self.config.epsilon(self.episode), self.rng, barred)
+        if decision.discrete == self._greedy(q, barred):  # not explored
+            self._count_change(decision.discrete, alone)
+        return decision
 
-    def _expected_progress(self) -> np.ndarray | float:
-        """What the potential expects of each action from here: beta_Phi fade^episode
-        potential_scale (Phi(where it leads in lookahead_s) - Phi(here))."""
+    def _expected_progress(self, words: bool = True) -> np.ndarray | float:
+        """What each action makes of the way from here: lookahead_weight fade^episode
+        potential_scale times its progress along the believed way (`words=False`: the
+        guess's alone) to where it leads within lookahead_s."""
         c = self.config
-        if not c.lookahead_weight or self.potential is None or self.pose is None:
+        if not c.lookahead_weight or self.pose is None:
             return 0.0
-        here = self.potential.value(*self.pose[:2])
+        if self.way.guess is None and not (words and self.way.votes):
+            return 0.0
+        here = self.pose[:2]
         places = reachable(self.pose, self.laser, self.actions.velocity, c.lookahead_s)
-        ahead = np.array([self.potential.value(*place) for place in places])
-        weight = c.lookahead_weight * c.bias_decay**self.episode * c.potential_scale
-        return weight * (ahead - here)
+        weight = c.lookahead_weight * c.lookahead_fade**self.episode * c.potential_scale
+        return weight * np.array([self.way.progress(here, p, words) for p in places])
 
-    def _h(self, r: float, s: State, a: Decision, replay: bool) -> float:
-        """h(r, a): the reward of an action the teacher selected (bounded like g), in a
-        replayed trace or live."""
-        return self.shaping.chosen(r, s, a.weights, self._bonus(), replay)
+    def _greedy(self, q: np.ndarray, barred: int | None) -> int:
+        allowed = self.actions.allowed_but(barred)
+        return int(allowed[np.argmax(q[allowed])])
 
-    def _bonus(self) -> float:
-        """h's bonus for a teacher's action, bounded like g's f."""
-        bound = self.config.feedback_bound
-        return float(np.clip(self.config.command_reward, -bound, bound))
+    def _count_change(self, chosen: int, alone: int) -> None:
+        """Counts a decision made by a command or greedily, and whether the person's input
+        changed it against what the robot would have done without it (`on_changed` sees
+        where each leads)."""
+        self.counters["decisions_judged"] += 1
+        if chosen == alone:
+            return
+        self.counters["changed_by_person"] += 1
+        if self.on_changed is not None and self.pose is not None:
+            velocity, seconds = self.actions.velocity, self.config.lookahead_s
+            places = reachable(self.pose, self.laser, velocity, seconds)
+            self.on_changed(self.pose[:2], places[chosen], places[alone])
 
-    # -- late credit --------------------------------------------------------------------
-    def credit(self, step: int, weight: float, f: float) -> bool:
-        """Feedback f about the action taken at observation `step`, with the arbiter's weight
-        w: g(r, f) = r + clip(f) after the fact, Q <- Q + alpha w f share_j (H with the
-        action bias) for each decision j of the stretch the word judges, by its share of
-        that stretch (`_stretch_back_from`); the change it would have made to the updates
-        since is ignored. False (counted) if `step` has left the window."""
+    # -- a teacher's command ---------------------------------------------------------------
+    def command(self, action: str, seen_heading: float | None = None) -> None:
+        """A teacher's command: the next `command_steps` actions are this one. A turn said
+        about the robot heading `seen_heading` (when the person decided it) turns until the
+        robot heads `command_aim` degrees aside of that, for at most twice as long: the part
+        it has turned since the person looked is not turned again."""
         c = self.config
-        f = float(np.clip(f, -c.feedback_bound, c.feedback_bound))
-        k = self._decision_at(step)
-        if k is None:
-            return False
-        visits, shares = self._stretch_back_from(k, step)
-        self.credit_shares += (shares[0] * weight, weight)
-        states, weights = [v.state for v in visits], np.array([v.weights for v in visits])
-        scale = c.alpha * weight * f
-        self.shaping.credit(self.Q, states, np.array(shares)[:, None] * scale * weights)
-        self.counters["feedback_credited"] += 1
-        return True
-
-    def _stretch_back_from(self, k: int, step: int) -> tuple[list[Visit], list[float]]:
-        """The decisions of the stretch a word judges: those that ran within the `judged_s`
-        up to `step` (back from the k-th, in its episode), each with its share of those steps
-        (summing to 1)."""
-        first = step - round(self.config.judged_s / CONTROL_PERIOD_S) + 1
-        episode, visits, shares = self.recent[k].episode, [], []
-        for j in range(k, -1, -1):
-            visit = self.recent[j]
-            if visit.episode != episode or visit.last < first:
-                break
-            visits.append(visit)
-            shares.append(min(visit.last, step) - max(visit.first, first) + 1)
-        total = sum(shares)
-        return visits, [share / total for share in shares]
-
-    def _decision_at(self, step: int) -> int | None:
-        """The index in `recent` of the decision whose action ran at observation `step`;
-        None (counted) if it is no longer remembered."""
-        for i in range(len(self.recent) - 1, -1, -1):
-            if self.recent[i].first <= step <= self.recent[i].last:
-                return i
-        oldest = self.recent[0].first if self.recent else None
-        why = "too_old" if oldest is not None and step < oldest else "unknown_step"
-        self.counters[f"feedback_dropped.{why}"] += 1
-        return None
-
-    def command(self, action: str, chooser: str = "teacher") -> None:
-        """A teacher's command: the next `command_steps` actions are this one (`chooser`:
-        "teacher" earns h's bonus, "steer" does not)."""
-        index = ACTION_NAMES.index(action)
-        self.command_chooser = chooser
+        turn = {"left": 1.0, "right": -1.0}.get(action)
+        self.aim = None
+        steps = c.command_steps
+        if turn is not None and seen_heading is not None and c.command_aim:
+            self.aim = (seen_heading + turn * math.radians(c.command_aim), turn)
+            steps *= 2
         self.commands.clear()
-        self.commands.extend([index] * self.config.command_steps)
+        self.commands.extend([ACTION_NAMES.index(action)] * steps)
         self.counters["commands"] += 1
 
-    def answer(self, step: int, action: str) -> bool:
-        """The teacher's answer to "which way?" asked at observation `step`: the action is
-        advised in the state asked in (as h advises a command), and taken now if the robot
-        still sees what it saw there (without h: it was advised). False if the step left the
-        window."""
-        k = self._decision_at(step)
-        if k is None:
+    def _aimed(self) -> bool:
+        """Whether a commanded turn has brought the robot to the heading it aims at."""
+        if self.aim is None or self.pose is None:
             return False
-        asked = self.recent[k].state
-        weights = self.actions.one_hot(ACTION_NAMES.index(action)).weights
-        self.shaping.credit(self.Q, [asked], (self.config.alpha * self._bonus() * weights)[None])
-        if self.s is not None and self.s.view == asked.view:
-            self.command(action, "steer")
-        self.counters["answers"] += 1
-        return True
+        target, turn = self.aim
+        return turn * math.remainder(target - self.pose[2], math.tau) <= 0
+
+    # -- the values -------------------------------------------------------------------------
+    def q(self, s: int) -> np.ndarray:
+        """Q(s, .)."""
+        return self.Q[s]
+
+    def phi(self, place: Place | None) -> float:
+        """Phi at the place the robot was in a state: the guess's metres times
+        potential_scale."""
+        if place is None:
+            return 0.0
+        return self.config.potential_scale * self.way.phi(place)
 
     @property
     def reach(self) -> float | None:
         """How far the sensors must see for this learner (None: their full range)."""
-        seen = self.features.reach
-        if seen is None or not self.config.lookahead_weight or self.potential is None:
+        seen = self.states.reach
+        if seen is None or not self.config.lookahead_weight:
             return seen
         return max(seen, reach(self.actions.velocity, self.config.lookahead_s))
 
-    # -- the values, linear over the state's features ---------------------------------------
-    def q(self, s: State) -> np.ndarray:
-        """Q(s, .): the mean of the rows of Q of the state's features."""
-        return self.Q[s.q].sum(axis=0) / len(s.q)
-
-    def advice(self, s: State) -> np.ndarray:
-        """The teacher's bias in s as the policy weighs it now (advice.py)."""
-        return self.taught.weighed(s, self.episode)
-
-    def phi(self, place: Place | None) -> float:
-        """Phi at the place the robot was in a state: the potential's metres times
-        potential_scale."""
-        if self.potential is None or place is None:
-            return 0.0
-        return self.config.potential_scale * self.potential.value(*place)
-
     # -- states and episodes ------------------------------------------------------------
-    def _state_of(self, p: LearnerPercept) -> State:
-        s, parent = self.features.encode(p)
-        n_q, n_advice = self.features.sizes
-        if n_q > len(self.Q):  # new features: new rows, from what is known, if asked
-            known = s.q[s.q < len(self.Q)]
-            row = 0.0
-            if self.config.init_from_neighbour and parent is not None:
-                row = self.Q[parent]  # a new state: its nearest state's values
-            elif self.config.init_from_neighbour and len(known):
-                row = self.Q[known].sum(axis=0) / len(known)  # the state's other features'
-            self.Q = np.vstack([self.Q, np.zeros((n_q - len(self.Q), N_ACTIONS)) + row])
-            self.e = np.vstack([self.e, np.zeros((n_q - len(self.e), N_ACTIONS))])
-        self.taught.grow(n_advice)
+    def _state_of(self, p: LearnerPercept) -> int:
+        s, parent = self.states.classify(p)
+        if s == len(self.Q):  # a new state: a new row, from its nearest state's if asked
+            row = self.Q[parent] if self.config.init_from_neighbour and parent is not None else 0
+            self.Q = np.vstack([self.Q, np.zeros((1, N_ACTIONS)) + row])
+            self.e = np.vstack([self.e, np.zeros((1, N_ACTIONS))])
         return s
 
     def _end_episode(self) -> None:
         self.interrupt()
         self.episode += 1
+        self.way.fade()
 
     def interrupt(self) -> None:
         """Forgets the episode in progress without counting it (a gap in the observations,

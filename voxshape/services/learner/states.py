@@ -9,7 +9,7 @@ bin, goal-distance bin, goal sector), where `near` has a bit for each of the las
 front and left thirds with something within `near_range` (0 when off), the goal bins are 0
 without `goal_features`, and the goal sector (which side of the goal the robot is on, from
 odometry: `goal_sectors`) is 0 when off. Prototypes are used with representation="pearson";
-otherwise one prototype stands for all (features.py builds the learner's features on this).
+otherwise one prototype stands for all. A state is its key's index, a row of Q.
 """
 
 from __future__ import annotations

@@ -1,10 +1,12 @@
-"""Initial traces: episodes a teacher steered, recorded, saved, and replayed for learning.
+"""Initial traces: episodes a teacher steered, recorded, saved, and shown to the learner.
 
 An episode in which the teacher gave at least one command is kept whole (the percepts, the
-action taken at each step and who chose it). Replaying it runs the learner over it with
-those actions imposed, so the learner learns the teacher's route before (and, replayed again,
-during) its own episodes: as advice, h's bonus for each command (with additive shaping,
-through the very SARSA(lambda) update too: sarsa.py). Files are .npz arrays, no pickle.
+action taken at each step and who chose it). One that reached the goal is the way, shown to
+the learner before its own episodes (words.py: votes all along it for the way on), so the
+robot heads along it where it differs from its own guess. Its returns are not replayed
+through the SARSA update: the shown actions would get their real, negative returns while the
+untried ones kept their optimistic 0, and the robot would learn to avoid the way it was shown
+(docs/decisions.md). Files are .npz arrays, no pickle.
 """
 
 from __future__ import annotations
@@ -84,24 +86,16 @@ class TraceBook:
             said += -(-run // command_steps)
         return said
 
-    def replay(self, learner: Learner) -> int:
-        """Learns from every recorded episode; returns the number of steps replayed. The
-        replays do not count as the learner's own episodes."""
-        episode, steps = learner.episode, 0
-        for recorded in self.episodes:
-            learner.interrupt()
-            for percept, decision in recorded:
-                learner.step(percept, forced=decision, replay=True)
-                steps += 1
-            learner.interrupt()
-        learner.episode = episode
-        return steps
-
-    def replay_if_due(self, learner: Learner) -> int:
-        """Replays when the learner has just finished a multiple of `replay_every` episodes
-        (0: only the replay before learning); returns the steps replayed."""
-        every = learner.config.replay_every
-        return self.replay(learner) if every and learner.episode % every == 0 else 0
+    def show(self, learner: Learner) -> int:
+        """Shows the learner every recorded episode that reached the goal, as the way
+        (words.py); returns how many. An episode that did not is not the way, nor one saved
+        before positions were kept (it knows no place)."""
+        if not self.poses:
+            return 0
+        shown = [e for e in self.episodes if e[-1][0].outcome == "goal"]
+        for recorded in shown:
+            learner.words.shown([(p.x, p.y, p.collided) for p, _ in recorded])
+        return len(shown)
 
     def save(self, path: Path) -> None:
         rows = [(i, p, d) for i, ep in enumerate(self.episodes) for p, d in ep]
@@ -119,6 +113,7 @@ class TraceBook:
             weights=np.array([d.weights if d else np.zeros(N_ACTIONS) for _, _, d in rows]),
             velocity=np.array([(d.v, d.omega) if d else (0.0, 0.0) for _, _, d in rows]),
             teacher=np.array([bool(d and d.chooser == "teacher") for _, _, d in rows]),
+            collided=np.array([p.collided for _, p, _ in rows], dtype=bool),
             ended=np.array([d is None for _, _, d in rows]),
         )
 
@@ -132,6 +127,7 @@ class TraceBook:
         n = len(data.get("episode", []))
         book = cls(poses="pose" in data)
         pose = data.get("pose", np.zeros((n, 3)))
+        collided = data.get("collided", np.zeros(n, dtype=bool))
         if "theta" in data:  # saved with headings alone, before positions were kept
             pose[:, 2] = data["theta"]
         for i in np.unique(data["episode"]) if len(data.get("episode", [])) else []:
@@ -150,6 +146,7 @@ class TraceBook:
                             float(pose[r][2]),
                             float(pose[r][0]),
                             float(pose[r][1]),
+                            bool(collided[r]),
                         ),
                         None
                         if data["ended"][r]

@@ -8,12 +8,23 @@ import contextlib
 import os
 import subprocess
 import sys
+from collections.abc import Mapping
 
 from voxshape.runtime import Node, fields
 from voxshape.services.logger.replay import ScanThinning
 from voxshape.services.logger.run import RunDir
 
 RENDERER_STOP_S = 8.0  # then the renderer finishes on its own (it notices the logger is gone)
+# A follower writes no footer (replay.open_stream says why), of which rerun warns at every
+# start, in raw colour codes that read like an error: that one warning is left out, rerun's
+# others kept. Rerun reads RUST_LOG when it is imported, so it is set for the child.
+QUIET_RERUN = "warn,re_log_encoding::rrd::file_sink=error"
+
+
+def renderer_environment(environ: Mapping[str, str]) -> dict[str, str]:
+    """The renderer's variables: these, with rerun's footer warning left out (a RUST_LOG of
+    the user's own is theirs)."""
+    return {"RUST_LOG": QUIET_RERUN, **environ}
 
 
 def start_renderer(
@@ -42,7 +53,9 @@ def start_renderer(
     ]
     # Its stdin is a pipe from here: closed when the event log is complete, or by the kernel
     # if this process dies; either way the renderer draws the rest and closes the recording.
-    renderer = subprocess.Popen(command, stdin=subprocess.PIPE)
+    renderer = subprocess.Popen(
+        command, stdin=subprocess.PIPE, env=renderer_environment(os.environ)
+    )
     with contextlib.suppress(OSError):  # not allowed here: it runs at normal priority
         os.setpriority(os.PRIO_PROCESS, renderer.pid, nice)
     return renderer

@@ -8,6 +8,8 @@
     runs/<session>/report/            pictures and summary of `voxshape report`
     runs/<session>/learner-<robot>.npz    each robot's learner checkpoint (the learner's own)
     runs/<session>/session.lock       held by the live session's launcher (hold_run)
+    runs/<session>/launcher.json      its launcher's pid, router and services' pids, while
+                                      it runs (voxshape/launcher/record.py)
 
 `voxshape up` and `voxshape demo` start each run of a session in an empty runs/<session>/:
 an earlier run there is kept aside as runs/<session>.<its start time>/ (unless --resume).

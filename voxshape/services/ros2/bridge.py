@@ -59,6 +59,7 @@ class BridgeConfig:
     model: RobotModel = field(default_factory=RobotModel)
     control_period: float = CONTROL_PERIOD_S  # robot seconds
     rtf: float = 1.0  # robot seconds per wall second (a simulated robot may run faster)
+    scan_yaw: float = 0.0  # radians: its scan frame's heading in its own (TurtleBot 4: pi/2)
 
 
 @dataclass
@@ -168,8 +169,11 @@ class Bridge:
     def percept(self) -> BridgePercept:
         assert self.scan is not None and self.odom is not None
         scan, model = self.scan, self.config.model
-        geometry = ScanGeometry(
-            scan.angle_min, scan.angle_increment, scan.range_min, scan.range_max
+        geometry = ScanGeometry(  # its beams' angles in the robot's heading
+            scan.angle_min + self.config.scan_yaw,
+            scan.angle_increment,
+            scan.range_min,
+            scan.range_max,
         )
         x, y, theta = self.anchor.apply(*self._odom_pose())
         return BridgePercept(

@@ -18,6 +18,7 @@ Its flows are its `ros2` row of voxshape/protocol/dataflow.py
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import time
 
@@ -81,12 +82,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(tcp/ROBOT:7447) or, with --mode ros2dds, its zenoh-bridge-ros2dds",
     )
     robot.add_argument(
-        "--mode", dest="ros_mode", choices=("rmw_zenoh", "ros2dds"), default="rmw_zenoh"
+        "--mode",
+        dest="ros_mode",
+        choices=("rmw_zenoh", "ros2dds"),
+        default="rmw_zenoh",
+        help="how the robot's ROS 2 is reached: rmw_zenoh (its rmw_zenohd) or ros2dds (a DDS "
+        "robot through zenoh-bridge-ros2dds) (default rmw_zenoh)",
     )
     robot.add_argument(
-        "--domain", type=int, default=int(env("ROS_DOMAIN_ID") or 0), help="ROS_DOMAIN_ID"
+        "--domain",
+        type=int,
+        default=int(env("ROS_DOMAIN_ID") or 0),
+        help="the robot's ROS_DOMAIN_ID (ROS_DOMAIN_ID; default 0)",
     )
-    robot.add_argument("--namespace", default="/", help="the robot's ROS namespace")
+    robot.add_argument(
+        "--namespace", default="/", help="the robot's ROS namespace, e.g. /robot1 (default /)"
+    )
     robot.add_argument(
         "--goal",
         required=True,
@@ -94,24 +105,61 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="X,Y: the goal in the robot's odometry frame, metres",
     )
     robot.add_argument(
-        "--cmd", choices=("twist", "twist_stamped"), default="twist", help="cmd_vel's type"
+        "--cmd",
+        choices=("twist", "twist_stamped"),
+        default="twist",
+        help="cmd_vel's type: twist, or twist_stamped (Jazzy's diff_drive_controller) "
+        "(default twist)",
     )
-    robot.add_argument("--robot", default=env("VOXSHAPE_ROBOT", "r1"), help="its id in the session")
+    _add_episodes(parser, robot)
+
+
+def _add_episodes(parser: argparse.ArgumentParser, robot: argparse._ArgumentGroup) -> None:
+    """The robot's id, task, limits, and what happens between its episodes."""
+    env = os.environ.get
+    robot.add_argument(
+        "--robot",
+        default=env("VOXSHAPE_ROBOT", "r1"),
+        help="its id in the session (VOXSHAPE_ROBOT; default r1)",
+    )
     add_task_argument(parser, "for the goal's radius and the timeout (and the page's map)")
     _add_limits(robot)
     robot.add_argument(
         "--reset",
         choices=("drive", "wait"),
         default="drive",
-        help="between episodes: drive back to the start, or wait until a teacher says it is placed",
+        help="between episodes: drive back to the start, or wait until a teacher says it is "
+        "placed (default drive)",
+    )
+    robot.add_argument(
+        "--homing-timeout",
+        type=float,
+        default=HomingConfig.timeout,
+        help="robot s driving back to the start may take, then it waits to be placed "
+        f"(default {HomingConfig.timeout:g})",
     )
     robot.add_argument(
         "--start",
         type=lambda t: _pair(t, 3, "--start"),
         help="X,Y,DEG in odometry (default: where it starts)",
     )
-    robot.add_argument("--rtf", type=float, default=1.0, help="a simulated robot's time factor")
-    robot.add_argument("--attachment", choices=("auto", "33", "77"), default="auto")
+    robot.add_argument(
+        "--rtf", type=float, default=1.0, help="a simulated robot's time factor (default 1)"
+    )
+    robot.add_argument(
+        "--scan-yaw",
+        type=float,
+        default=0.0,
+        help="degrees: where the scan's angle 0 points, left of the robot's heading (the "
+        "lidar's mounting yaw; a TurtleBot 4's is 90, docs/robot.md#turtlebot-4) (default 0)",
+    )
+    robot.add_argument(
+        "--attachment",
+        choices=("auto", "33", "77"),
+        default="auto",
+        help="rmw_zenoh's attachment format: 33 bytes (rmw_zenoh 0.2.4 on) or 77 (before); "
+        "auto: as the robot's (default auto)",
+    )
     for topic in ("scan", "odom", "cmd"):
         name = "cmd_vel" if topic == "cmd" else topic
         robot.add_argument(f"--{topic}-topic", default=name, help=f"(default {name})")
@@ -124,22 +172,23 @@ def _add_limits(robot: argparse._ArgumentGroup) -> None:
         type=float,
         default=0.2,
         help="m from the lidar: a scan reading nearer, in any direction, is a bump: the "
-        "robot's own reach from its lidar plus a few cm (docs/robot.md#the-bump-radius)",
+        "robot's own reach from its lidar plus a few cm (docs/robot.md#the-bump-radius; "
+        "default 0.2; a TurtleBot 4: docs/robot.md#turtlebot-4)",
     )
     robot.add_argument(
         "--stuck-after",
         type=float,
         default=ContactConfig.stuck_after,
-        help="robot s: told to move, its odometry nearly still this long, is a bump too",
+        help="robot s: told to move, its odometry nearly still this long, is a bump too "
+        f"(default {ContactConfig.stuck_after:g})",
     )
-    robot.add_argument("--max-speed", type=float, default=Limits.max_speed, help="m/s")
-    robot.add_argument("--max-turn", type=float, default=Limits.max_turn, help="rad/s")
-    robot.add_argument(
-        "--action-timeout", type=float, default=Limits.action_timeout, help="s a command stands"
-    )
-    robot.add_argument(
-        "--data-timeout", type=float, default=Limits.data_timeout, help="s the robot's data may age"
-    )
+    for flag, default, what in (
+        ("--max-speed", Limits.max_speed, "m/s"),
+        ("--max-turn", Limits.max_turn, "rad/s"),
+        ("--action-timeout", Limits.action_timeout, "s a command stands"),
+        ("--data-timeout", Limits.data_timeout, "s the robot's data may age"),
+    ):
+        robot.add_argument(flag, type=float, default=default, help=f"{what} (default {default:g})")
 
 
 def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
@@ -149,8 +198,10 @@ def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
         limits = Limits(args.max_speed, args.max_turn, args.action_timeout, args.data_timeout)
     except ValueError as e:
         raise ConfigError(str(e)) from None
-    if min(args.rtf, args.radius, args.stuck_after) <= 0 or args.domain < 0:
-        raise ConfigError("--rtf, --radius and --stuck-after must be > 0, --domain >= 0")
+    if min(args.rtf, args.radius, args.stuck_after, args.homing_timeout) <= 0 or args.domain < 0:
+        raise ConfigError(
+            "--rtf, --radius, --stuck-after and --homing-timeout must be > 0, --domain >= 0"
+        )
     robot = check_id(args.robot, "robot")
     try:
         check_name(args.namespace, "--namespace")
@@ -161,11 +212,15 @@ def configs(args: argparse.Namespace) -> tuple[BridgeConfig, LinkConfig]:
     start = None
     if args.start is not None:
         x, y, degrees = args.start
-        start = (x, y, degrees * 3.141592653589793 / 180)
+        start = (x, y, math.radians(degrees))
     contact = ContactConfig(args.radius, args.stuck_after)
     goal = Goal(args.goal[0], args.goal[1], m.goal_radius)
     rules = EpisodeRules(goal, contact, steps_of(m.timeout, CONTROL_PERIOD_S))
-    bridge = BridgeConfig(rules, robot, args.reset, start, limits, HomingConfig(), rtf=args.rtf)
+    homing = HomingConfig(timeout=args.homing_timeout)
+    yaw = math.radians(args.scan_yaw)
+    bridge = BridgeConfig(
+        rules, robot, args.reset, start, limits, homing, rtf=args.rtf, scan_yaw=yaw
+    )
     connect = tuple(e.strip() for e in args.robot_connect.split(",") if e.strip())
     node_name = "voxshape_" + "".join(c if c.isalnum() else "_" for c in robot)
     link = LinkConfig(
@@ -182,13 +237,14 @@ def open_link(config: LinkConfig, node: Node) -> RobotLink:
         raise BusError(
             f"cannot reach the robot's router at {', '.join(config.connect)}: "
             f"{str(e).split(' at ')[0]}. Is it running on the robot (`ros2 run rmw_zenoh_cpp "
-            "rmw_zenohd`, or zenoh-bridge-ros2dds with --mode ros2dds) and its port open?"
+            "rmw_zenohd`, or zenoh-bridge-ros2dds with --mode ros2dds), its port open, and "
+            "--connect its address?"
         ) from None
 
 
 def run(args: argparse.Namespace) -> int:
     bridge_config, link_config = configs(args)
-    bus = bus_config("ros2", args)
+    bus = bus_config("ros2", args, fail_fast=True)
     with Node("ros2", bus) as node:
         robot = bridge_config.robot
         outputs = {

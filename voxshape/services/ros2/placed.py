@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    bus = bus_config("teacher", args)
+    bus = bus_config("teacher", args, fail_fast=True)
     teacher = check_id(args.teacher or bus.user or _login(), "teacher")
     robot = check_id(args.robot, "robot")
     with Node("teacher", bus, quiet=True) as node:

@@ -23,9 +23,13 @@ from dataclasses import dataclass, field
 
 from voxshape.protocol.vocabulary import Vocabulary
 from voxshape.recognition.confusion import MockRecognizer, MockSettings
-from voxshape.services.simteacher.teacher import OPPOSITE, Confusion, way_ahead
-from voxshape.world.maps import Map
+from voxshape.services.simteacher.teacher import OPPOSITE, Confusion
+from voxshape.world.geodesic import way_ahead
+from voxshape.world.maps import PASSAGE_RADIUS, Map
 from voxshape.world.robot import unicycle
+
+TURNS = ("left", "right")  # carried out for turn_s, then forward
+WALL_MARGIN = 0.1  # metres beyond the narrowest passage's radius at which a person sees a wall near
 
 
 @dataclass(frozen=True)
@@ -38,11 +42,11 @@ class DictationProfile:
     delay_max: float = 1.5  # ... in [delay_min, delay_max]
     speaking: float = 0.4  # seconds a word takes to say
     recognition: float = 0.3  # seconds from the end of speech to the utterance
-    # Heading errors (degrees) a person lets the robot drive forward with, and turning, the
-    # error at which to say "forward" (a word a turn instead of a word a wobble)
-    keep_forward: float = 45.0
-    stop_turning: float = 20.0
-    turn_back: float = 90.0  # turning, the error past the way at which to turn back
+    # The heading error (degrees) a person lets the robot drive forward with; a turn word
+    # turns the robot for turn_s (the learner's command_steps), then it carries on forward
+    keep_forward: float = 30.0
+    turn_s: float = 0.75
+    wall_ahead_s: float = 0.5  # beyond the word's landing, how far ahead the person looks for walls
     lookahead: float = 1.0  # metres down the way the person aims the robot at
     noise: float = 0.0  # probability a word comes out wrong
     confusion: Confusion = field(default_factory=Confusion)
@@ -82,6 +86,8 @@ class DictatingPerson:
             MockSettings(error_rate=1.0, misheard=1.0, dropped=0.0, inserted=0.0, seed=seed),
         )
         self.words = 0  # said so far
+        # where the robot would be too near a wall: the person turns it away before it gets there
+        self._clear = m.grid.distances_to_goal(PASSAGE_RADIUS + WALL_MARGIN)
         self._tokens, self._counted_at = profile.words_at_once, 0.0
         self._speaking_until = -math.inf
         self._meant: list[tuple[float, str]] = []  # (lands at, command) of words on their way
@@ -108,10 +114,14 @@ class DictatingPerson:
             return None
         lag = (p.delay_min + p.delay_max) / 2 + p.speaking + p.recognition
         pose, doing = (x, y, theta), self._meant[-1][1] if self._meant else doing
-        for t, (mv, mw) in self._motion(now, v, omega, now + lag):
-            pose = unicycle(*pose, mv, mw, t)
-        wanted = self._wanted(*pose, doing, bumped)
-        if wanted is None or wanted == doing or not self._afford(now):
+        heading_into_wall = False
+        for t, (mv, mw) in self._motion(now, v, omega, now + lag + p.wall_ahead_s):
+            for _ in range(max(1, math.ceil(t / 0.2))):  # the path, every 0.2 s
+                pose = unicycle(*pose, mv, mw, t / max(1, math.ceil(t / 0.2)))
+                cell = self.map.grid.cell(*pose[:2])
+                heading_into_wall = heading_into_wall or not math.isfinite(self._clear[cell])
+        wanted = self._wanted(*pose, doing, bumped or heading_into_wall)
+        if wanted is None or (wanted == doing and wanted not in TURNS) or not self._afford(now):
             return None
         onset = now + self.rng.uniform(p.delay_min, p.delay_max)
         self._speaking_until = onset + p.speaking
@@ -124,21 +134,25 @@ class DictatingPerson:
         self, now: float, v: float, omega: float, until: float
     ) -> list[tuple[float, tuple[float, float]]]:
         """(seconds, (v, omega)) pieces of the robot's motion from now until `until`, as the
-        person expects it: what it does now, then each word on its way as it lands."""
+        person expects it: what it does now, then each word on its way as it lands (a turn
+        for `turn_s`, then on forward)."""
         pieces, t, velocity = [], now, (v, omega)
         for lands, command in self._meant:
             if lands >= until:
                 break
             pieces.append((lands - t, velocity))
             t, velocity = lands, self.velocities[command]
+            if command in TURNS:
+                turned = min(until, t + self.profile.turn_s)
+                pieces.append((turned - t, velocity))
+                t, velocity = turned, self.velocities["forward"]
         pieces.append((until - t, velocity))
         return pieces
 
     def _wanted(self, x: float, y: float, heading: float, doing: str, bumped: bool) -> str | None:
-        """The command the robot should carry out at this pose: driving forward, a turn once it
-        is more than `keep_forward` off the way; turning, "forward" once within
-        `stop_turning` of it, or the other turn if it has turned past the way (None: let it
-        carry on)."""
+        """The command the robot should carry out at this pose: a turn towards the way once
+        it is more than `keep_forward` off it or about to meet a wall, "forward" when it
+        stands facing the way (None: let it carry on)."""
         p = self.profile
         aim = way_ahead(self.map, x, y, p.lookahead)
         if aim is None:
@@ -146,13 +160,21 @@ class DictatingPerson:
         way = math.atan2(aim[1] - y, aim[0] - x)
         error = math.degrees(math.remainder(way - heading, math.tau))
         towards = "left" if error > 0 else "right"
-        if doing == "forward":
-            return towards if abs(error) > p.keep_forward or bumped else None
-        if doing in ("left", "right"):
-            if abs(error) < p.stop_turning:
-                return "forward"
-            return towards if towards != doing and abs(error) < p.turn_back else None
-        return "forward" if abs(error) < p.stop_turning else towards
+        if bumped or abs(error) > p.keep_forward:
+            return towards
+        if doing != "stop":
+            return None
+        return towards if self._blocked((x, y, heading), "forward") else "forward"
+
+    def _blocked(self, pose: tuple[float, float, float], command: str) -> bool:
+        """Whether the command, carried out for a second from the pose, brings the robot too
+        near a wall."""
+        v, omega = self.velocities[command]
+        for i in range(1, 6):
+            x, y, _ = unicycle(*pose, v, omega, 0.2 * i)
+            if not math.isfinite(self._clear[self.map.grid.cell(x, y)]):
+                return True
+        return False
 
     def _afford(self, now: float) -> bool:
         """Whether the budget has a word left (and spends it); it refills with robot time."""

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 
 from voxshape.protocol import HelpRequest, Observation
 from voxshape.runtime.limits import TokenBucket
-from voxshape.services.simteacher.teacher import Look, SimulatedTeacher, Speech, path_command
+from voxshape.services.simteacher.teacher import Look, SimulatedTeacher, Speech
+from voxshape.world.geodesic import path_command
 from voxshape.world.robot import CONTROL_PERIOD_S
 
 COMMAND_EVERY_S = 0.5  # robot seconds between dictated commands (a command steers 5 steps)

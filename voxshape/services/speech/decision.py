@@ -18,9 +18,10 @@ beats the likeliest phrase of the other kind (a command for a judgement, or the 
 `kind_margin` nats: a judgement is never taken for a command on a close call
 (docs/speech.md#accuracy).
 
-Inside a sentence ("could you go left") a phrase is spotted in the transcript, unless a
-negation comes just before it ("no good", "not that way" being a phrase of its own), or may
-have: Whisper writes "Now good." for some voices' "no good".
+Inside a sentence ("could you go left") a phrase is spotted in the scorer's transcript by the
+rule typed words meet too (voxshape/protocol/vocabulary.py's `spot`), unless a negation comes
+just before it ("no good", "not that way" being a phrase of its own), or may have: Whisper
+writes "Now good." for some voices' "no good".
 """
 
 from __future__ import annotations
@@ -28,15 +29,9 @@ from __future__ import annotations
 import math
 from dataclasses import astuple, dataclass
 
-from voxshape.protocol.vocabulary import normalize
-
 MARGIN_CAP = 8.0  # nats: beyond this a margin says no more
 SPOT_MARGIN = 1.0  # nats over every sound-alike for a phrase spotted in a sentence
 NEGATION_DOUBT = 3.0  # nats: a negation this near the word before a phrase may have been said
-NEGATIONS = frozenset(
-    {"no", "not", "never", "nothing", "without", "dont", "doesnt", "didnt", "isnt", "wasnt"}
-    | {"arent", "werent", "cant", "wont"}
-)
 
 
 @dataclass(frozen=True)
@@ -117,18 +112,3 @@ def confidence(margins: Margins, weights: tuple[float, ...]) -> float:
     *w, bias = weights
     z = bias + sum(a * x for a, x in zip(w, margins.features(), strict=True))
     return 1.0 / (1.0 + math.exp(-z))
-
-
-def spot(transcript: str, phrases: dict[str, str]) -> tuple[str | None, bool]:
-    """The longest phrase (as written) inside a transcript of several words, and whether a
-    negation comes just before it: (phrase, negated); (None, False) when there is none.
-    `phrases`: normalized -> as written."""
-    words = normalize(transcript).split()
-    if len(words) < 2:
-        return None, False
-    for key in sorted(phrases, key=lambda p: -len(p.split())):
-        n = len(key.split())
-        for i in range(len(words) - n + 1):
-            if " ".join(words[i : i + n]) == key:
-                return phrases[key], bool(NEGATIONS & set(words[max(0, i - 2) : i]))
-    return None, False

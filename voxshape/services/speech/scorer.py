@@ -28,7 +28,7 @@ from typing import Protocol
 import numpy as np
 
 from voxshape.protocol.messages import SAMPLE_RATE
-from voxshape.protocol.vocabulary import Vocabulary, normalize, written_phrases
+from voxshape.protocol.vocabulary import NEGATIONS, Vocabulary, normalize, spot, written_phrases
 from voxshape.services.speech import decision
 from voxshape.services.speech.decision import Margins
 from voxshape.services.speech.recognizer import Recognition
@@ -157,7 +157,7 @@ class PhraseScorer:
         self.decision = decision.DECISIONS[engine]
         self._negations = [  # as single tokens: " No", " not"...
             t[0]
-            for word in decision.NEGATIONS
+            for word in NEGATIONS
             for t in (self._tokens_of(word), self._tokens_of(word.capitalize()))
             if len(t) == 1
         ]
@@ -299,7 +299,7 @@ class PhraseScorer:
     ) -> tuple[str, float] | None:
         """The phrase inside a sentence of the transcript ("could you go left"), not negated,
         and by how much its tokens there beat its sound-alikes' (nats)."""
-        phrase, negated = decision.spot(transcript, self._phrases)
+        phrase, negated = spot(transcript, self._phrases, self._meanings)  # as typed words
         if phrase is None or negated or len(transcript.split()) <= len(phrase.split()):
             return None
         for form in (phrase, phrase.capitalize()):

@@ -91,7 +91,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     options = read_options(TeachOptions, args)
     # A person joining a secured session with --user alone is asked for the password.
-    bus = bus_config("teacher", args, ask=getpass.getpass if sys.stdin.isatty() else None)
+    ask = getpass.getpass if sys.stdin.isatty() else None
+    bus = bus_config("teacher", args, ask=ask, fail_fast=True)
     teacher = check_id(options.teacher or bus.user or default_teacher_id(), "teacher")
     robot = check_id(options.robot, "robot")
     vocabulary = _check_arguments(options)

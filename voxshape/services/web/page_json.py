@@ -15,6 +15,7 @@ from voxshape.protocol import (
     EpisodeEvent,
     HelpAnswer,
     HelpRequest,
+    Learnt,
     Observation,
     TeachingStats,
     Vocabulary,
@@ -153,6 +154,18 @@ def answer_json(answer: HelpAnswer) -> dict[str, Any]:
     data = _BOARD.answer(answer)[0].data
     text = data.pop("message")
     return {"type": "answer", **data, "text": text}
+
+
+def learnt_json(learnt: Learnt) -> dict[str, Any]:
+    """A robot has learnt its task: what, in how many episodes and robot minutes."""
+    return {
+        "type": "learnt",
+        "robot": learnt.robot,
+        "task": learnt.task,
+        "episode": learnt.episode,
+        "episodes": learnt.episodes,
+        "robot_minutes": round(learnt.robot_seconds / 60, 1),
+    }
 
 
 def stats_json(stats: TeachingStats, teacher: str) -> dict[str, Any]:

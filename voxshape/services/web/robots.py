@@ -7,12 +7,20 @@ from __future__ import annotations
 from collections import deque
 from typing import Any
 
-from voxshape.protocol import EpisodeEvent, HelpAnswer, HelpRequest, Observation, TeachingStats
+from voxshape.protocol import (
+    EpisodeEvent,
+    HelpAnswer,
+    HelpRequest,
+    Learnt,
+    Observation,
+    TeachingStats,
+)
 from voxshape.runtime.limits import Throttle, TokenBucket
 from voxshape.services.web.page_json import (
     SessionView,
     answer_json,
     episode_json,
+    learnt_json,
     obs_json,
     question_json,
 )
@@ -45,6 +53,7 @@ class Robots:
         self._ended: dict[tuple[str, int], EpisodeEvent] = {}
         self.curve: deque[dict[str, Any]] = deque(maxlen=CURVE_KEPT)
         self._asked: dict[str, tuple[dict[str, Any], float]] = {}  # robot -> open question
+        self.learnt: dict[str, dict[str, Any]] = {}  # robot -> that it has learnt its task
         self._per_robot = Throttle(QUESTION_EVERY_S)
         self._all = TokenBucket(QUESTIONS_PER_S, QUESTIONS_BURST)
 
@@ -126,6 +135,14 @@ class Robots:
             del self._asked[answer.robot]
         return [answer_json(answer)]
 
+    def has_learnt(self, learnt: Learnt) -> list[dict[str, Any]]:
+        """A robot has learnt its task: every page says so, and those that join later."""
+        self._see(learnt.robot)
+        self.learnt[learnt.robot] = learnt_json(learnt)
+        while len(self.learnt) > CURVE_KEPT:  # robots that came and went
+            self.learnt.pop(next(iter(self.learnt)))
+        return [self.learnt[learnt.robot]]
+
     def open_questions(self, now: float) -> list[dict[str, Any]]:
         """Questions asked within QUESTION_OPEN_S that nobody answered, oldest first."""
         return [item for item, at in self._asked.values() if 0 <= now - at < QUESTION_OPEN_S]
@@ -143,4 +160,5 @@ class Robots:
             "viewer": view.viewer,
             "curve": list(self.curve),
             "questions": self.open_questions(now),
+            "learnt": list(self.learnt.values()),
         }

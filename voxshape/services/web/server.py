@@ -26,6 +26,7 @@ from voxshape.protocol import (
     EpisodeEvent,
     HelpAnswer,
     HelpRequest,
+    Learnt,
     Observation,
     TeachingStats,
     parse_key,
@@ -106,7 +107,7 @@ class PageServer(LoginFlow):
         self.node = await asyncio.to_thread(Node, "web", self.bus)
         if self.access is not None:
             await self._same_access_as_the_router(*self.access)
-        for topic in ("obs", "episode", "feedback", "teaching", "help", "answer"):
+        for topic in ("obs", "episode", "feedback", "teaching", "help", "answer", "learnt"):
             self.node.subscribe(topic)
         self._pump = Pump(self.node, self.loop, self._on_robots)
         self._ticker = asyncio.create_task(self._tick())
@@ -217,6 +218,8 @@ class PageServer(LoginFlow):
             self._broadcast(self.robots.question(message, time.time(), owner))
         elif isinstance(message, HelpAnswer):
             self._broadcast(self.robots.answer(message, time.time()))
+        elif isinstance(message, Learnt):
+            self._broadcast(self.robots.has_learnt(message))
 
     def _broadcast(self, items: list[dict[str, Any]]) -> None:
         for item in items:

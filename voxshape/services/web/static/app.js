@@ -33,6 +33,7 @@ const state = {
   notices: [], // newest first
   stats: {}, // robot -> last stats message
   curve: {}, // robot -> [{episode, return, steps, interventions}]
+  learnt: {}, // robot -> {task, episode, episodes, robot_minutes}: it has learnt its task
   said: [], // say messages sent
   framesDrawn: 0,
   frames: [], // {robot, step, stamp, wall_time, received, drawn}: received and drawn are
@@ -144,6 +145,8 @@ function handle(msg) {
       return questions.ask(msg);
     case "answer":
       return questions.answer(msg);
+    case "learnt":
+      return learnt(msg);
     case "error":
       state.errors.push(msg.text);
       return notice({ kind: "error", text: `the gateway refused: ${msg.text}` });
@@ -171,6 +174,7 @@ function welcome(msg) {
   for (const point of msg.curve ?? []) curve(point);
   for (const robot of msg.robots ?? []) addRobot(robot);
   for (const question of msg.questions ?? []) questions.ask(question);
+  for (const done of msg.learnt ?? []) learnt(done);
   mapView.setMap(msg.map ?? null);
   setLanguage(state.language);
   connection.startClockSync();
@@ -199,6 +203,7 @@ function selectRobot(robot) {
   dirty = curveDirty = true;
   showStatus();
   showStats();
+  showLearnt();
 }
 
 function observation(msg) {
@@ -227,6 +232,22 @@ function showPlaced() {
   clearTimeout(showPlaced.timer);
   $("placed").hidden = true;
   if (e && e.kind !== "start") showPlaced.timer = setTimeout(() => ($("placed").hidden = false), 1000);
+}
+
+// A robot that has learnt its task goes on: the page says so, and what may come next.
+function learnt(msg) {
+  state.learnt[msg.robot] = msg;
+  addRobot(msg.robot);
+  showLearnt();
+}
+
+function showLearnt() {
+  const done = state.learnt[state.robot];
+  $("learnt").hidden = !done;
+  if (!done) return;
+  const episodes = `${done.episodes} episode${done.episodes === 1 ? "" : "s"}`;
+  $("learnt-what").textContent =
+    `${done.robot} has learnt ${done.task} in ${episodes} (${done.robot_minutes} robot minutes).`;
 }
 
 function curve(msg) {
