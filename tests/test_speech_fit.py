@@ -69,6 +69,20 @@ def test_the_kind_margin_keeps_a_judgement_from_being_heard_as_a_command():
     assert figures["every held-out voice"]["other kind"]["heard"] == 0
 
 
+def test_the_targets_table_counts_the_phrases_under_the_target():
+    v = next(x for x in fit.VARIANTS if x.name == "scorer + sound-alikes")
+    d = fit.fit_variant(dataset(), v, VOCABULARY)
+    outs = fit.outcomes(dataset(), v, d)
+    every = fit.figures(outs, VOCABULARY)["every held-out voice"]
+    assert every["phrases under 0.80"] == ["bad"] and every["phrases"] == 2
+    assert list(every["worst words"]) == ["bad", "good"]  # the worst first, ties by name
+    table = fit.markdown("x", {"decision": {"accept": 0.5, "kind_margin": 2.0}, "held-out": {
+        "every held-out voice": every, "recorded": {"unrelated": [0.0, 3]}}})  # fmt: skip
+    assert "| every held-out voice |" in table and "| 1 of 2 |" in table
+    assert table.count("|---") == 10  # the header's columns, every row as many
+    assert all(r.count("|") == 11 for r in table.splitlines() if r.startswith("|"))
+
+
 def test_pocketsphinx_alone_and_the_cascade_decide_as_the_engines_do():
     said = clip("perfect", "vocabulary")
     sure = row(said, "perfect", SURE, ps=["perfect", 0.9])

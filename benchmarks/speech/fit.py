@@ -228,12 +228,14 @@ def _targets(outs: list[scoring.Outcome], vocabulary: Vocabulary) -> dict:
     for o in said:
         for h in other_kind(o, vocabulary):
             pairs[f"{o.clip.text} -> {h}"] = pairs.get(f"{o.clip.text} -> {h}", 0) + 1
-    worst = sorted(words, key=lambda t: np.mean(words[t]))[:5]
+    worst = sorted(words, key=lambda t: (np.mean(words[t]), t))[:5]  # ties by name
     latencies = [o.latency_s for o in outs if o.latency_s is not None]
     return {
         "clean": _share([ok[id(o)] for o in clean]),
         "every clip": _share(list(ok.values())),
         "worst words": {t: _share(words[t]) for t in worst},
+        "phrases under 0.80": sorted(t for t in words if np.mean(words[t]) < 0.8),
+        "phrases": len(words),
         "conditions": {c: _share(v) for c, v in conditions.items()},
         "near": _share([bool(o.heard) for o in outs if o.clip.kind == "near"]),
         "unrelated": _share([bool(o.heard) for o in outs if o.clip.kind == "oov"]),
@@ -344,14 +346,15 @@ def markdown(name: str, r: dict) -> str:
     rows = [
         f"\n{name} (threshold {r['decision']['accept']}, {r['decision']['kind_margin']} nats "
         f"over the other kind); targets: {TARGETS}, judgement <-> command 1 in 200\n",
-        "| held out | clean | worst phrases | worst condition | near misses | unrelated | "
-        "judgement <-> command |",
-        "|---|---|---|---|---|---|---|",
+        "| held out | clean | every clip | phrases under 0.80 | worst phrases | worst condition "
+        "| near misses | unrelated | judgement <-> command | RTF / p95 latency |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for scope, f in r["held-out"].items():
         if scope == "recorded":
             rows.append(
-                f"| real recordings (Allison Smith) | - | - | - | - | {_cell(f['unrelated'])} | - |"
+                f"| real recordings (Allison Smith) | - | - | - | - | - | - | "
+                f"{_cell(f['unrelated'])} | - | - |"
             )
             continue
         worst = ", ".join(f"{t} {s[0]:.2f}" for t, s in list(f["worst words"].items())[:3])
@@ -359,9 +362,11 @@ def markdown(name: str, r: dict) -> str:
         low = min(conditions.items(), key=lambda c: c[1][0], default=None)
         cond = f"{low[0]} {low[1][0]:.2f}" if low else "-"
         kind = f"{f['other kind']['heard']}/{f['other kind']['n']}"
+        under = f"{len(f['phrases under 0.80'])} of {f['phrases']}"
         rows.append(
-            f"| {scope} | {_cell(f['clean'])} | {worst} | {cond} | {_cell(f['near'])} | "
-            f"{_cell(f['unrelated'])} | {kind} |"
+            f"| {scope} | {_cell(f['clean'])} | {_cell(f['every clip'])} | {under} | {worst} | "
+            f"{cond} | {_cell(f['near'])} | "
+            f"{_cell(f['unrelated'])} | {kind} | {f['rtf']} / {f['latency p95']} s |"
         )
     return "\n".join(rows)
 
