@@ -257,7 +257,10 @@ def test_a_setting_out_of_its_range_is_refused(setting, error):
 
 @pytest.mark.parametrize(
     ("setting", "meant"),
-    [("lookahead=banana", "lookahead_s or lookahead_fade or lookahead_weight"), ("aplha=0.1", "alpha")],
+    [
+        ("lookahead=banana", "lookahead_s or lookahead_fade or lookahead_weight"),
+        ("aplha=0.1", "alpha"),
+    ],
 )
 def test_a_key_mistyped_is_answered_with_the_close_ones(setting, meant):
     key = setting.partition("=")[0]
