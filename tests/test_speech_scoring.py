@@ -80,8 +80,9 @@ def test_latency_runs_from_the_end_of_speech_and_conditions_get_quiet_around():
         assert offset == scoring.QUIET_S and len(samples) > 2 * scoring.QUIET_S * SAMPLE_RATE
     outcome = scoring.transcribe_clip(clip, Says("good"))
     assert outcome.heard == ["good"]
-    # the segmenter waits out its hangover (0.3 s) before it gives the utterance out
-    assert 0.25 <= outcome.latency_s <= 0.5
+    # the segmenter waits out its hangover (0.3 s) before it gives the utterance out; the
+    # recognizer's own wall-clock time is left out (a benchmark's figure, not a test's)
+    assert 0.25 <= outcome.latency_s - outcome.recognize_s <= 0.45
     assert scoring.transcribe_clip(clip, Says(None)).latency_s is None
 
 

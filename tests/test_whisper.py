@@ -155,8 +155,8 @@ def test_a_phrase_written_inside_a_sentence_is_weighed_against_its_sound_alikes(
 ):
     # inside a sentence a phrase is written in lower case, which Whisper may cut into other
     # tokens than the capitalized phrase alone (" H" "alt" against " halt")
-    tokens = recognizer._tokens_of(" " + sentence)
-    log_p = np.full((len(tokens) + 1, recognizer._eot + 1), -10.0)
+    tokens = recognizer.backend.tokens_of(" " + sentence)
+    log_p = np.full((len(tokens) + 1, recognizer.backend.eot + 1), -10.0)
     for k, token in enumerate(tokens):
         log_p[k, token] = -0.1  # sure of every token it wrote
     spotted = recognizer._spot(" " + sentence, tokens, log_p)

