@@ -98,16 +98,23 @@ COVERED: dict[str, tuple[str, ...]] = {
     "voxshape experiment paper --seeds 10 --workers 2": (
         "tests.test_experiment::test_experiment_paper_end_to_end",
     ),
-    "voxshape experiment paper --seeds 10 --first-seed 30 --workers 2"
-    " --out docs/results/paper-seeds30": (
+    "voxshape experiment paper --seeds 10 --first-seed 30 --workers 2 --settings rl,rl+f,"
+    "rl+f-perfect,rl+t,rl+t+f,rl+t+f-perfect --out docs/results/paper-seeds30": (
         "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
+        "tests.test_experiment::test_experiment_paper_end_to_end",
     ),
     "voxshape experiment paper --tasks docs/results/other-maps/office.toml,"
-    "docs/results/other-maps/corridor.toml,docs/results/new-maps/uturn.toml,"
-    "docs/results/new-maps/zigzag.toml --settings rl,rl+f,rl+t,rl+t+f --seeds 10 --first-seed 30"
-    " --workers 2 --out docs/results/maps-seeds30": (
+    "docs/results/other-maps/corridor.toml,docs/results/choice-maps/cluttered.toml,"
+    "docs/results/new-maps/uturn.toml,docs/results/choice-maps/pocket.toml,"
+    "docs/results/new-maps/zigzag.toml --settings rl,rl+f,rl+f-perfect,rl+t+f --seeds 10"
+    " --first-seed 30 --workers 2 --out docs/results/maps-seeds30": (
         "tests.test_experiment::test_experiments_run_on_a_users_own_map_file",
         "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
+    ),
+    "voxshape experiment paper --set potential=none --settings rl,rl+f,rl+f-perfect,rl+t+f"
+    " --seeds 10 --first-seed 30 --workers 2 --out docs/results/paper-regime-seeds30": (
+        "tests.test_experiment::test_first_seed_runs_other_seeds_and_says_which",
+        "tests.test_experiment::test_learner_settings_reach_every_run_and_a_bad_one_is_refused_first",
     ),
     # A service that runs until stopped: a tiny map file's episodes on a test router.
     "voxshape sim --task my-map.toml": (
