@@ -71,9 +71,8 @@ def test_an_utterance_becomes_credited_feedback_for_the_steps_the_teacher_saw(
         refused_then_understood(node, session_id, said, onset)
         (command,) = collect(node, 1, CreditedFeedback)
         assert (command.kind, command.command) == ("command", "forward")
-        # credited as "good" is, to the 0.6 s the teacher saw (said 0.2 s later: steps 18.5
-        # to 30.5, on the arbiter's estimate of the simulator's clock, which a loaded machine
-        # moves by a few steps), not to the last step shown alone
+        # credited as "good" is, to the 0.6 s the teacher saw (on the arbiter's estimate of
+        # the simulator's clock: load moves it a few steps), not to the last step alone
         steps = sorted(c.step for c in command.credits)
         assert steps == list(range(steps[0], steps[-1] + 1)) and len(steps) >= 10, steps
         assert 10 <= steps[0] <= 20 and steps[-1] <= 29, steps
