@@ -114,7 +114,8 @@ def test_paced_clock_follows_the_real_time_factor(spawn, router, session_id, pol
         f"{sim_seconds / wall:.2f} (expected 50 and 5)"
     )
     assert sim_seconds == pytest.approx(2.4, abs=1e-6)
-    assert 3.0 < sim_seconds / wall < 7.0
+    # never ahead of the real-time factor; behind it only as far as a loaded machine holds it
+    assert 1.0 < sim_seconds / wall < 5.5
     stop(sim)
 
 
