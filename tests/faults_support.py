@@ -37,6 +37,12 @@ def service(spawn, role: str, router: str, session_id: str, node: str, *args: st
     return spawn([VOXSHAPE, role, *bus_args(router, session_id, node), *args], text=True, **kw)
 
 
+def teach_as_ana(spawn, router: str, session_id: str, *args: str, **kw):
+    """`voxshape teach` as ana, to r1, its lines as JSON, with `args` besides."""
+    ana = ("--teacher", "ana", "--robot", "r1", "--json")
+    return service(spawn, "teach", router, session_id, "teach", *ana, *args, **kw)
+
+
 def paced_sim(spawn, router, session_id):
     return service(spawn, "sim", router, session_id, "sim", "--rtf", str(RTF), "--seed", "0")
 
@@ -157,15 +163,8 @@ class Typist:
 
 def typist(spawn, endpoint: str, session_id: str, cwd: Path, linger: float = 4) -> Typist:
     """`voxshape teach` as ana, to r1, its lines as JSON; it stays `linger` s after its input."""
-    teach = service(
-        spawn,
-        "teach",
-        endpoint,
-        session_id,
-        "teach",
-        *("--teacher", "ana", "--robot", "r1", "--json", "--linger", str(linger)),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        cwd=cwd,
-    )
+    teach = teach_as_ana(
+        spawn, endpoint, session_id, "--linger", str(linger),
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=cwd,
+    )  # fmt: skip
     return Typist(teach)

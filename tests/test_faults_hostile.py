@@ -16,7 +16,15 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from tests.conftest import collect, wait_present
-from tests.faults_support import figures, finish, learner, paced_sim, service, stop
+from tests.faults_support import (
+    figures,
+    finish,
+    learner,
+    paced_sim,
+    service,
+    stop,
+    teach_as_ana,
+)
 from tests.strategies import messages
 from voxshape.protocol import (
     MESSAGE_TYPES,
@@ -194,16 +202,8 @@ def fuzzed_services(spawn, router: str, session_id: str, tmp_path: Path) -> dict
             cwd=tmp_path,
         ),
     }
-    services["teach"] = service(
-        spawn,
-        "teach",
-        router,
-        session_id,
-        "teach",
-        *("--teacher", "ana", "--robot", "r1", "--json"),
-        stdin=subprocess.PIPE,
-        stdout=subprocess.DEVNULL,
-        cwd=tmp_path,
+    services["teach"] = teach_as_ana(
+        spawn, router, session_id, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, cwd=tmp_path
     )
     return services
 

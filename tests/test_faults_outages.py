@@ -22,6 +22,7 @@ from tests.faults_support import (
     paced_sim,
     service,
     stop,
+    teach_as_ana,
     typist,
 )
 from voxshape.protocol import (
@@ -42,17 +43,10 @@ def test_when_speech_dies_the_teacher_is_told_and_typed_words_still_work(
         node.watch_presence(role="speech")
         wait_present(node, {"speech"})
         node.input("utterance", teacher_key(session_id, "ana", "utterance"))
-        teach = service(
-            spawn,
-            "teach",
-            router,
-            session_id,
-            "teach",
-            *("--teacher", "ana", "--robot", "r1", "--json", "--through-speech", "--linger", "2"),
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            cwd=tmp_path,
-        )
+        teach = teach_as_ana(
+            spawn, router, session_id, "--through-speech", "--linger", "2",
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, cwd=tmp_path,
+        )  # fmt: skip
         shown = Lines(teach)
         teach.stdin.write("good\n")
         teach.stdin.flush()
@@ -94,17 +88,11 @@ def test_audio_said_while_speech_is_down_is_recognized_when_it_is_back(
         speech.wait(10)
         killed = time.monotonic()
         node.input("utterance", teacher_key(session_id, "ana", "utterance"))
-        teach = service(
-            spawn,
-            "teach",
-            router,
-            session_id,
-            "teach",
-            *("--teacher", "ana", "--robot", "r1", "--json", "--wav", str(clip), "--fast"),
+        teach = teach_as_ana(
+            spawn, router, session_id, "--wav", str(clip), "--fast",
             *("--wait-speech", "0", "--linger", str(OUTAGE_S + 30)),
-            stdout=subprocess.PIPE,
-            cwd=tmp_path,
-        )
+            stdout=subprocess.PIPE, cwd=tmp_path,
+        )  # fmt: skip
         time.sleep(max(0.0, OUTAGE_S - (time.monotonic() - killed)))
         speech = service(spawn, "speech", router, session_id, "speech")
         restarted = time.monotonic()
