@@ -139,35 +139,35 @@ def test_no_function_is_over_60_lines():
     assert not wrong, "split these into functions a reader can hold:\n" + "\n".join(wrong)
 
 
-def test_no_class_name_is_defined_twice():
-    found = classes_defined_twice(ROOT)
+def twice_against_allowed(found: dict, allowed: dict, table: str, kind: str, fix: str) -> list:
+    """Names defined twice that `allowed` (the table named `table`) does not list, and names
+    it lists that are no longer defined there twice."""
     wrong = [
-        f"class {name} in {', '.join(sorted(paths))}: give each a name that says what it is"
+        f"{kind}{name} in {', '.join(sorted(paths))}: {fix}"
         for name, paths in sorted(found.items())
-        if CLASSES_ALLOWED_TWICE.get(name) != paths
+        if allowed.get(name) != paths
     ]
-    wrong += [
-        f"class {name} is allowed in {', '.join(sorted(paths))} but no longer defined there "
-        "twice: remove it from CLASSES_ALLOWED_TWICE in tests/test_house.py"
-        for name, paths in sorted(CLASSES_ALLOWED_TWICE.items())
+    return wrong + [
+        f"{kind}{name} is allowed in {', '.join(sorted(paths))} but no longer defined there "
+        f"twice: remove it from {table} in tests/test_house.py"
+        for name, paths in sorted(allowed.items())
         if found.get(name) != paths
     ]
+
+
+def test_no_class_name_is_defined_twice():
+    wrong = twice_against_allowed(
+        classes_defined_twice(ROOT), CLASSES_ALLOWED_TWICE, "CLASSES_ALLOWED_TWICE", "class ",
+        "give each a name that says what it is",
+    )  # fmt: skip
     assert not wrong, "\n".join(wrong)
 
 
 def test_no_public_name_is_defined_twice():
-    found = names_defined_twice(ROOT)
-    wrong = [
-        f"{name} in {', '.join(sorted(paths))}: name each by what it holds or does"
-        for name, paths in sorted(found.items())
-        if NAMES_ALLOWED_TWICE.get(name) != paths
-    ]
-    wrong += [
-        f"{name} is allowed in {', '.join(sorted(paths))} but no longer defined there twice: "
-        "remove it from NAMES_ALLOWED_TWICE in tests/test_house.py"
-        for name, paths in sorted(NAMES_ALLOWED_TWICE.items())
-        if found.get(name) != paths
-    ]
+    wrong = twice_against_allowed(
+        names_defined_twice(ROOT), NAMES_ALLOWED_TWICE, "NAMES_ALLOWED_TWICE", "",
+        "name each by what it holds or does",
+    )  # fmt: skip
     assert not wrong, "\n".join(wrong)
 
 
